@@ -1,0 +1,164 @@
+"""Lens-shading correction from the DNG GainMap (and FixVignetteRadial)
+opcodes.
+
+Reference: Adobe, *DNG Specification* 1.7.1.0, chapter 7, opcodes GainMap
+(ID 9) and FixVignetteRadial (ID 3); Adobe DNG SDK ``dng_gain_map.cpp`` for
+the interpolation convention (map positions relative to the image bounds,
+pixel centres at +0.5, nearest map point outside the map, bilinear inside).
+
+Notes
+-----
+Phone DNGs usually carry four GainMaps in OpcodeList2, one per CFA phase
+(Top/Left = the phase, RowPitch = ColPitch = 2), so colour shading is
+corrected together with luminance shading. A GainMap in OpcodeList3 (after
+demosaic, often 3-plane) is applied here before demosaic, each CFA site
+taking the gain of its colour plane: the gains vary over tens of pixels and
+demosaic mixes only neighbours, so the result is the same to well below the
+noise. The SDK clips the product at 1.0; this stage does not (values above
+white are real scene light that later stages may still use).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from isp.frame import Domain, Frame
+from isp.opcode_plan import area_slices, handled_by
+from isp.stage import StageBase
+
+
+def _phase_indices(sl: slice, n: int, offset: int, phase: int) -> np.ndarray:
+    """Data indices selected by ``sl`` whose absolute CFA phase is ``phase``."""
+    idx = np.arange(n)[sl]
+    return idx[(idx % 2) == phase]
+
+
+def apply_gain_map(data: np.ndarray, op, origin: tuple[int, int], active_size: tuple[int, int],
+                   cfa_pattern: np.ndarray | None = None, per_colour: bool = False,
+                   strength: float = 1.0) -> tuple[float, float]:
+    """Multiply ``data`` in place by a GainMap opcode's gains.
+
+    Parameters
+    ----------
+    data : (H, W) or (H, W, 3) ndarray, float32
+        Linear data (modified in place); ``data[0, 0]`` sits at ``origin``
+        in active-area pixels.
+    op : GainMap
+    origin : (int, int)
+    active_size : (int, int)
+        (H, W) of the active area: the image bounds the map is relative to.
+    cfa_pattern : (2, 2) int array, optional
+        Channel per CFA phase of ``data`` (0 R, 1 G, 2 B); with
+        ``per_colour`` each mosaic site takes the map plane of its colour.
+    per_colour : bool
+        See above (OpcodeList3 maps applied before demosaic).
+    strength : float
+        Exponent on the gains: 1 = full correction, 0 = none.
+
+    Returns
+    -------
+    (min gain, max gain) applied.
+    """
+    a = op.area
+    sl = area_slices(a.top, a.left, a.bottom, a.right, a.row_pitch, a.col_pitch, origin, data.shape)
+    if sl is None:
+        return (1.0, 1.0)
+    ah, aw = active_size
+    oy, ox = origin
+    nplanes = op.gains.shape[2]
+    lo, hi = np.inf, -np.inf
+    planes = range(a.plane, a.plane + a.planes)
+
+    def gains(rows, cols, plane):
+        g = op.evaluate(rows + oy, cols + ox, ah, aw, map_plane=min(plane, nplanes - 1))
+        if strength != 1.0:
+            g = np.power(g, np.float32(strength))
+        return g.astype(np.float32, copy=False)
+
+    rows_all = np.arange(data.shape[0])[sl[0]]
+    cols_all = np.arange(data.shape[1])[sl[1]]
+    if data.ndim == 2 and not per_colour:
+        if 0 in planes:
+            g = gains(rows_all, cols_all, 0)
+            data[sl] *= g
+            lo, hi = float(g.min()), float(g.max())
+    elif data.ndim == 2:
+        for pi in range(2):
+            for pj in range(2):
+                c = int(cfa_pattern[pi, pj])
+                if c not in planes:
+                    continue
+                r = _phase_indices(sl[0], data.shape[0], oy, pi)
+                cc = _phase_indices(sl[1], data.shape[1], ox, pj)
+                if r.size == 0 or cc.size == 0:
+                    continue
+                g = gains(r, cc, c)
+                data[np.ix_(r, cc)] *= g
+                lo, hi = min(lo, float(g.min())), max(hi, float(g.max()))
+    else:
+        for p in planes:
+            if p >= data.shape[2]:
+                continue
+            g = gains(rows_all, cols_all, p)
+            view = data[sl[0], sl[1], p]
+            view *= g
+            lo, hi = min(lo, float(g.min())), max(hi, float(g.max()))
+    return (lo, hi) if np.isfinite(lo) else (1.0, 1.0)
+
+
+def apply_vignette_radial(data: np.ndarray, op, origin: tuple[int, int],
+                          active_size: tuple[int, int], strength: float = 1.0) -> tuple[float, float]:
+    """Multiply ``data`` in place by a FixVignetteRadial opcode's gain field
+    (evaluated over the active area, cropped to the data)."""
+    ah, aw = active_size
+    oy, ox = origin
+    g = op.evaluate(ah, aw)[oy:oy + data.shape[0], ox:ox + data.shape[1]].astype(np.float32)
+    if strength != 1.0:
+        g = np.power(g, np.float32(strength))
+    if data.ndim == 3:
+        data *= g[:, :, None]
+    else:
+        data *= g
+    return float(g.min()), float(g.max())
+
+
+@dataclass(frozen=True)
+class LensShading(StageBase):
+    """Correct lens shading (vignetting and colour shading) with the file's
+    GainMap / FixVignetteRadial opcodes.
+
+    Parameters
+    ----------
+    strength : float
+        Exponent applied to the gains (1 = full correction as the DNG asks;
+        phones often use less in the corners to limit noise).
+    """
+
+    name = "lens_shading"
+    consumes = (Domain.RAW_LINEAR,)
+
+    strength: float = 1.0
+
+    def __post_init__(self):
+        if not 0.0 <= self.strength <= 2.0:
+            raise ValueError(f"strength must be in [0, 2], got {self.strength}")
+
+    def process(self, frame: Frame) -> Frame:
+        meta = frame.meta
+        ops = handled_by(meta, self.name)
+        if not ops:
+            return frame.evolve(stage=self.name, note="no lens-shading opcodes in the file")
+        data = frame.data.copy()
+        notes = []
+        pattern = meta.cfa.pattern if meta.cfa is not None else None
+        for list_no, i, op in ops:
+            if op.name == "GainMap":
+                lo, hi = apply_gain_map(data, op, meta.origin, meta.active_size, pattern,
+                                        per_colour=(list_no == 3 and data.ndim == 2),
+                                        strength=self.strength)
+            else:
+                lo, hi = apply_vignette_radial(data, op, meta.origin, meta.active_size, self.strength)
+            notes.append(f"OpcodeList{list_no}[{i}] {op.name} gains {lo:.3f}-{hi:.3f}")
+        return frame.evolve(data, stage=self.name, note="; ".join(notes))
