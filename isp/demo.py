@@ -109,11 +109,9 @@ def gain_maps(h: int, w: int, points=(13, 17)):
         for j in range(2):
             c = int(CFA_PATTERN.pattern[i, j])
             gains = (1.0 / (1.0 - k[c] * r2)).astype(np.float32)[:, :, None]
-            ops.append(GainMap(
-                area=AreaSpec(top=i, left=j, bottom=h, right=w, plane=0, planes=1,
-                              row_pitch=2, col_pitch=2),
-                points_v=pv, points_h=ph, spacing_v=1.0 / (pv - 1), spacing_h=1.0 / (ph - 1),
-                origin_v=0.0, origin_h=0.0, gains=gains))
+            ops.append(GainMap.spanning_image(
+                gains, area=AreaSpec(top=i, left=j, bottom=h, right=w, plane=0, planes=1,
+                                     row_pitch=2, col_pitch=2)))
     return tuple(ops)
 
 

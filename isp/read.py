@@ -557,7 +557,7 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
         baseline_exposure=be, noise_profile=noise, opcodes=opcodes,
         pixel_pitch_um=pitch, focal_length_mm=focal, f_number=f_number, lens=lens,
         exposure_time_s=exposure, iso=float(iso) if iso else None,
-        datetime=str(exif.get("DateTimeOriginal", "") or ""), exif=exif,
+        datetime=str(exif.get("DateTimeOriginal", "") or "") or r.text("DateTimeOriginal"), exif=exif,
         notes=tuple(notes) + tuple(r.notes),
     )
 

@@ -108,6 +108,13 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from isp.errors import InputError
+from isp.frame import Domain, Frame
+from isp.meta import LIGHT_SOURCES, CameraMeta
+from isp.stage import StageBase
+
+from .xp import apply_matrix
+
 # Importing colour switches numpy to its 1.13 print style for the whole
 # process (colour/__init__.py); put numpy's options back as they were.
 _print_options = np.get_printoptions()
@@ -118,13 +125,6 @@ from colour.temperature import uv_to_CCT_Robertson1968  # noqa: E402
 
 np.set_printoptions(**_print_options)
 del _print_options
-
-from isp.errors import InputError  # noqa: E402
-from isp.frame import Domain, Frame  # noqa: E402
-from isp.meta import LIGHT_SOURCES, CameraMeta  # noqa: E402
-from isp.stage import StageBase  # noqa: E402
-
-from .xp import apply_matrix  # noqa: E402
 
 __all__ = [
     "ColorCorrection",

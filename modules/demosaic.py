@@ -2,33 +2,32 @@
 
 Five methods, chosen by name through :data:`METHODS` (or :func:`demosaic`):
 
-==============  =================================================  ==========
-name            function                                           16 MP
-==============  =================================================  ==========
-``bilinear``    :func:`demosaic_bilinear`                          0.12 s
-``malvar2004``  :func:`demosaic_malvar2004`                        0.20 s
-``menon2007``   :func:`demosaic_menon2007` (colour-demosaicing)    14 s
-``opencv_ea``   :func:`demosaic_opencv`, ``variant="ea"``          0.14 s
-``opencv_vng``  :func:`demosaic_opencv`, ``variant="vng"``         0.23 s
-==============  =================================================  ==========
+==============  ===============================================  =======  ======
+name            function                                         CPSNR    16 MP
+==============  ===============================================  =======  ======
+``bilinear``    :func:`demosaic_bilinear`                        26.8 dB  0.12 s
+``malvar2004``  :func:`demosaic_malvar2004`                      32.3 dB  0.20 s
+``menon2007``   :func:`demosaic_menon2007` (colour-demosaicing)  39.6 dB  14 s
+``opencv_ea``   :func:`demosaic_opencv`, ``variant="ea"``        27.0 dB  0.14 s
+``opencv_vng``  :func:`demosaic_opencv`, ``variant="vng"``       29.8 dB  0.23 s
+==============  ===============================================  =======  ======
 
-(Best of 7, one 3000 × 5328 float32 mosaic, 2 CPU cores; Menon also
-peaks at 3.2 GB of memory. Indications, not promises.)
+CPSNR: kodim19 (500 × 500 centre crop, sRGB-encoded values, RGGB, 8-px
+border excluded), see ``tests/test_demosaic.py``. Time: best of 7 on one
+3000 × 5328 float32 mosaic, 2 CPU cores (Menon also peaks at 3.2 GB of
+memory). Indications, not promises.
 
 Data convention
 ---------------
-============  ===============  ==============================================
-array         shape            values
-============  ===============  ==============================================
-``mosaic``    (H, W) float     linear, black = 0, white ≈ 1; values below 0
-                               and above 1 are legitimate and kept. H, W ≥ 2,
-                               odd sizes allowed.
-``cfa``       :class:`~isp.frame.CFA` (or its name)  the pattern at
-                               ``mosaic[0, 0]`` (all four phases supported)
-returned      (H, W, 3)        float32 camera RGB (0 R, 1 G, 2 B), same
-                               scale as the mosaic, never clipped (but see
-                               the OpenCV methods' quantisation)
-============  ===============  ==============================================
+mosaic : (H, W) ndarray, float
+    Linear, black = 0, white ≈ 1. Values below 0 and above 1 are legitimate
+    and kept. H, W ≥ 2 (≥ 3 for the OpenCV methods); odd sizes allowed;
+    float64 is accepted and computed in float32.
+cfa : :class:`~isp.frame.CFA` or its name
+    The pattern at ``mosaic[0, 0]``; all four Bayer phases.
+returns : (H, W, 3) ndarray, float32
+    Camera RGB (0 R, 1 G, 2 B) on the mosaic's scale, never clipped (the
+    OpenCV methods excepted, within the limits stated there).
 
 ``bilinear`` and ``malvar2004`` are linear filters run with
 :func:`cv2.filter2D` in float32, with the border extended by mirroring about
@@ -38,8 +37,9 @@ valid Bayer mosaic of the same phase: a constant colour is reproduced exactly
 up to the last row and column, and sampled values are returned unchanged at
 their own sites everywhere. (colour-demosaicing's bilinear and Malvar use
 scipy's default ``mode="reflect"``, mirroring about the pixel *edge*; that
-swaps the CFA phase outside the frame, so the two agree only from two pixels
-inside the border.)
+swaps the CFA phase outside the frame, so the two agree only from one pixel
+(bilinear) or two (Malvar) inside the border; on the edge itself theirs can
+be off by most of the signal.)
 
 OpenCV's Bayer naming
 ---------------------
@@ -93,7 +93,7 @@ __all__ = [
 Method = Literal["bilinear", "malvar2004", "menon2007", "opencv_ea", "opencv_vng"]
 
 #: mirror about the edge pixel: keeps the CFA phase outside the frame
-_BORDER = cv2.BORDER_REFLECT
+_BORDER = cv2.BORDER_REFLECT_101
 
 
 # --------------------------------------------------------------------------
@@ -391,7 +391,9 @@ def demosaic_opencv(mosaic, cfa: CFA | str, variant: Literal["ea", "vng"] = "ea"
       integer arithmetic up to about one more step;
     * interpolated values overshooting the data's range by more than
       ``(hi − lo)/6`` saturate at the integer limits: the one clipping
-      left, a limit of the integer path;
+      left, a limit of the integer path. EA was not seen to overshoot at
+      all; VNG does at edges and hit the limit at 5 of 750 000 values on
+      kodim19;
     * EA fills its outermost row and column by copying their inner
       neighbours (an OpenCV border rule), so sampled values are not exact
       there.

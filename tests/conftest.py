@@ -29,3 +29,4 @@ def raw_file():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
