@@ -305,6 +305,9 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "command", None):
         parser.print_help()
         return 2
+    from .runtime import tune_allocator
+
+    tune_allocator()
     try:
         return int(args.func(args) or 0)
     except IspError as e:

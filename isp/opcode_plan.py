@@ -101,9 +101,13 @@ def area_slices(top: int, left: int, bottom: int, right: int, row_pitch: int, co
 
     >>> area_slices(1, 0, 10, 10, 2, 2, (2, 2), (6, 6))
     (slice(1, 6, 2), slice(0, 6, 2))
+    >>> area_slices(0, 0, 0, 0, 1, 1, (0, 0), (4, 4))   # empty = whole image
+    (slice(0, 4, 1), slice(0, 4, 1))
     """
     oy, ox = origin
     h, w = shape[0], shape[1]
+    if bottom <= top or right <= left:  # an empty area means the whole image (DNG SDK)
+        top, left, bottom, right, row_pitch, col_pitch = 0, 0, oy + h, ox + w, 1, 1
 
     def one(start, stop, pitch, off, n):
         pitch = max(1, int(pitch))

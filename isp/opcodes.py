@@ -79,7 +79,8 @@ import numpy as np
 from .errors import IspError
 
 __all__ = [
-    "AreaSpec", "DeltaPerColumn", "DeltaPerRow", "FixBadPixelsConstant",
+    "AreaSpec", "DeltaPerColumn", "DeltaPerRow", "FLAG_OPTIONAL",
+    "FLAG_PREVIEW_SKIPPABLE", "FixBadPixelsConstant",
     "FixBadPixelsList", "FixVignetteRadial", "GainMap", "MapPolynomial",
     "MapTable", "OPCODE_NAMES", "Opcode", "OpcodeError", "ScalePerColumn",
     "ScalePerRow", "TrimBounds", "UnknownOpcode", "WarpFisheye",
@@ -1021,7 +1022,6 @@ def _interp_weights(pos: np.ndarray, origin: float, spacing: float, points: int)
     the map (no extrapolation), as ``dng_gain_map_interpolator`` does."""
     index = np.clip((pos - origin) / spacing, 0.0, points - 1)
     i0 = np.floor(index).astype(np.int64)
-    i0 = np.minimum(i0, points - 1)
     frac = index - i0
     i1 = np.minimum(i0 + 1, points - 1)
     w = np.zeros((pos.size, points), dtype=np.float64)
@@ -1289,10 +1289,11 @@ class _PerLine(Opcode):
 
     def _describe(self):
         out = self.area.describe()
-        v = self.values
-        out.update(count=int(v.size),
-                   value_min=float(np.nanmin(v)) if v.size and not np.isnan(v).all() else None,
-                   value_max=float(np.nanmax(v)) if v.size and not np.isnan(v).all() else None)
+        finite = self.values[np.isfinite(self.values)]
+        out.update(count=int(self.values.size),
+                   value_min=float(finite.min()) if finite.size else None,
+                   value_max=float(finite.max()) if finite.size else None,
+                   non_finite=int(self.values.size - finite.size))
         return out
 
 

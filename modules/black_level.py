@@ -26,6 +26,8 @@ from isp.frame import Domain, Frame
 from isp.opcode_plan import area_slices, handled_by
 from isp.stage import StageBase
 
+from .mosaic import cfa_affine
+
 
 def linearize(data: np.ndarray, table: np.ndarray) -> np.ndarray:
     """Map stored values through a DNG LinearizationTable.
@@ -94,6 +96,15 @@ def subtract_black_level(data: np.ndarray, black: np.ndarray, white, *,
         if delta_h is not None:
             dh = np.asarray(delta_h, np.float32)[:data.shape[1]]
             src -= dh[None, :] if mosaic else dh[None, :, None]
+    if mosaic and rr <= 2 and rc <= 2:
+        # one pass over contiguous memory: y = x·s − b·s per CFA position
+        b2 = np.resize(black[:, :, 0], (2, 2)) if (rr, rc) != (2, 2) else black[:, :, 0]
+        if rr == 1 and rc == 2:
+            b2 = np.vstack([black[0, :, 0], black[0, :, 0]])
+        elif rr == 2 and rc == 1:
+            b2 = np.hstack([black[:, :1, 0], black[:, :1, 0]])
+        scale = 1.0 / (white[0] - b2)
+        return cfa_affine(src, scale, -b2 * scale, out=out)
     for i in range(rr):
         for j in range(rc):
             if mosaic:

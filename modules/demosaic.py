@@ -509,7 +509,7 @@ class Demosaic(StageBase):
     consumes: ClassVar[tuple[Domain, ...]] = (Domain.RAW_LINEAR,)
     produces: ClassVar[Domain] = Domain.CAMERA_RGB
 
-    method: Method = "bilinear"
+    method: Method = "malvar2004"
 
     def __post_init__(self):
         _check_method(self.method)

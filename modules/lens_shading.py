@@ -61,7 +61,7 @@ def cell_centred(op):
 
 def apply_gain_map(data: np.ndarray, op, origin: tuple[int, int], active_size: tuple[int, int],
                    cfa_pattern: np.ndarray | None = None, per_colour: bool = False,
-                   strength: float = 1.0) -> tuple[float, float]:
+                   strength: float = 1.0, src: np.ndarray | None = None) -> tuple[float, float]:
     """Multiply ``data`` in place by a GainMap opcode's gains.
 
     Parameters
@@ -80,6 +80,10 @@ def apply_gain_map(data: np.ndarray, op, origin: tuple[int, int], active_size: t
         See above (OpcodeList3 maps applied before demosaic).
     strength : float
         Exponent on the gains: 1 = full correction, 0 = none.
+    src : ndarray, optional
+        Read the pixels from ``src`` instead of ``data`` (same shape), so a
+        set of maps that tiles the image needs no copy first (mosaic,
+        single-plane maps only).
 
     Returns
     -------
@@ -106,7 +110,7 @@ def apply_gain_map(data: np.ndarray, op, origin: tuple[int, int], active_size: t
     if data.ndim == 2 and not per_colour:
         if 0 in planes:
             g = gains(rows_all, cols_all, 0)
-            data[sl] *= g
+            np.multiply(data[sl] if src is None else src[sl], g, out=data[sl])
             lo, hi = float(g.min()), float(g.max())
     elif data.ndim == 2:
         for pi in range(2):
@@ -148,6 +152,28 @@ def apply_vignette_radial(data: np.ndarray, op, origin: tuple[int, int],
     return float(g.min()), float(g.max())
 
 
+def _tiles_by_phase(ops, origin, shape) -> bool:
+    """True if ``ops`` are exactly four OpcodeList2 mosaic GainMaps, one per
+    CFA phase, each covering the whole data."""
+    if len(shape) != 2 or len(ops) != 4:
+        return False
+    phases = set()
+    for list_no, _, op in ops:
+        a = op.area
+        if list_no != 2 or op.name != "GainMap" or a.row_pitch != 2 or a.col_pitch != 2 \
+                or not a.plane <= 0 < a.plane + a.planes:
+            return False
+        sl = area_slices(a.top, a.left, a.bottom, a.right, 2, 2, origin, shape)
+        if sl is None:
+            return False
+        rs, cs = sl
+        if len(range(*rs.indices(shape[0]))) != len(range(rs.start, shape[0], 2)) or \
+                len(range(*cs.indices(shape[1]))) != len(range(cs.start, shape[1], 2)):
+            return False
+        phases.add((rs.start, cs.start))
+    return phases == {(0, 0), (0, 1), (1, 0), (1, 1)}
+
+
 @dataclass(frozen=True)
 class LensShading(StageBase):
     """Correct lens shading (vignetting and colour shading) with the file's
@@ -178,7 +204,12 @@ class LensShading(StageBase):
         ops = handled_by(meta, self.name)
         if not ops:
             return frame.evolve(stage=self.name, note="no lens-shading opcodes in the file")
-        data = frame.data.copy()
+        if _tiles_by_phase(ops, meta.origin, frame.data.shape):
+            # the usual phone layout: one map per CFA phase; each output pixel
+            # is written once from the input, no copy needed
+            data, src = np.empty_like(frame.data), frame.data
+        else:
+            data, src = frame.data.copy(), None
         notes = []
         pattern = meta.cfa.pattern if meta.cfa is not None else None
         for list_no, i, op in ops:
@@ -187,7 +218,7 @@ class LensShading(StageBase):
                     op = cell_centred(op)
                 lo, hi = apply_gain_map(data, op, meta.origin, meta.active_size, pattern,
                                         per_colour=(list_no == 3 and data.ndim == 2),
-                                        strength=self.strength)
+                                        strength=self.strength, src=src)
             else:
                 lo, hi = apply_vignette_radial(data, op, meta.origin, meta.active_size, self.strength)
             notes.append(f"OpcodeList{list_no}[{i}] {op.name} gains {lo:.3f}-{hi:.3f}")

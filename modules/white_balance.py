@@ -32,6 +32,8 @@ from isp.errors import InputError
 from isp.frame import Domain, Frame
 from isp.stage import StageBase
 
+from .mosaic import cfa_affine, channel_pattern
+
 
 def channel_means(data: np.ndarray, cfa_pattern: np.ndarray | None, low: float = 0.002,
                   high: float = 0.95) -> np.ndarray:
@@ -85,11 +87,7 @@ def apply_white_balance(data: np.ndarray, gains, cfa_pattern: np.ndarray | None 
     g = np.asarray(gains, dtype=np.float32)
     if data.ndim == 3:
         return data * g
-    out = np.empty_like(data)
-    for i in range(2):
-        for j in range(2):
-            np.multiply(data[i::2, j::2], g[int(cfa_pattern[i, j])], out=out[i::2, j::2])
-    return out
+    return cfa_affine(data, channel_pattern(cfa_pattern, g))
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,11 @@ from isp.opcodes import (
     WarpRectilinear, WarpRectilinear2, parse_opcode_list, serialize_opcode_list,
 )
 
+CLASSES = {1: WarpRectilinear, 2: WarpFisheye, 3: FixVignetteRadial, 4: FixBadPixelsConstant,
+           5: FixBadPixelsList, 6: TrimBounds, 7: MapTable, 8: MapPolynomial, 9: GainMap,
+           10: DeltaPerRow, 11: DeltaPerColumn, 12: ScalePerRow, 13: ScalePerColumn,
+           14: WarpRectilinear2}
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 RAW = DATA / "raw"
 BLOBS = ("DngOpcodesEditor_GainMap.bin", "DngOpcodesEditor_FixVignetteRadial.bin",
@@ -606,7 +611,7 @@ def test_property_round_trip_every_opcode_type(case):
     assert [op.id for op in ops] == [oid for oid, _ in items]
     for op, (oid, params) in zip(ops, items):
         assert isinstance(op, Opcode)
-        assert type(op).__name__ == OPCODE_NAMES.get(oid, "UnknownOpcode")
+        assert type(op) is CLASSES.get(oid, UnknownOpcode)
         assert op.to_bytes()[16:] == params
         json.dumps(op.describe())
     assert serialize_opcode_list(ops) == blob
