@@ -113,6 +113,9 @@ class TagReader:
         if vals is None:
             self.notes.append(f"{name}: unreadable value {str(v)[:40]!r}, ignored")
             return None
+        if not vals:
+            self.notes.append(f"{name}: no values; ignored")
+            return None
         if any(x is None for x in vals):
             self.notes.append(f"{name}: has a 0/0 rational, treated as absent")
             return None
@@ -162,6 +165,9 @@ class TagReader:
                               "are supported; ignored")
             return None
         m = np.array(vals, dtype=np.float64).reshape(3, 3)
+        if np.abs(m).max() > 1e3:
+            self.notes.append(f"{name}: implausible entries (|x| up to {np.abs(m).max():.3g}); ignored")
+            return None
         if abs(np.linalg.det(m)) < 1e-12:
             self.notes.append(f"{name}: singular matrix; ignored")
             return None

@@ -25,6 +25,7 @@ import numpy as np
 from .dng_tags import TAG
 from .errors import IspError
 from .frame import CFA
+from .io import default_mode
 from .meta import CameraMeta
 
 _DEN = 1_000_000
@@ -204,6 +205,7 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
             tw.write(data, photometric=34892 if linear else 32803, compression=None,
                      planarconfig="contig" if linear else None, extratags=tags,
                      subfiletype=0, software=software, metadata=None)
+        os.chmod(tmp, default_mode())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

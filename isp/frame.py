@@ -174,6 +174,17 @@ class Frame:
     def shape(self) -> tuple:
         return tuple(self.data.shape)
 
+    @property
+    def full_size(self) -> tuple[int, int]:
+        """(H, W) of the full frame this data is a crop of: the sensor's
+        active area, or, for a frame made in code without one, the data
+        itself (plus its origin). Opcode maps and field positions are
+        relative to it."""
+        ah, aw = self.meta.active_size
+        oy, ox = self.meta.origin
+        h, w = self.data.shape[:2]
+        return (max(ah, oy + h), max(aw, ox + w))
+
     def evolve(self, data=None, *, domain: Domain | None = None, note: str = "",
                stage: str | None = None, **changes) -> "Frame":
         """A new frame with ``data`` (and any other field) replaced, and one

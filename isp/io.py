@@ -20,6 +20,14 @@ _IMAGE_SUFFIXES = {".png", ".tif", ".tiff"}
 _JPEG_SUFFIXES = {".jpg", ".jpeg"}
 
 
+def default_mode() -> int:
+    """Permissions a new file gets from the process umask (mkstemp's files
+    are 0600, which would make outputs unreadable to others)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
     """Write ``data`` to ``path`` via a temporary file and a rename."""
     path = Path(path)
@@ -28,6 +36,7 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+        os.chmod(tmp, default_mode())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

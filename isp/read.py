@@ -27,6 +27,8 @@ line).
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import os
 from dataclasses import dataclass
@@ -37,7 +39,7 @@ import numpy as np
 from .dng_tags import TagReader, tag_dict
 from .errors import InputError
 from .frame import CFA, Domain, Frame
-from .meta import CameraMeta
+from .meta import LIGHT_SOURCES, CameraMeta
 
 # Headers of raw containers LibRaw reads by structure, not by file size.
 _TIFF_MAGIC = (b"II*\x00", b"MM\x00*")
@@ -224,10 +226,28 @@ class _DngTags:
     shape: tuple[int, int]
 
 
+@contextlib.contextmanager
+def _quiet(logger_name: str):
+    """Silence a library's logger: tifffile logs every malformed tag it
+    skips, which would bury the one-line error the user needs."""
+    log = logging.getLogger(logger_name)
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
 def _read_dng_tags(path: Path) -> _DngTags | None:
     """Tags of a DNG (raw IFD + IFD0 + EXIF), or None for other raws.
     Checks that the raw image's data lies inside the file (LibRaw would
     silently decode a truncated file into zeros)."""
+    with _quiet("tifffile"):
+        return _read_dng_tags_loud(path)
+
+
+def _read_dng_tags_loud(path: Path) -> _DngTags | None:
     import tifffile
 
     try:
@@ -281,16 +301,19 @@ def _frame_from_libraw(path: Path, raw, tags: _DngTags | None) -> Frame:
     import rawpy
 
     notes: list[str] = []
-    raw_type = raw.raw_type
-    colors = raw.color_desc.decode("latin-1", "replace") if raw.color_desc else ""
-    sizes = raw.sizes
+    try:
+        raw_type = raw.raw_type
+        colors = raw.color_desc.decode("latin-1", "replace") if raw.color_desc else ""
+        sizes = raw.sizes
+        pattern = raw.raw_pattern if raw_type != rawpy.RawType.Stack else None
+    except (NotImplementedError, ValueError, rawpy.LibRawError) as e:
+        raise InputError(path, f"LibRaw reports a sensor layout it cannot describe ({e})") from None
     if raw_type == rawpy.RawType.Stack:
         if tags is None or tags.photometric != 34892:
             raise InputError(path, f"LibRaw returns this file as {raw.raw_image.shape[-1]}-channel "
                                    "RGB, not a Bayer mosaic; only Bayer raws and linear DNGs are supported")
         mosaic = False
     else:
-        pattern = raw.raw_pattern
         if pattern is None or pattern.shape != (2, 2) or colors not in ("RGBG", "RGB"):
             shape = None if pattern is None else tuple(pattern.shape)
             raise InputError(path, f"not a Bayer sensor (CFA {shape}, colours {colors!r}); "
@@ -322,7 +345,7 @@ def _frame_from_libraw(path: Path, raw, tags: _DngTags | None) -> Frame:
         if cfa is None:
             # LibRaw's raw_pattern is relative to raw_image_visible (= our
             # active area); colour index 3 is the second green
-            p = np.where(raw.raw_pattern == 3, 1, raw.raw_pattern)
+            p = np.where(pattern == 3, 1, pattern)
             try:
                 cfa = CFA.from_pattern(p)
             except ValueError as e:
@@ -449,9 +472,14 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
         dv = None
     wl = r.numbers("WhiteLevel")
     if wl is None:
-        white = (float(2 ** tags.bits - 1),) * samples
+        white = (float(2 ** min(max(tags.bits, 1), 32) - 1),) * samples
     else:
         white = tuple(float(v) for v in (wl if len(wl) == samples else [wl[0]] * samples))
+    if not all(0 < v < 2 ** 32 for v in white):
+        raise InputError(path, f"WhiteLevel {white} is not a usable level")
+    if not np.all(np.isfinite(black)) or black.min() < 0 or black.max() >= min(white):
+        raise InputError(path, f"BlackLevel {black.ravel()[:4].tolist()} does not lie below "
+                               f"WhiteLevel {white[0]:g}")
 
     lin = r.array("LinearizationTable")
     if lin is not None:
@@ -485,6 +513,10 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
     fms = [r.matrix(f"ForwardMatrix{i}") for i in (1, 2, 3)]
     ccs = [r.matrix(f"CameraCalibration{i}") for i in (1, 2, 3)]
     ills = [r.integer(f"CalibrationIlluminant{i}") for i in (1, 2, 3)]
+    for i, code in enumerate(ills):
+        if code is not None and code not in LIGHT_SOURCES:
+            notes.append(f"CalibrationIlluminant{i + 1} {code} is not an EXIF light source; ignored")
+            ills[i] = None
     for i in range(3):
         if cms[i] is not None and ills[i] is None:
             if i == 0 and cms[1] is None:
@@ -496,21 +528,30 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
     if all(m is None for m in cms):
         notes.append("DNG without ColorMatrix: colour stays in camera space")
     neutral = r.numbers("AsShotNeutral", 3)
-    if neutral is not None and not all(v > 0 for v in neutral):
-        notes.append(f"AsShotNeutral {neutral} has non-positive entries; ignored")
+    if neutral is not None and not (all(0 < v <= 1e3 for v in neutral) and max(neutral) / min(neutral) < 1e3):
+        notes.append(f"AsShotNeutral {neutral} is not a plausible neutral; ignored")
         neutral = None
     white_xy = r.numbers("AsShotWhiteXY", 2)
+    if white_xy is not None and not (0 < white_xy[0] < 1 and 0 < white_xy[1] < 1 and sum(white_xy) < 1):
+        notes.append(f"AsShotWhiteXY {white_xy} is not a chromaticity; ignored")
+        white_xy = None
     if neutral is None and white_xy is None:
         notes.append("no AsShotNeutral or AsShotWhiteXY: white balance needs grey_world or manual")
     ab = r.numbers("AnalogBalance", 3)
+    if ab is not None and not all(0 < v <= 1e3 for v in ab):
+        notes.append(f"AnalogBalance {ab} is not usable; ignored")
+        ab = None
     idata3 = r.numbers("IlluminantData3")  # noqa: F841  (DNG 1.6 xy, rarely used)
 
     be = r.number("BaselineExposure")  # a 0/0 or non-finite value is noted as absent
+    if be is not None and abs(be) > 16:
+        notes.append(f"BaselineExposure {be:g} EV is outside ±16 EV; ignored")
+        be = None
 
     npf = r.numbers("NoiseProfile")
     noise = None
     if npf is not None:
-        if len(npf) >= 2 and len(npf) % 2 == 0 and all(v >= 0 or i % 2 for i, v in enumerate(npf)):
+        if len(npf) >= 2 and len(npf) % 2 == 0 and all(v >= 0 for v in npf[0::2]):
             noise = tuple((npf[i], npf[i + 1]) for i in range(0, len(npf), 2))
         else:
             notes.append(f"NoiseProfile with {len(npf)} values is malformed; ignored")
@@ -541,7 +582,7 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
         notes.append(f"LinearizationTable has {lin.size} entries (> 65536); ignored")
         lin = None
 
-    return CameraMeta(
+    meta = CameraMeta(
         path=str(path), make=r.text("Make"), model=r.text("Model"),
         unique_camera_model=r.text("UniqueCameraModel"), software=r.text("Software"),
         cfa=cfa, raw_size=tags.shape, active_area=active,
@@ -560,6 +601,11 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
         datetime=str(exif.get("DateTimeOriginal", "") or "") or r.text("DateTimeOriginal"), exif=exif,
         notes=tuple(notes) + tuple(r.notes),
     )
+    from .opcode_plan import opcode_plan
+
+    skipped = tuple(f"OpcodeList{p.list_no}[{p.index}] {p.name} skipped: {p.reason}"
+                    for p in opcode_plan(meta) if p.action == "skipped")
+    return meta.replace(notes=meta.notes + skipped) if skipped else meta
 
 
 def _plain(v):

@@ -74,7 +74,7 @@ def subtract_black_level(data: np.ndarray, black: np.ndarray, white, *,
     Examples
     --------
     >>> d = np.array([[64, 1023], [64, 543.5]], np.float32)
-    >>> subtract_black_level(d, np.full((1, 1, 1), 64.0), 1023.0)
+    >>> subtract_black_level(d, np.full((1, 1, 1), 64.0), 1023.0).round(6)
     array([[0. , 1. ],
            [0. , 0.5]], dtype=float32)
     """

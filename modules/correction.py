@@ -127,7 +127,7 @@ class Correction(StageBase):
         x = np.ascontiguousarray(np.moveaxis(frame.data, -1, 0))[None]
         enc = self.model_meta.get("fov_encoding", "none")
         if enc == "xy":
-            fov = field_coordinates(frame.data.shape[:2], frame.meta.origin, frame.meta.active_size)
+            fov = field_coordinates(frame.data.shape[:2], frame.meta.origin, frame.full_size)
             x = np.concatenate([x, fov[None]], axis=1)
         inp = self.session.get_inputs()[0].name
         y = self.session.run(None, {inp: x.astype(np.float32, copy=False)})[0]

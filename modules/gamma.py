@@ -102,10 +102,10 @@ def encode(x, curve: str = "srgb", exponent: float = 2.2):
     """
     if curve not in CURVES:
         raise ValueError(f"unknown curve {curve!r}; valid: {', '.join(CURVES)}")
-    if is_numpy_array(x) and x.dtype == np.float32 and x.size >= 4096:
+    if is_numpy_array(x) and x.dtype == np.float32 and x.ndim >= 2:
         import cv2
 
-        # one multithreaded pass: scale, round, saturate to 0..65535
+        # one multithreaded pass: scale, round, saturate to 0..65535 (NaN → 0)
         idx = cv2.multiply(np.ascontiguousarray(x).reshape(x.shape[0], -1), float(_LUT_SIZE - 1),
                            dtype=cv2.CV_16U)
         table = _lut(curve, float(exponent))

@@ -216,10 +216,10 @@ class LensShading(StageBase):
             if op.name == "GainMap":
                 if self.sampling == "cell_centred":
                     op = cell_centred(op)
-                lo, hi = apply_gain_map(data, op, meta.origin, meta.active_size, pattern,
+                lo, hi = apply_gain_map(data, op, meta.origin, frame.full_size, pattern,
                                         per_colour=(list_no == 3 and data.ndim == 2),
                                         strength=self.strength, src=src)
             else:
-                lo, hi = apply_vignette_radial(data, op, meta.origin, meta.active_size, self.strength)
+                lo, hi = apply_vignette_radial(data, op, meta.origin, frame.full_size, self.strength)
             notes.append(f"OpcodeList{list_no}[{i}] {op.name} gains {lo:.3f}-{hi:.3f}")
         return frame.evolve(data, stage=self.name, note="; ".join(notes))

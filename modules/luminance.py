@@ -29,6 +29,7 @@ from typing import Literal
 
 import numpy as np
 
+from isp.errors import InputError
 from isp.frame import Domain, Frame
 from isp.stage import StageBase
 
@@ -148,6 +149,8 @@ class Luminance(StageBase):
     def process(self, frame: Frame) -> Frame:
         be = frame.meta.baseline_exposure if self.baseline else None
         ev = (be or 0.0) + self.exposure
+        if not -32 <= ev <= 32:
+            raise InputError(frame.meta.path, f"exposure {ev:+.3g} EV is out of range")
         gain = float(2.0 ** ev)
         w = luminance_weights(frame) if self.tone != "none" else BT709_Y
         out = adjust_luminance(frame.data, gain, w, self.tone, self.white)

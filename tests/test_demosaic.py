@@ -373,7 +373,7 @@ def test_stage_from_registry():
     # itself (ValueError).
     stage = create_stage("demosaic", method="menon2007")
     assert isinstance(stage, Demosaic) and stage.method == "menon2007"
-    assert create_stage("demosaic").method == "bilinear"
+    assert create_stage("demosaic").method == "malvar2004"  # the default
     with pytest.raises(ConfigError, match="'nope'"):
         create_stage("demosaic", method="nope")
     with pytest.raises(ValueError, match="unknown demosaic method 'nope'; valid: bilinear"):
