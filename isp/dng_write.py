@@ -16,7 +16,6 @@ never leaves a partial file.
 from __future__ import annotations
 
 import os
-import tempfile
 from fractions import Fraction
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import numpy as np
 from .dng_tags import TAG
 from .errors import IspError
 from .frame import CFA
-from .io import default_mode
+from .io import atomic_path
 from .meta import CameraMeta
 
 _DEN = 1_000_000
@@ -197,17 +196,8 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
         add("LensModel", "s", 0, meta.lens)
 
     tags.sort(key=lambda t: t[0])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        with tifffile.TiffWriter(tmp) as tw:
-            tw.write(data, photometric=34892 if linear else 32803, compression=None,
-                     planarconfig="contig" if linear else None, extratags=tags,
-                     subfiletype=0, software=software, metadata=None)
-        os.chmod(tmp, default_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, tifffile.TiffWriter(tmp) as tw:
+        tw.write(data, photometric=34892 if linear else 32803, compression=None,
+                 planarconfig="contig" if linear else None, extratags=tags,
+                 subfiletype=0, software=software, metadata=None)
     return path

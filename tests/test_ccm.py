@@ -29,7 +29,6 @@ from hypothesis import strategies as st
 
 from isp import ConfigError, Domain, Frame, InputError, create_stage
 from isp.meta import CameraMeta
-from modules import ccm
 from modules.ccm import (
     ColorCorrection,
     apply_ccm,

@@ -110,3 +110,16 @@ def test_help_teaches_with_an_example(command):
     sub = parser._subparsers._group_actions[0].choices[command]
     text = sub.format_help()
     assert "example" in text and len(text) > 300
+
+
+def test_process_never_imports_torch(tmp_path, raw_file):
+    """`isp process` runs on numpy/OpenCV/onnxruntime only (torch is an extra)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from isp.cli import main; "
+            f"main(['process', {str(raw_file('SYNTHETIC_phone_S6meta_512x384.dng'))!r}, '-o', "
+            f"{str(tmp_path / 'o.jpg')!r}]); print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "False"
