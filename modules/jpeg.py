@@ -105,7 +105,41 @@ def insert_exif(jpeg: bytes, payload: bytes) -> bytes:
     return jpeg[:2] + seg + rest
 
 
-def encode_jpeg(rgb: np.ndarray, quality: int = 95, subsampling: str = "420") -> bytes:
+_SAMPLING = {"420": (16, 16), "422": (8, 16), "444": (8, 8)}  # MCU (rows, cols)
+
+
+def _cv_params(quality: int, subsampling: str, restart: int = 0) -> list[int]:
+    import cv2
+
+    sampling = {"420": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420,
+                "422": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
+                "444": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444}[subsampling]
+    params = [cv2.IMWRITE_JPEG_QUALITY, int(quality), cv2.IMWRITE_JPEG_SAMPLING_FACTOR, sampling]
+    if restart:
+        params += [cv2.IMWRITE_JPEG_RST_INTERVAL, int(restart)]
+    return params
+
+
+def _segments(jpeg: bytes) -> tuple[int, int, int]:
+    """(offset of the SOF0 height field, start of the entropy-coded data,
+    offset of EOI) of a baseline JPEG from libjpeg."""
+    pos, sof = 2, -1
+    while pos + 4 <= len(jpeg):
+        if jpeg[pos] != 0xFF:
+            raise ValueError(f"JPEG marker expected at byte {pos}")
+        marker = jpeg[pos + 1]
+        length = int.from_bytes(jpeg[pos + 2:pos + 4], "big")
+        if marker in (0xC0, 0xC1, 0xC2):
+            sof = pos + 5
+        if marker == 0xDA:  # SOS: the scan data follows its header
+            end = jpeg.rindex(b"\xff\xd9")
+            return sof, pos + 2 + length, end
+        pos += 2 + length
+    raise ValueError("no SOS marker in the JPEG stream")
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int = 95, subsampling: str = "420",
+                threads: int = 2) -> bytes:
     """Encode display RGB (float 0..1 or uint8) as baseline JPEG bytes.
 
     Parameters
@@ -113,6 +147,19 @@ def encode_jpeg(rgb: np.ndarray, quality: int = 95, subsampling: str = "420") ->
     rgb : (H, W, 3) ndarray, float32 in [0, 1] or uint8
     quality : int, 1..100
     subsampling : {"420", "422", "444"}
+    threads : int
+        Encode this many horizontal bands at once and join them.
+
+    Notes
+    -----
+    libjpeg encodes on one core. With ``threads > 1`` the image is cut into
+    bands at MCU-row boundaries, each band encoded with a restart marker
+    after every MCU row (ITU-T T.81, B.2.4.4: restart markers reset the DC
+    predictors, so a band's entropy-coded data does not depend on the band
+    before it), and the bands' scan data are joined with their restart
+    markers renumbered (RST0–7 cycle). The result is the single baseline
+    JPEG one encoder would write with the same restart interval: identical
+    decoded pixels, ~2 bytes more per MCU row than without restarts.
     """
     import cv2
 
@@ -120,14 +167,56 @@ def encode_jpeg(rgb: np.ndarray, quality: int = 95, subsampling: str = "420") ->
         # rounds and saturates to 0..255 in one multithreaded pass
         rgb = cv2.convertScaleAbs(np.ascontiguousarray(rgb), alpha=255.0)
     bgr = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)
-    sampling = {"420": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420,
-                "422": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
-                "444": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444}[subsampling]
-    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality),
-                                         cv2.IMWRITE_JPEG_SAMPLING_FACTOR, sampling])
-    if not ok:
-        raise RuntimeError("OpenCV failed to encode the JPEG")
-    return buf.tobytes()
+    h, w = bgr.shape[:2]
+    mcu_h, mcu_w = _SAMPLING[subsampling]
+    mcu_rows = -(-h // mcu_h)
+    threads = max(1, min(int(threads), mcu_rows // 4))
+    if threads == 1:
+        ok, buf = cv2.imencode(".jpg", bgr, _cv_params(quality, subsampling))
+        if not ok:
+            raise RuntimeError("OpenCV failed to encode the JPEG")
+        return buf.tobytes()
+
+    params = _cv_params(quality, subsampling, restart=-(-w // mcu_w))
+    cuts = [round(k * mcu_rows / threads) * mcu_h for k in range(threads)] + [h]
+    bands = [bgr[a:b] for a, b in zip(cuts, cuts[1:])]
+
+    def encode(band):
+        ok, buf = cv2.imencode(".jpg", band, params)
+        if not ok:
+            raise RuntimeError("OpenCV failed to encode the JPEG")
+        return buf.tobytes()
+
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(threads) as pool:  # imencode releases the GIL
+        parts = list(pool.map(encode, bands))
+    sof, start, end = _segments(parts[0])
+    out = bytearray(parts[0][:start])
+    out[sof:sof + 2] = h.to_bytes(2, "big")
+    rows_before = 0
+    for k, part in enumerate(parts):
+        s0, s1, e = _segments(part) if k else (sof, start, end)
+        scan = part[s1:e]
+        if rows_before:
+            out += bytes([0xFF, 0xD0 + (rows_before - 1) % 8])  # the marker ending the last band
+            scan = _renumber_restarts(scan, rows_before)
+        out += scan
+        rows_before += -(-(cuts[k + 1] - cuts[k]) // mcu_h)
+    out += b"\xff\xd9"
+    return bytes(out)
+
+
+def _renumber_restarts(scan: bytes, offset: int) -> bytes:
+    """Shift every RSTn marker of entropy-coded data by ``offset`` (mod 8).
+    In scan data 0xFF is always followed by 0x00 (stuffing) or a marker, so
+    a restart marker is exactly a byte pair FF D0–D7."""
+    if offset % 8 == 0:
+        return scan
+    a = np.frombuffer(scan, np.uint8).copy()
+    idx = np.flatnonzero((a[:-1] == 0xFF) & (a[1:] >= 0xD0) & (a[1:] <= 0xD7)) + 1
+    a[idx] = 0xD0 + (a[idx] - 0xD0 + offset) % 8
+    return a.tobytes()
 
 
 @dataclass(frozen=True)
@@ -142,6 +231,8 @@ class Jpeg(StageBase):
         Chroma subsampling.
     exif : bool
         Write an Exif APP1 segment (camera, exposure, Orientation = 1).
+    threads : int
+        Bands encoded at once (see :func:`encode_jpeg`); 1 = plain libjpeg.
     """
 
     name = "jpeg"
@@ -151,14 +242,17 @@ class Jpeg(StageBase):
     quality: int = 95
     subsampling: Literal["420", "422", "444"] = "420"
     exif: bool = True
+    threads: int = 2
 
     def __post_init__(self):
         if not 1 <= self.quality <= 100:
             raise ValueError(f"quality must be 1..100, got {self.quality}")
+        if not 1 <= self.threads <= 64:
+            raise ValueError(f"threads must be 1..64, got {self.threads}")
 
     def process(self, frame: Frame) -> Frame:
         img = apply_orientation(frame.data, frame.meta.orientation)
-        data = encode_jpeg(img, self.quality, self.subsampling)
+        data = encode_jpeg(img, self.quality, self.subsampling, self.threads)
         if self.exif:
             data = insert_exif(data, exif_bytes(frame.meta))
         note = f"quality {self.quality}, {self.subsampling}, {len(data) / 1e6:.2f} MB"

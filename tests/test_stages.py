@@ -93,7 +93,7 @@ def test_three_plane_gain_map_on_linear_rgb():
 
 
 def _blob():
-    from conftest import data_file
+    from helpers import data_file
 
     return data_file("raw", "opcodes", "DngOpcodesEditor_GainMap.bin").read_bytes()
 
