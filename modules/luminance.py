@@ -61,7 +61,7 @@ def luminance_weights(frame: Frame) -> np.ndarray:
     linear sRGB, the BT.709 weights.
     """
     if frame.domain is Domain.CAMERA_RGB:
-        from .ccm import camera_to_xyz_d50
+        from .dng_colour import camera_to_xyz_d50
 
         meta = frame.meta
         neutral = frame.neutral

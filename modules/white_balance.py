@@ -128,7 +128,7 @@ class WhiteBalance(StageBase):
             n = np.asarray(meta.as_shot_neutral, dtype=np.float64)
             how = "as-shot neutral"
         elif self.mode == "as_shot" and meta.as_shot_white_xy is not None:
-            from .ccm import xy_to_camera_neutral
+            from .dng_colour import xy_to_camera_neutral
 
             n = np.asarray(xy_to_camera_neutral(meta, meta.as_shot_white_xy), dtype=np.float64)
             how = f"as-shot white xy {tuple(round(v, 4) for v in meta.as_shot_white_xy)}"

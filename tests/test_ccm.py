@@ -1,4 +1,5 @@
-"""Tests of modules/ccm.py, the DNG colour model and the ``ccm`` stage.
+"""Tests of modules/dng_colour.py, the DNG colour model, and modules/ccm.py,
+the ``ccm`` stage.
 
 Kinds, as labelled on each test:
 
@@ -29,9 +30,8 @@ from hypothesis import strategies as st
 
 from isp import ConfigError, Domain, Frame, InputError, create_stage
 from isp.meta import CameraMeta
-from modules.ccm import (
-    ColorCorrection,
-    apply_ccm,
+from modules.ccm import ColorCorrection, apply_ccm
+from modules.dng_colour import (
     bradford_matrix,
     camera_neutral_to_xy,
     camera_to_linear_srgb,
