@@ -152,6 +152,48 @@ def apply_vignette_radial(data: np.ndarray, op, origin: tuple[int, int],
     return float(g.min()), float(g.max())
 
 
+def apply_phase_maps(data: np.ndarray, maps, origin: tuple[int, int], full_size: tuple[int, int],
+                     strength: float = 1.0):
+    """Four per-CFA-phase GainMaps (one per phase, each covering the data) in
+    one pass per row parity, or None if their point rows differ.
+
+    The two maps of a row parity share their row weights, so their column
+    profiles interleave into one (points × W) matrix and the gains of all
+    those rows come from one matrix product, multiplied into contiguous
+    rows; no strided access (DNG SDK interpolation, see
+    :meth:`GainMap.evaluate`).
+
+    Returns
+    -------
+    (out, [(min, max) gain per map]) or None.
+    """
+    h, w = data.shape
+    oy, ox = origin
+    fh, fw = full_size
+    by_phase = {}
+    for op in maps:
+        a = op.area
+        sl = area_slices(a.top, a.left, a.bottom, a.right, 2, 2, origin, data.shape)
+        by_phase[(sl[0].start, sl[1].start)] = op
+    if not all(by_phase[(r, 0)].same_rows(by_phase[(r, 1)]) for r in (0, 1)):
+        return None
+    out = np.empty_like(data)
+    ranges = {}
+    for r in (0, 1):
+        rows = np.arange(r, h, 2)
+        profile = np.empty((by_phase[(r, 0)].points_v, w), np.float32)
+        for c in (0, 1):
+            profile[:, c::2] = by_phase[(r, c)].column_profile(np.arange(c, w, 2) + ox, fw)
+        gains = by_phase[(r, 0)].row_weights(rows + oy, fh) @ profile
+        if strength != 1.0:
+            gains = np.power(gains, np.float32(strength))
+        np.multiply(data[r::2], gains, out=out[r::2])
+        for c in (0, 1):
+            g = gains[:, c::2]
+            ranges[id(by_phase[(r, c)])] = (float(g.min()), float(g.max()))
+    return out, [ranges[id(op)] for op in maps]
+
+
 def _tiles_by_phase(ops, origin, shape) -> bool:
     """True if ``ops`` are exactly four OpcodeList2 mosaic GainMaps, one per
     CFA phase, each covering the whole data."""
@@ -204,13 +246,19 @@ class LensShading(StageBase):
         ops = handled_by(meta, self.name)
         if not ops:
             return frame.evolve(stage=self.name, note="no lens-shading opcodes in the file")
+        notes = []
         if _tiles_by_phase(ops, meta.origin, frame.data.shape):
-            # the usual phone layout: one map per CFA phase; each output pixel
-            # is written once from the input, no copy needed
+            maps = [cell_centred(op) if self.sampling == "cell_centred" else op for _, _, op in ops]
+            out = apply_phase_maps(frame.data, maps, meta.origin, frame.full_size, self.strength)
+            if out is not None:
+                for (list_no, i, op), g in zip(ops, out[1]):
+                    notes.append(f"OpcodeList{list_no}[{i}] {op.name} gains {g[0]:.3f}-{g[1]:.3f}")
+                return frame.evolve(out[0], stage=self.name, note="; ".join(notes))
+            # the usual phone layout: each output pixel is written once from
+            # the input, no copy needed
             data, src = np.empty_like(frame.data), frame.data
         else:
             data, src = frame.data.copy(), None
-        notes = []
         pattern = meta.cfa.pattern if meta.cfa is not None else None
         for list_no, i, op in ops:
             if op.name == "GainMap":

@@ -204,11 +204,32 @@ class GainMap(Opcode):
             raise ValueError(f"rows and cols must be 1-D, got shapes {r.shape} and {c.shape}")
         if not (np.isfinite(r).all() and np.isfinite(c).all()):
             raise ValueError("rows and cols must be finite pixel indices")
-        (sv, sh), (ov, oh) = self.map_spacing, self.map_origin
-        wr = _interp_weights((r + 0.5) / h, ov, sv, self.points_v)
-        wc = _interp_weights((c + 0.5) / w, oh, sh, self.points_h)
-        partial = (wr @ self.gains[:, :, int(map_plane)].astype(np.float64)).astype(np.float32)
-        return partial @ wc.T.astype(np.float32)
+        return self.row_weights(r, h) @ self.column_profile(c, w, map_plane)
+
+    def row_weights(self, rows, image_height: int) -> np.ndarray:
+        """(len(rows), MapPointsV) float32 interpolation weights of the map's
+        point rows at pixel rows ``rows`` (the left factor of
+        :meth:`evaluate`)."""
+        r = np.asarray(rows, dtype=np.float64)
+        sv, ov = self.map_spacing[0], self.map_origin[0]
+        return _interp_weights((r + 0.5) / int(image_height), ov, sv, self.points_v).astype(np.float32)
+
+    def column_profile(self, cols, image_width: int, map_plane: int = 0) -> np.ndarray:
+        """(MapPointsV, len(cols)) float32: each map row interpolated at
+        pixel columns ``cols`` (the right factor of :meth:`evaluate`).
+
+        Maps that share their row geometry (the per-CFA-phase maps of a
+        phone DNG) can interleave their profiles and be evaluated with one
+        matrix product."""
+        c = np.asarray(cols, dtype=np.float64)
+        sh, oh = self.map_spacing[1], self.map_origin[1]
+        wc = _interp_weights((c + 0.5) / int(image_width), oh, sh, self.points_h)
+        return (self.gains[:, :, int(map_plane)].astype(np.float64) @ wc.T).astype(np.float32)
+
+    def same_rows(self, other: "GainMap") -> bool:
+        """True if ``other`` has the same point rows (count, spacing, origin)."""
+        return (self.points_v == other.points_v and self.map_spacing[0] == other.map_spacing[0]
+                and self.map_origin[0] == other.map_origin[0])
 
     def _params(self):
         return (self.area.to_bytes()
