@@ -160,10 +160,12 @@ class Lens:
     surfaces : tuple of Surface
         In order from object to image; the last thickness reaches the image.
     f_number : float or None
-        Image-space working F/# as designed (infinite conjugates); sets the
-        entrance pupil with ``epd`` left None.
+        Image-space F/# = EFL / EPD (infinite conjugates); sets the entrance
+        pupil when ``epd`` is None.
     epd : float or None
         Entrance pupil diameter, mm (takes precedence over ``f_number``).
+        With neither, the stop surface's semi-diameter sets the aperture
+        ("float by stop size"), imaged into object space.
     half_fov_deg : float
         Maximum half field of view, degrees (object side).
     wavelengths_nm : tuple of float
@@ -260,8 +262,9 @@ def validate(lens: Lens) -> None:
                 raise LensError(f"surface {i}: aspheric coefficient A{order} is {a!r}")
         if s.thickness < 0 and i < len(lens.surfaces):
             pass  # negative air gaps exist in real prescriptions (overlapping sags are checked by the tracer)
-    if lens.epd is None and lens.f_number is None:
-        raise LensError("lens needs an entrance pupil diameter (epd) or an F-number")
+    if lens.epd is None and lens.f_number is None and lens.surfaces[lens.stop_index].semi_diameter is None:
+        raise LensError("lens needs an entrance pupil diameter (epd), an F-number, or a stop "
+                        "surface with a semi-diameter")
     if lens.epd is not None and not (math.isfinite(lens.epd) and lens.epd > 0):
         raise LensError(f"epd must be positive, got {lens.epd!r}")
     if lens.f_number is not None and not (math.isfinite(lens.f_number) and lens.f_number > 0):
