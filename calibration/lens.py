@@ -36,11 +36,14 @@ from typing import Any
 
 import numpy as np
 
+from isp.errors import IspError
+
 from .materials import AIR, Material
 
 
-class LensError(ValueError):
-    """An invalid lens (file or model); the message names the surface."""
+class LensError(IspError, ValueError):
+    """An invalid lens (file or model); the message names the surface (and
+    the file, where there is one), so ``str(err)`` is a one-line report."""
 
 
 @dataclass(frozen=True)
@@ -180,8 +183,8 @@ class Lens:
     f_number: float | None = None
     epd: float | None = None
     half_fov_deg: float = 0.0
-    wavelengths_nm: tuple[float, ...] = (486.13, 587.56, 656.27)
-    primary_nm: float = 587.56
+    wavelengths_nm: tuple[float, ...] = (486.1327, 587.5618, 656.2725)  # F, d, C lines
+    primary_nm: float = 587.5618
     object_distance: float = math.inf
     sensor: Sensor = field(default_factory=Sensor)
     name: str = ""
