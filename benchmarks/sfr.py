@@ -1,0 +1,170 @@
+"""Speed of the e-SFR measurement (calibration.sfr), 2 threads.
+
+1. One edge: a 100×200 px ROI (100 rows along a 5° edge, σ = 1 px,
+   1 % noise, 10-bit codes in float32), median of ``--runs`` calls of
+   :func:`calibration.sfr.measure_sfr`; also with ``bootstrap=50``.
+2. A whole simulated 12 MP chart: a 4000×3000 float32 image with ``--edges``
+   slanted-edge ROIs (alternating vertical/horizontal, both polarities,
+   angles 3–11°, blur σ 0.7–2 px growing towards the corners, 1 % noise)
+   whose boxes are given (chart detection is not measured here). All ROIs are
+   measured serially, with 2 threads and with 2 forked processes; the best is
+   the chart time. Each MTF50 is also compared with the analytic truth.
+
+Prints progress, then one JSON object as its last line:
+``per_edge_ms, per_edge_bootstrap50_ms, roi, chart_edges, chart_serial_s,
+chart_threads2_s, chart_procs2_s, chart_best_s, target_s, chart_ok,
+mtf50_median_abs_err_pct, mtf50_worst_abs_err_pct, runs, threads``.
+
+Usage: python benchmarks/sfr.py [--runs 50] [--edges 120]
+"""
+
+from __future__ import annotations
+
+import os
+
+THREADS = "2"
+for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
+    os.environ[var] = THREADS
+
+import argparse
+import json
+import multiprocessing as mp
+import statistics
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from calibration.sfr import measure_sfr
+from calibration.sfr_synth import mtf50_of, render_slanted_edge
+
+cv2.setNumThreads(int(THREADS))
+
+CHART = (3000, 4000)  # rows, columns: 12 MP
+ROI_ALONG, ROI_ACROSS = 200, 100  # ROI of the chart edges: 200 px along, 100 px across
+TARGET_S = 2.0
+
+
+def to_codes(img: np.ndarray, rng, bits: int = 10) -> np.ndarray:
+    """Add 1 % noise and quantise to ``bits`` (values stay float32 in [0, 1])."""
+    top = 2**bits - 1
+    noisy = img + rng.normal(0.0, 0.01, img.shape)
+    return (np.round(np.clip(noisy, 0, 1) * top) / top).astype(np.float32)
+
+
+def one_edge(runs: int) -> tuple[float, float]:
+    rng = np.random.default_rng(0)
+    roi = to_codes(render_slanted_edge((100, 200), 5.0, 1.0), rng)
+    for _ in range(3):
+        measure_sfr(roi)
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        measure_sfr(roi)
+        times.append(time.perf_counter() - t0)
+    tb = []
+    for k in range(max(3, runs // 10)):
+        t0 = time.perf_counter()
+        measure_sfr(roi, bootstrap=50, rng=k)
+        tb.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times), 1e3 * statistics.median(tb)
+
+
+def make_chart(n_edges: int, seed: int = 1):
+    """(image, boxes, truths): ``boxes`` are (x, y, w, h); truths (σ, angle)."""
+    rng = np.random.default_rng(seed)
+    h, w = CHART
+    img = np.full(CHART, 0.5, dtype=np.float64)
+    cols = int(np.ceil(np.sqrt(n_edges * w / h)))
+    rows = int(np.ceil(n_edges / cols))
+    cell_w, cell_h = w // cols, h // rows
+    boxes, truths = [], []
+    for i in range(n_edges):
+        r, c = divmod(i, cols)
+        vertical = (r + c) % 2 == 0
+        bw, bh = (ROI_ACROSS, ROI_ALONG) if vertical else (ROI_ALONG, ROI_ACROSS)
+        x = c * cell_w + (cell_w - bw) // 2
+        y = r * cell_h + (cell_h - bh) // 2
+        cx, cy = (x + bw / 2) / w - 0.5, (y + bh / 2) / h - 0.5
+        sigma = 0.7 + 1.3 * min(1.0, 2 * np.hypot(cx, cy))  # blur grows with field
+        angle = 3.0 + 8.0 * rng.random()
+        lo, hi = (0.15, 0.75) if i % 3 else (0.75, 0.15)
+        patch = render_slanted_edge((bh, bw), angle, sigma, low=lo, high=hi, horizontal=not vertical)
+        img[y : y + bh, x : x + bw] = patch
+        boxes.append((x, y, bw, bh))
+        truths.append((sigma, angle))
+    return to_codes(img, rng), boxes, truths
+
+
+_CHART = None  # the image, shared with forked workers
+
+
+def _measure_box(box):
+    return measure_sfr(_CHART, box=box).mtf50
+
+
+def chart(n_edges: int) -> dict:
+    global _CHART
+    t0 = time.perf_counter()
+    _CHART, boxes, truths = make_chart(n_edges)
+    print(f"chart {CHART[1]}×{CHART[0]} with {len(boxes)} edges rendered in {time.perf_counter() - t0:.1f} s")
+    measure_sfr(_CHART, box=boxes[0])
+
+    t0 = time.perf_counter()
+    serial = [_measure_box(b) for b in boxes]
+    t_serial = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(int(THREADS)) as ex:
+        threaded = list(ex.map(_measure_box, boxes))
+    t_threads = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(int(THREADS), mp_context=mp.get_context("fork")) as ex:
+        procs = list(ex.map(_measure_box, boxes, chunksize=max(1, len(boxes) // 8)))
+    t_procs = time.perf_counter() - t0
+    assert np.allclose(serial, threaded) and np.allclose(serial, procs)
+
+    err = np.abs([m / mtf50_of(s, a) - 1 for m, (s, a) in zip(serial, truths)])
+    best = min(t_serial, t_threads, t_procs)
+    return {
+        "chart_edges": len(boxes),
+        "chart_serial_s": round(t_serial, 3),
+        "chart_threads2_s": round(t_threads, 3),
+        "chart_procs2_s": round(t_procs, 3),
+        "chart_best_s": round(best, 3),
+        "target_s": TARGET_S,
+        "chart_ok": best <= TARGET_S,
+        "mtf50_median_abs_err_pct": round(100 * float(np.median(err)), 3),
+        "mtf50_worst_abs_err_pct": round(100 * float(np.max(err)), 3),
+    }
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--runs", type=int, default=50, help="timed runs of the single edge (≥ 20)")
+    ap.add_argument("--edges", type=int, default=120, help="edges on the 12 MP chart (≥ 100)")
+    args = ap.parse_args(argv)
+    runs = max(20, args.runs)
+    per_edge, per_edge_boot = one_edge(runs)
+    print(f"one 100×200 ROI: {per_edge:.2f} ms median of {runs}; bootstrap=50: {per_edge_boot:.0f} ms")
+    out = {"per_edge_ms": round(per_edge, 3), "per_edge_bootstrap50_ms": round(per_edge_boot, 1)}
+    out["roi"] = "100x200 (rows x cols)"
+    res = chart(args.edges)
+    print(
+        f"chart: serial {res['chart_serial_s']} s, 2 threads {res['chart_threads2_s']} s, "
+        f"2 processes {res['chart_procs2_s']} s (target ≤ {TARGET_S} s)"
+    )
+    out.update(res)
+    out.update({"runs": runs, "threads": int(THREADS)})
+    print(json.dumps(out))
+    return out
+
+
+if __name__ == "__main__":
+    main()
