@@ -13,7 +13,7 @@ rays) and the vignetted fractions at 0.7 and 1.0 field, against the
 README's 0.795 µm (optiland) / 0.799 µm (rayoptics) and 77 % / 46 %.
 
 Prints progress, then one JSON object as its last line. Usage:
-python benchmarks/trace.py [--rays 1000000] [--runs 3] [--threads 2]
+python benchmarks/raytrace.py [--rays 1000000] [--runs 3] [--threads 2]
 """
 
 from __future__ import annotations
