@@ -222,6 +222,19 @@ def cmd_demo(args) -> int:
     return run_demo(Path(args.output), size=(args.height, args.width), seed=args.seed)
 
 
+# -- other packages' commands (imported only when called) ----------------------
+EXTERNAL = {
+    "calib": ("calibration.cli", "lens files, ray tracing, PSFs, simulated captures, SFR"),
+}
+
+
+def run_external(name: str, argv: list[str]) -> int:
+    import importlib
+
+    module = importlib.import_module(EXTERNAL[name][0])
+    return int(module.main(argv) or 0)
+
+
 def make_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="isp",
@@ -296,10 +309,19 @@ def make_parser() -> argparse.ArgumentParser:
     sp.add_argument("--height", type=int, default=1500)
     sp.add_argument("--seed", type=int, default=0)
     sp.set_defaults(func=cmd_demo)
+
+    for name, (_, help_text) in EXTERNAL.items():
+        sp = sub.add_parser(name, help=help_text, add_help=False,
+                            description=f"{help_text} (`isp {name} --help` for its commands)")
+        sp.add_argument("rest", nargs=argparse.REMAINDER)
+        sp.set_defaults(func=None, external=name)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in EXTERNAL:  # hand the whole command line over, --help included
+        return _guarded(lambda: run_external(argv[0], argv[1:]), debug="--debug" in argv, where="")
     parser = make_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
@@ -308,8 +330,16 @@ def main(argv: list[str] | None = None) -> int:
     from .runtime import tune_allocator
 
     tune_allocator()
+    if getattr(args, "external", None):  # e.g. `isp --debug calib ...`
+        return _guarded(lambda: run_external(args.external, args.rest), debug=args.debug, where="")
+    return _guarded(lambda: args.func(args), debug=args.debug, where=getattr(args, "input", ""))
+
+
+def _guarded(fn, debug: bool, where) -> int:
+    """Run a command: one line and exit 2 for an IspError, one line and
+    exit 3 for a bug (traceback with --debug)."""
     try:
-        return int(args.func(args) or 0)
+        return int(fn() or 0)
     except IspError as e:
         print(f"isp: error: {e}", file=sys.stderr)
         return 2
@@ -317,9 +347,8 @@ def main(argv: list[str] | None = None) -> int:
         print("isp: interrupted", file=sys.stderr)
         return 130
     except Exception as e:  # a bug: still one line, unless --debug
-        if args.debug:
+        if debug:
             raise
-        where = getattr(args, "input", "")
         print(f"isp: internal error{' on ' + str(where) if where else ''}: {type(e).__name__}: {e} "
               "(rerun with --debug for the traceback)", file=sys.stderr)
         return 3
