@@ -27,6 +27,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from isp.errors import IspError
 
 EPILOG = """\
@@ -149,6 +151,135 @@ def save_figure(fig, path) -> None:
     write_bytes_atomic(path, buf.getvalue())
 
 
+# -- sfr -----------------------------------------------------------------------
+_RAW_SUFFIXES = {".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw", ".kdc"}
+
+
+def load_image(path: str):
+    """(array, kind, meta): an RGB/grey image file (8/16-bit kept) or a raw
+    file as a black-level-corrected linear mosaic (kind "raw")."""
+    p = Path(path)
+    if not p.exists():
+        raise IspError(f"{path}: no such file")
+    if p.suffix.lower() in _RAW_SUFFIXES:
+        from isp import Pipeline
+        from isp.read import read_raw
+
+        frame = Pipeline.from_names(["black_level"]).run(read_raw(p))
+        if frame.data.ndim != 2:
+            raise IspError(f"{path}: a linear (demosaiced) DNG; SFR of raw data needs a Bayer mosaic")
+        return frame.data, "raw", frame.meta
+    import cv2
+
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise IspError(f"{path}: not an image OpenCV can read")
+    if img.ndim == 3:
+        img = img[..., :3][..., ::-1]  # BGR(A) → RGB
+    return img, "image", None
+
+
+def _sfr_row(roi_box, res, field=None, orientation=None) -> dict:
+    r = res.to_dict()
+    return {"freq": r["freq_cy_per_px"], "sfr": r["sfr"], "mtf50": r["mtf50_cy_per_px"],
+            "sfra": r["sfra_to_nyquist"], "angle_deg": r["angle_deg"], "roi": list(roi_box),
+            "field": field, "orientation": orientation,
+            "mtf_nyquist_half": r["mtf_nyquist_half"], "mtf_nyquist": r["mtf_nyquist"],
+            "contrast": r["contrast"], "noise": r["noise"],
+            "mtf50_std": r.get("mtf50_std"), "sfra_std": r.get("sfra_std"),
+            "lp_per_mm": r.get("lp_per_mm"), "warnings": r["warnings"]}
+
+
+def cmd_sfr(args) -> int:
+    from .sfr import SfrError, measure_sfr, measure_sfr_bayer
+    from .sfr_chart import field_position, measure_chart, plot_chart
+
+    img, kind, meta = load_image(args.image)
+    h, w = img.shape[:2]
+    notes = []
+    if kind == "image" and img.dtype == np.uint8 and args.encoding == "linear":
+        notes.append("8-bit image measured as linear codes; pass --encoding srgb if it is sRGB-encoded")
+    try:
+        if args.chart:
+            if kind == "raw":
+                raise IspError("--chart on raw files is not supported yet; process the capture "
+                               "to a linear TIFF (or use --roi) first")
+            res = measure_chart(img, channel=_channel(args, img), encoding=args.encoding,
+                                edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
+                                progress=True)
+            out = res.to_dict()
+            fig = plot_chart(res, img) if args.plot else None
+            summary = f"{len(res.edges)} edges measured, {len(res.skipped)} skipped"
+        else:
+            box = _floats(args.roi, 4) if args.roi else (0, 0, w, h)
+            box = tuple(int(round(v)) for v in box)
+            common = dict(edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
+                          bootstrap=args.bootstrap, box=box)
+            if kind == "raw":
+                r = measure_sfr_bayer(img, meta.cfa, channel=args.channel or "G", mode=args.bayer_mode,
+                                      **common)
+                results = r if isinstance(r, dict) else {args.channel or "G": r}
+            else:
+                results = {"": measure_sfr(img, channel=_channel(args, img), encoding=args.encoding,
+                                           **common)}
+            radius, angle = field_position(box[0] + box[2] / 2, box[1] + box[3] / 2, (w / 2, h / 2),
+                                           0.5 * float(np.hypot(w, h)))
+            edges = []
+            for name, r in results.items():
+                row = _sfr_row(box, r, {"radius": round(radius, 5), "angle_deg": round(angle, 3)})
+                if name:
+                    row["channel"] = name
+                edges.append(row)
+            out = {"edges": edges}
+            fig = _plot_sfr(results) if args.plot else None
+            first = next(iter(results.values()))
+            summary = (f"MTF50 {first.mtf50:.4f} cy/px, SFRA {first.sfra:.4f}, "
+                       f"angle {first.angle_deg:.2f}°, contrast {first.contrast:.2f}")
+    except SfrError as e:
+        raise IspError(f"{args.image}: {e}") from None
+    out = {"image": str(args.image), "size": [w, h], "kind": kind, "encoding": args.encoding,
+           "notes": notes, **out}
+    if args.json:
+        from isp.io import write_bytes_atomic
+
+        write_bytes_atomic(args.json, json.dumps(out, indent=1).encode())
+    if fig is not None:
+        save_figure(fig, args.plot)
+    for n in notes:
+        print(f"note: {n}")
+    print(f"{args.image}: {summary}" + (f"; wrote {args.json}" if args.json else "")
+          + (f", {args.plot}" if args.plot else ""))
+    return 0
+
+
+def _channel(args, img):
+    if img.ndim != 3:
+        return None
+    c = (args.channel or "luminance").lower()
+    named = {"r": 0, "g": 1, "b": 2, "luminance": "luminance", "y": "luminance"}
+    if c not in named:
+        raise IspError(f"--channel {args.channel!r}: valid for colour images: R, G, B, luminance")
+    return named[c]
+
+
+def _plot_sfr(results: dict):
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for name, r in results.items():
+        axes[0].plot(r.freq, r.sfr, label=f"{name or 'SFR'}: MTF50 {r.mtf50:.3f}")
+        x = np.arange(r.esf.size) * r.esf_step_px
+        axes[1].plot(x - x.mean(), r.esf, label=name or "ESF")
+    axes[0].axhline(0.5, color="gray", lw=0.6, ls=":")
+    axes[0].set(xlim=(0, 0.5), ylim=(0, 1.1), xlabel="cycles / pixel", ylabel="SFR", title="e-SFR (ISO 12233)")
+    axes[1].set(xlabel="pixels across the edge", ylabel="ESF", title="edge spread")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 def make_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="isp calib",
@@ -179,6 +310,32 @@ def make_parser() -> argparse.ArgumentParser:
     sp.add_argument("--rays", type=int, default=10000, help="rays per field (default 10000)")
     sp.add_argument("--plot", metavar="OUT.png")
     sp.set_defaults(func=cmd_spot)
+
+    sp = sub.add_parser("sfr", help="ISO 12233 slanted-edge SFR of an image, ROI or chart",
+                        description="e-SFR per ISO 12233 (the sfrmat lineage) of a slanted edge: the whole "
+                                    "image, an ROI, or every edge found on a chart (--chart), with MTF50, "
+                                    "SFRA and field maps. Image files are measured as linear codes unless "
+                                    "--encoding srgb declares them sRGB (linearised first); raw files "
+                                    "(DNG, ...) are measured on the Bayer mosaic per colour.",
+                        epilog="examples:\n  isp calib sfr edge.tif --json sfr.json --plot sfr.png\n"
+                               "  isp calib sfr photo.jpg --encoding srgb --roi 820,410,120,200 --json e.json\n"
+                               "  isp calib sfr chart.png --chart --json chart.json --plot chart.png\n"
+                               "  isp calib sfr capture.dng --roi 900,600,80,160 --channel all --json raw.json",
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    sp.add_argument("image", help="image file (PNG/TIFF/JPEG/BMP, 8 or 16 bit) or raw file")
+    sp.add_argument("--roi", metavar="X,Y,W,H", help="region of one edge, pixels (default: whole image)")
+    sp.add_argument("--chart", action="store_true", help="find every slanted edge and map SFR over the field")
+    sp.add_argument("--channel", help="R, G, B or luminance (colour images); R, G, B, Gr, Gb or all (raw)")
+    sp.add_argument("--bayer-mode", choices=("plane", "green"), default="plane",
+                    help="raw: measure each CFA plane, or both greens at full resolution")
+    sp.add_argument("--encoding", choices=("linear", "srgb"), default="linear",
+                    help="how the image's codes relate to light (default linear)")
+    sp.add_argument("--edge-fit-order", type=int, default=1, help="polynomial order of the edge fit (1-5)")
+    sp.add_argument("--pixel-pitch", type=float, metavar="UM", help="pixel pitch in µm (adds lp/mm)")
+    sp.add_argument("--bootstrap", type=int, default=0, help="resamples for MTF50/SFRA uncertainty")
+    sp.add_argument("--json", metavar="OUT.json", help="write the results as JSON")
+    sp.add_argument("--plot", metavar="OUT.png", help="write a plot")
+    sp.set_defaults(func=cmd_sfr)
     return p
 
 
