@@ -43,7 +43,8 @@ TAG = {
     "Orientation": 274, "Make": 271, "Model": 272, "Software": 305,
     "ExposureTime": 33434, "FNumber": 33437, "ISOSpeedRatings": 34855,
     "FocalLength": 37386, "DateTimeOriginal": 36867,
-    "FocalPlaneXResolution": 41486, "FocalPlaneResolutionUnit": 41488,
+    "FocalPlaneXResolution": 41486, "FocalPlaneYResolution": 41487,
+    "FocalPlaneResolutionUnit": 41488,
 }
 
 #: tags that belong to the raw IFD (the one holding the CFA or LinearRaw

@@ -68,8 +68,9 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
         orientation, black_level (R, C, S pattern), white_level,
         linearization_table, active_area, default_crop, colour matrices and
         illuminants, analog_balance, as_shot_neutral / as_shot_white_xy,
-        baseline_exposure, noise_profile, opcodes (lists 1–3), and the EXIF
-        values exposure_time_s, f_number, iso, focal_length_mm, datetime.
+        baseline_exposure, noise_profile, opcodes (lists 1–3), the EXIF
+        values exposure_time_s, f_number, iso, focal_length_mm, datetime,
+        lens, and pixel_pitch_um (as FocalPlaneX/YResolution).
         ``meta.raw_size`` and ``meta.path`` are ignored.
 
     Returns
@@ -194,6 +195,12 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
         add("DateTimeOriginal", "s", 0, meta.datetime)
     if meta.lens:
         add("LensModel", "s", 0, meta.lens)
+    if meta.pixel_pitch_um:
+        # TIFF/EP focal-plane resolution in pixels per cm (unit 3)
+        ppcm = _exif_rational(1e4 / meta.pixel_pitch_um)
+        add("FocalPlaneXResolution", "2I", 1, ppcm)
+        add("FocalPlaneYResolution", "2I", 1, ppcm)
+        add("FocalPlaneResolutionUnit", "H", 1, 3)
 
     tags.sort(key=lambda t: t[0])
     with atomic_path(path) as tmp, tifffile.TiffWriter(tmp) as tw:

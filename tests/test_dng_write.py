@@ -32,7 +32,7 @@ def _full_meta(h, w, cfa=CFA.GBRG):
         analog_balance=(1.0, 1.0, 1.0), as_shot_neutral=(0.512345, 1.0, 0.634567),
         baseline_exposure=-0.75, noise_profile=((3.1e-4, 2.2e-6),),
         opcodes={2: gm}, exposure_time_s=1 / 120, f_number=1.9, iso=250.0, focal_length_mm=5.6,
-        datetime="2026:11:21 10:11:12", lens="test lens 5.6mm",
+        datetime="2026:11:21 10:11:12", lens="test lens 5.6mm", pixel_pitch_um=1.12,
     )
 
 
@@ -72,6 +72,7 @@ def test_bayer_round_trip_through_rawpy_and_reader(tmp_path, rng):
     assert m.exposure_time_s == pytest.approx(1 / 120) and m.f_number == pytest.approx(1.9)
     assert m.iso == 250 and m.focal_length_mm == pytest.approx(5.6)
     assert m.datetime == "2026:11:21 10:11:12" and m.lens == "test lens 5.6mm"
+    assert m.pixel_pitch_um == pytest.approx(1.12, rel=1e-6)
     assert m.notes == ()
 
 
