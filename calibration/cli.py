@@ -151,6 +151,96 @@ def save_figure(fig, path) -> None:
     write_bytes_atomic(path, buf.getvalue())
 
 
+# -- perturbations shared by psf and simulate -----------------------------------
+def _perturbed(lens, args):
+    """The nominal lens, a random device within tolerance (--perturb random
+    --seed N), or the perturbation in a JSON file of {name: value}."""
+    from .perturb import ParameterSpace, Perturbation, apply
+    from .spot import refocus
+
+    spec = getattr(args, "perturb", None)
+    if not spec or spec == "none":
+        return lens, "nominal"
+    if spec == "random":
+        space = ParameterSpace.default(lens)
+        rng = np.random.default_rng(args.seed)
+        p = space.to_perturbation(space.sample(rng, 1)[0])
+        # assembly sets focus: the device is refocused, not left defocused
+        return refocus(apply(lens, p)), f"random device within tolerance, refocused (seed {args.seed})"
+    path = Path(spec)
+    try:
+        values = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise IspError(f"{spec}: not a perturbation JSON file ({e})") from None
+    try:
+        return apply(lens, Perturbation.from_dict(values)), f"perturbation from {spec}"
+    except ValueError as e:
+        raise IspError(f"{spec}: {e}") from None
+
+
+def cmd_psf(args) -> int:
+    from .psf import polychromatic_psf
+    from .psf_map import plot_psf_map, psf_map
+
+    lens = _load(args.lens)
+    model, what = _perturbed(lens, args)
+    if args.map:
+        m = psf_map(model, grid=(args.rows, args.cols), method=args.method, n=args.n,
+                    pupil_samples=args.pupil_samples, cache_dir=args.cache)
+        print(f"PSF map {args.rows}x{args.cols}x{len(m.channels)} ({what}), {m.n}x{m.n} samples at "
+              f"{m.pitch_um:.3f} µm; cache key {m.key[:12]}")
+        if args.npz:
+            m.to_npz(args.npz)
+            print(f"wrote {args.npz}")
+        if args.plot:
+            plot_psf_map(m, args.plot, channel=args.channel)
+            print(f"wrote {args.plot}")
+        return 0
+    field = _floats(args.field, 2) if "," in args.field else (0.0, float(args.field))
+    response = args.channel if args.wavelength is None else ([args.wavelength], [1.0])
+    psf = polychromatic_psf(model, field, response, method=args.method, n=args.n,
+                            pupil_samples=args.pupil_samples)
+    ee = psf.encircled_energy(2.0 * lens.sensor.pixel_pitch_um) if hasattr(psf, "encircled_energy") else None
+    print(f"PSF at field {field} deg ({what}), {args.method}, {psf.data.shape[0]}² at {psf.pitch_um:.3f} µm: "
+          f"centroid {tuple(round(v, 3) for v in psf.centroid_um)} µm"
+          + (f", energy within 2 px {ee:.3f}" if ee is not None else ""))
+    if args.plot:
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(4.2, 4.0))
+        half = psf.data.shape[0] * psf.pitch_um / 2
+        ax.imshow(np.sqrt(psf.data / psf.data.max()), cmap="inferno", extent=(-half, half, half, -half))
+        ax.set(xlabel="x (µm)", ylabel="y (µm, down the sensor)",
+               title=f"PSF {args.channel if args.wavelength is None else f'{args.wavelength:g} nm'} "
+                     f"at {field} deg (sqrt scale)")
+        save_figure(fig, args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from .imaging import simulate_capture, write_capture
+    from .imaging_chart import slanted_square_chart
+
+    lens = _load(args.lens)
+    if args.pixel_pitch or args.size:
+        from .lens import Sensor
+
+        w, h = (_floats(args.size, 2) if args.size else (lens.sensor.width_px, lens.sensor.height_px))
+        pitch = args.pixel_pitch or lens.sensor.pixel_pitch_um * lens.sensor.width_px / w
+        lens = lens.replace(sensor=Sensor(pixel_pitch_um=pitch, width_px=int(w), height_px=int(h)))
+    model, what = _perturbed(lens, args)
+    sensor = lens.sensor
+    chart = slanted_square_chart(sensor.height_px, sensor.width_px, colorchecker=args.colorchecker)
+    capture = simulate_capture(model, chart, exposure=args.exposure, rng=args.seed,
+                               psf_map_options={"cache_dir": args.cache} if args.cache else None)
+    out = write_capture(args.output, capture=capture)
+    print(f"wrote {out}: {sensor.width_px}x{sensor.height_px} at {sensor.pixel_pitch_um:.3f} µm, {what}; "
+          f"process it with `isp process {out} -o capture.jpg`, measure it with "
+          f"`isp calib sfr {out} --roi ...`")
+    return 0
+
+
 # -- sfr -----------------------------------------------------------------------
 _RAW_SUFFIXES = {".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw", ".kdc"}
 
@@ -310,6 +400,55 @@ def make_parser() -> argparse.ArgumentParser:
     sp.add_argument("--rays", type=int, default=10000, help="rays per field (default 10000)")
     sp.add_argument("--plot", metavar="OUT.png")
     sp.set_defaults(func=cmd_spot)
+
+    def perturb_args(sp):
+        sp.add_argument("--perturb", metavar="random|FILE.json",
+                        help="a device: 'random' within the default tolerances, or {name: value} JSON "
+                             "(e.g. {\"e1.decenter_x\": 0.003})")
+        sp.add_argument("--seed", type=int, default=0, help="seed for --perturb random and noise")
+        sp.add_argument("--cache", metavar="DIR", help="PSF cache folder (default $ISP_CACHE or ~/.cache)")
+
+    sp = sub.add_parser("psf", help="a polychromatic PSF, or the PSF map over the sensor",
+                        description="Diffraction PSF (Huygens, Debye or FFT) of a sensor channel through "
+                                    "the camera's spectral response, at one field or over the paper's "
+                                    "15 x 20 sensor regions (cached on disk).",
+                        epilog="examples:\n  isp calib psf e9.json --field 0,25 --channel G --plot psf.png\n"
+                               "  isp calib psf e9.json --field 20 --wavelength 550 --method huygens\n"
+                               "  isp calib psf e9.json --map --plot map.png --npz map.npz\n"
+                               "  isp calib psf e9.json --map --perturb random --seed 7 --plot dev7.png",
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    sp.add_argument("lens")
+    sp.add_argument("--field", default="0", help="θy or θx,θy in degrees (default 0)")
+    sp.add_argument("--channel", default="G", help="R, G or B through the camera response (default G)")
+    sp.add_argument("--wavelength", type=float, help="a single wavelength in nm instead of a channel")
+    sp.add_argument("--method", choices=("huygens", "debye", "fft"), default="debye")
+    sp.add_argument("--n", type=int, default=64, help="PSF samples per side")
+    sp.add_argument("--pupil-samples", type=int, default=64)
+    sp.add_argument("--map", action="store_true", help="the whole sensor (15 x 20 regions)")
+    sp.add_argument("--rows", type=int, default=15)
+    sp.add_argument("--cols", type=int, default=20)
+    sp.add_argument("--npz", metavar="OUT.npz", help="save the map")
+    sp.add_argument("--plot", metavar="OUT.png")
+    perturb_args(sp)
+    sp.set_defaults(func=cmd_psf)
+
+    sp = sub.add_parser("simulate", help="a simulated chart capture written as DNG",
+                        description="Render a slanted-square chart (one square per PSF region) through the "
+                                    "lens's PSF map, with relative illumination, Bayer sampling, "
+                                    "Poisson-Gaussian noise and GainMap lens-shading opcodes, and write "
+                                    "it as a DNG that `isp process` and `isp calib sfr` read like a real "
+                                    "capture.",
+                        epilog="examples:\n  isp calib simulate e9.json -o nominal.dng --size 2000,1500\n"
+                               "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3",
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    sp.add_argument("lens")
+    sp.add_argument("-o", "--output", required=True, help="output .dng")
+    sp.add_argument("--size", metavar="W,H", help="sensor size in pixels (keeps the sensor's width in mm)")
+    sp.add_argument("--pixel-pitch", type=float, metavar="UM", help="pixel pitch in µm")
+    sp.add_argument("--exposure", type=float, default=0.8, help="white level reached by the chart's white")
+    sp.add_argument("--colorchecker", action="store_true", help="add ColorChecker patches in the middle")
+    perturb_args(sp)
+    sp.set_defaults(func=cmd_simulate)
 
     sp = sub.add_parser("sfr", help="ISO 12233 slanted-edge SFR of an image, ROI or chart",
                         description="e-SFR per ISO 12233 (the sfrmat lineage) of a slanted edge: the whole "
