@@ -96,7 +96,7 @@ def test_property_default_space_names_and_tolerances():
     asph = default_names(lens, kinds=("asphere",))
     assert asph == ["s2.A4", "s4.A4", "s4.A6"]
     t = ParameterSpace.default(lens, asph).tolerance
-    np.testing.assert_allclose(t, [0.5e-3 / 1.0 ** 4, 0.5e-3 / 1.2 ** 4, 0.5e-3 / 1.2 ** 6])
+    np.testing.assert_allclose(t, [0.3e-3 / 1.0 ** 4, 0.3e-3 / 1.2 ** 4, 0.3e-3 / 1.2 ** 6])
     with pytest.raises(PerturbationError, match="not in the space"):
         ParameterSpace.default(lens, ["s2.conic"], overrides={"s3.conic": 1.0})
     with pytest.raises(PerturbationError, match="valid"):
