@@ -523,7 +523,7 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
             pitch_um: float | None = None, pupil_samples: int = 64, n_wavelengths: int | None = None,
             camera: str = DEFAULT_CAMERA, illuminant: str = "D65", aiming: str = "real",
             aim_each_wavelength: bool = False, symmetry: str = "auto", sensor: Sensor | None = None,
-            cache_dir=None, cache: bool = True, workers: int = 1, progress: bool = True) -> PSFMap:
+            cache_dir=None, cache: bool = True, workers: int | None = None, progress: bool = True) -> PSFMap:
     """PSFs of every sensor region and channel of a (perturbed) lens.
 
     Parameters
@@ -571,11 +571,11 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
         Default ``$ISP_CACHE/psf`` or ``~/.cache/phone-isp/psf``.
     cache : bool
         Read and write the cache.
-    workers : int
-        Processes over regions (1: in this process). It pays only when that
-        many cores are free: on the shared 2-core development machine (one
-        core busy with another job) 2 workers gave no gain (e9, default
-        settings: 15 s nominal, 52 s perturbed either way).
+    workers : int, optional
+        Processes over regions (1: in this process; default: up to 2, the
+        phone budget, where the machine has the cores). On 2 free cores
+        (``benchmarks/psf.py``, e9, default settings): nominal 13.4 s → 7.3 s,
+        perturbed 54.6 s → 24.8 s; with one core busy elsewhere, no gain.
     progress : bool
         A tqdm progress bar on stderr.
 
@@ -598,6 +598,8 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
     _positive_int(cols, "grid cols")
     n = _positive_int(n, "n")
     samples = _positive_int(pupil_samples, "pupil_samples")
+    if workers is None:
+        workers = max(1, min(2, os.cpu_count() or 1))
     workers = _positive_int(workers, "workers")
     channels = tuple(str(c).upper() for c in channels)
     if not channels:
