@@ -68,8 +68,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -416,19 +414,9 @@ def save_lens(lens: Lens, path) -> Path:
     same folder, then a rename), and return the path."""
     path = Path(path)
     text = json.dumps(lens_to_dict(lens), indent=2, allow_nan=False, ensure_ascii=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    from isp.io import write_bytes_atomic
+
+    write_bytes_atomic(path, text.encode("utf-8"))
     return path
 
 

@@ -47,6 +47,8 @@ def atomic_path(path: str | os.PathLike):
     os.close(fd)
     try:
         yield Path(tmp)
+        with open(tmp, "rb+") as f:  # the data reach the disk before the name does
+            os.fsync(f.fileno())
         os.chmod(tmp, default_mode())
         os.replace(tmp, path)
     except BaseException:

@@ -184,11 +184,11 @@ def test_save_is_atomic_and_leaves_no_partial_file(tmp_path, monkeypatch):
     lens = lens_from_dict(minimal())
     p = save_lens(lens, tmp_path / "lens.json")
     before = p.read_bytes()
-    import calibration.lens_io as io
+    import isp.io
 
     def boom(*a, **k):
         raise OSError("disk full")
-    monkeypatch.setattr(io.os, "replace", boom)
+    monkeypatch.setattr(isp.io.os, "replace", boom)  # the one atomic writer the project uses
     with pytest.raises(OSError):
         save_lens(lens.replace(epd=3.0), p)
     assert p.read_bytes() == before and sorted(x.name for x in tmp_path.iterdir()) == ["lens.json"]

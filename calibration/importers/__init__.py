@@ -57,6 +57,20 @@ def default_sensor(lens: Lens, pixel_pitch_um: float = DEFAULT_PIXEL_PITCH_UM,
                   height_px=max(1, round(height_mm * 1e3 / pixel_pitch_um)))
 
 
+def read_json_lens(path, data, pixel_pitch_um, build, kind: str):
+    """Shared body of the JSON importers: parse (unless ``data`` is given),
+    build, and turn a structural surprise into one LensError line naming the
+    file."""
+    from ..lens_io import Source, _read_json
+
+    src = Source(str(path))
+    d = _read_json(path) if data is None else data
+    try:
+        return build(src, d, pixel_pitch_um)
+    except (KeyError, TypeError, IndexError, AttributeError) as e:
+        raise src.error(f"not a {kind} lens file ({type(e).__name__}: {e})") from None
+
+
 def default_wavelengths() -> tuple[tuple[float, ...], float]:
     """(wavelengths, primary) in nm for a file that names none: the
     :class:`~calibration.lens.Lens` defaults (F, d, C lines; d primary)."""

@@ -25,7 +25,7 @@ import re
 from pathlib import Path
 
 from ..lens import Lens, LensError, Sensor, Surface
-from ..lens_io import Source, _read_json
+from ..lens_io import Source
 from ..materials import AIR, model_material
 from . import default_wavelengths
 
@@ -49,12 +49,9 @@ def read_deeplens(path, *, data=None, pixel_pitch_um: float | None = None) -> Le
     LensError
         One line naming the file and the surface.
     """
-    src = Source(str(path))
-    d = _read_json(path) if data is None else data
-    try:
-        return _build(src, d, pixel_pitch_um)
-    except (KeyError, TypeError, IndexError, AttributeError) as e:
-        raise src.error(f"not a DeepLens lens file ({type(e).__name__}: {e})") from None
+    from . import read_json_lens
+
+    return read_json_lens(path, data, pixel_pitch_um, _build, "DeepLens")
 
 
 def _build(src: Source, d: dict, pixel_pitch_um) -> Lens:

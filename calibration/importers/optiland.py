@@ -23,7 +23,7 @@ import math
 from pathlib import Path
 
 from ..lens import Lens, LensError, Surface
-from ..lens_io import Source, _read_json
+from ..lens_io import Source
 from ..materials import AIR, Material, model_material
 from . import combined_field_angle, default_wavelengths
 
@@ -48,12 +48,9 @@ def read_optiland(path, *, data=None, pixel_pitch_um: float | None = None) -> Le
     LensError
         One line naming the file and the surface.
     """
-    src = Source(str(path))
-    d = _read_json(path) if data is None else data
-    try:
-        return _build(src, d, pixel_pitch_um)
-    except (KeyError, TypeError, IndexError, AttributeError) as e:
-        raise src.error(f"not an optiland lens file ({type(e).__name__}: {e})") from None
+    from . import read_json_lens
+
+    return read_json_lens(path, data, pixel_pitch_um, _build, "optiland")
 
 
 def _build(src: Source, d: dict, pixel_pitch_um) -> Lens:

@@ -34,7 +34,7 @@ import math
 from pathlib import Path
 
 from ..lens import Lens, LensError, Surface
-from ..lens_io import Source, _read_json
+from ..lens_io import Source
 from ..materials import AIR, LAMBDA_D, Material, MaterialError, abbe_number, lookup, model_material
 from . import combined_field_angle, default_wavelengths
 
@@ -57,12 +57,9 @@ def read_rayoptics(path, *, data=None, pixel_pitch_um: float | None = None) -> L
     LensError
         One line naming the file and the surface.
     """
-    src = Source(str(path))
-    d = _read_json(path) if data is None else data
-    try:
-        return _build(src, d, pixel_pitch_um)
-    except (KeyError, TypeError, IndexError, AttributeError) as e:
-        raise src.error(f"not a rayoptics lens file ({type(e).__name__}: {e})") from None
+    from . import read_json_lens
+
+    return read_json_lens(path, data, pixel_pitch_um, _build, "rayoptics")
 
 
 def _cls(obj: dict) -> str:
