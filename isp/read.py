@@ -371,6 +371,9 @@ def _frame_from_libraw(path: Path, raw, tags: _DngTags | None) -> Frame:
         origin = (y, x)
         if cfa is not None:
             cfa = cfa.shifted(y, x)
+    if img.shape[0] < 2 or img.shape[1] < 2:
+        raise InputError(path, f"image of {img.shape[1]}x{img.shape[0]} pixels after the crop is too "
+                               "small to process (needs at least one 2x2 Bayer block)")
     data = np.ascontiguousarray(img, dtype=np.float32)
 
     if tags is None:

@@ -524,5 +524,8 @@ class Demosaic(StageBase):
                              f"demosaic expects an (H, W) mosaic or (H, W, 3) data, got shape {data.shape}")
         if frame.meta.cfa is None:
             raise InputError(frame.meta.path, "mosaic without a CFA pattern")
-        rgb = demosaic(data, frame.meta.cfa, self.method)
+        try:
+            rgb = demosaic(data, frame.meta.cfa, self.method)
+        except ValueError as e:  # data the method cannot take (too small, non-finite)
+            raise InputError(frame.meta.path, f"demosaic {self.method}: {e}") from None
         return frame.evolve(rgb, domain=Domain.CAMERA_RGB, stage=self.name, note=f"{self.method}")
