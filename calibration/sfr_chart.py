@@ -317,7 +317,7 @@ class ChartResult:
 
 
 def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None, min_length: float = 40.0,
-                  edge_fit_order: int = 1, pixel_pitch_um: float | None = None,
+                  edge_fit_order: int = 1, pixel_pitch_um: float | None = None, method: str = "iso",
                   grid: tuple[int, int] = GRID, progress: bool = False) -> ChartResult:
     """Find every slanted edge of a chart and measure its SFR.
 
@@ -338,7 +338,7 @@ def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None,
     for roi in it:
         try:
             r = measure_sfr(g, box=(roi.x, roi.y, roi.w, roi.h), edge_fit_order=edge_fit_order,
-                            pixel_pitch_um=pixel_pitch_um)
+                            pixel_pitch_um=pixel_pitch_um, method=method)
         except SfrError as e:
             res.skipped.append((roi, str(e)))
             continue
