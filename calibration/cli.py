@@ -292,13 +292,20 @@ def cmd_sfr(args) -> int:
     try:
         if args.chart:
             if kind == "raw":
-                raise IspError("--chart on raw files is not supported yet; process the capture "
-                               "to a linear TIFF (or use --roi) first")
-            res = measure_chart(img, channel=_channel(args, img), encoding=args.encoding,
-                                edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
-                                method=args.method, progress=True)
+                from .sfr_chart import measure_chart_bayer
+
+                channel = args.channel or "G"
+                if channel == "all":
+                    raise IspError("--chart on raw data measures one colour at a time: --channel R, G, B, Gr or Gb")
+                res = measure_chart_bayer(img, meta.cfa, channel=channel, mode=args.bayer_mode,
+                                          edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
+                                          method=args.method, progress=True)
+            else:
+                res = measure_chart(img, channel=_channel(args, img), encoding=args.encoding,
+                                    edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
+                                    method=args.method, progress=True)
             out = res.to_dict()
-            fig = plot_chart(res, img) if args.plot else None
+            fig = plot_chart(res, img if kind == "image" else None) if args.plot else None
             summary = f"{len(res.edges)} edges measured, {len(res.skipped)} skipped"
         else:
             box = _floats(args.roi, 4) if args.roi else (0, 0, w, h)

@@ -367,6 +367,46 @@ def _not_a_clean_edge(r) -> str:
     return ""
 
 
+def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane", centre=None,
+                        min_length: float = 40.0, edge_fit_order: int = 1, pixel_pitch_um: float | None = None,
+                        method: str = "iso", grid: tuple[int, int] = GRID, progress: bool = False) -> ChartResult:
+    """:func:`measure_chart` on a raw Bayer mosaic (linear, black removed):
+    edges are found on the 2×2-block average (half resolution, all colours)
+    and measured on the mosaic itself per colour with
+    :func:`calibration.sfr.measure_sfr_bayer` (``channel`` one of R, G, B,
+    Gr, Gb; frequencies per sensor pixel)."""
+    from .sfr import measure_sfr_bayer
+
+    m = np.asarray(mosaic, dtype=np.float64)
+    if m.ndim != 2:
+        raise SfrError(f"mosaic must be (H, W), got shape {m.shape}")
+    h, w = m.shape
+    half = m[: h // 2 * 2, : w // 2 * 2].reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
+    c = None if centre is None else (centre[0] / 2.0, centre[1] / 2.0)
+    rois = find_edges(half, centre=c, min_length=min_length / 2.0)
+    res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid)
+    it = rois
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(rois, unit="edge", desc="SFR")
+    for roi in it:
+        full = EdgeROI(2 * roi.x, 2 * roi.y, 2 * roi.w, 2 * roi.h, roi.angle_deg, roi.direction, roi.radius,
+                       roi.field_angle_deg, roi.orientation, roi.shape)
+        try:
+            r = measure_sfr_bayer(m, cfa, channel=channel, mode=mode, box=(full.x, full.y, full.w, full.h),
+                                  edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um, method=method)
+        except SfrError as e:
+            res.skipped.append((full, str(e)))
+            continue
+        why = _not_a_clean_edge(r)
+        if why:
+            res.skipped.append((full, why))
+            continue
+        res.edges.append((full, r))
+    return res
+
+
 def plot_chart(result: ChartResult, image=None, *, value: str = "mtf50"):
     """A figure: detected ROIs on the image (if given), SFR curves coloured by
     field radius, and the ``value`` map over the 15 × 20 field grid."""
