@@ -1,0 +1,68 @@
+"""The damped least-squares core (kind: analytic / oracle: scipy's
+least_squares on the same residuals)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from calibration.dls import damped_least_squares
+
+
+def test_linear_problem_reaches_the_normal_equations_solution(rng):
+    B = rng.normal(size=(40, 5))
+    y = rng.normal(size=40)
+    res = damped_least_squares(lambda x: B @ x - y, np.zeros(5), lower=-1e3 * np.ones(5),
+                               upper=1e3 * np.ones(5), h=1e-3, gtol=1e-10)
+    ref = np.linalg.lstsq(B, y, rcond=None)[0]
+    assert np.allclose(res.x, ref, atol=1e-6)
+    # covariance of a unit-noise linear problem is (BᵀB)⁻¹ × max(1, χ²_red)
+    chi2 = res.merit / (40 - 5)
+    assert np.allclose(res.covariance, np.linalg.inv(B.T @ B) * max(1.0, chi2), rtol=1e-5)
+
+
+def test_nonlinear_fit_matches_scipy(rng):
+    t = np.linspace(0, 4, 60)
+    truth = np.array([2.0, 1.3, 0.4])
+    y = truth[0] * np.exp(-truth[1] * t) + truth[2] + rng.normal(0, 0.01, t.size)
+
+    def f(p):
+        return (p[0] * np.exp(-p[1] * t) + p[2] - y) / 0.01
+
+    lo, hi = np.array([0.0, 0.0, -5.0]), np.array([10.0, 10.0, 5.0])
+    ours = damped_least_squares(f, np.array([1.0, 0.5, 0.0]), lower=lo, upper=hi, h=1e-6, gtol=1e-8)
+    ref = least_squares(f, np.array([1.0, 0.5, 0.0]), bounds=(lo, hi), x_scale="jac")
+    assert np.allclose(ours.x, ref.x, rtol=1e-4, atol=1e-5)
+    assert ours.merit <= ref.cost * 2 * (1 + 1e-6)
+    # the uncertainty is the true spread's order (noise 0.01)
+    assert np.all(ours.std < 0.05) and np.all(ours.std > 1e-4)
+
+
+def test_bounds_hold_and_stop_on_the_boundary():
+    # minimum at x = 3, bound at 2
+    res = damped_least_squares(lambda x: np.array([x[0] - 3.0, 0.1 * (x[1] - 1.0)]), np.array([0.0, 0.0]),
+                               lower=np.array([-2.0, -2.0]), upper=np.array([2.0, 2.0]), h=1e-4)
+    assert res.x[0] == pytest.approx(2.0) and res.x[1] == pytest.approx(1.0, abs=1e-3)
+
+
+def test_strongly_nonlinear_parameter_converges():
+    # Rosenbrock as least squares: the curved valley needs damping
+    def f(x):
+        return np.array([10 * (x[1] - x[0] ** 2), 1 - x[0]])
+
+    res = damped_least_squares(f, np.array([-1.2, 1.0]), lower=np.full(2, -5.0), upper=np.full(2, 5.0),
+                               h=1e-6, max_iter=200, gtol=1e-10, ftol=0.0)
+    assert np.allclose(res.x, [1.0, 1.0], atol=1e-4)
+    assert all(h["merit"] <= h0["merit"] + 1e-12 for h0, h in zip(res.history, res.history[1:]))
+
+
+def test_stops_at_the_noise_floor():
+    calls = []
+
+    def f(x):
+        calls.append(1)
+        return np.array([x[0] - 1.0, 1.0, 1.0])   # irreducible part: φ/M ≥ 2/3
+
+    res = damped_least_squares(f, np.array([5.0]), lower=[-10.0], upper=[10.0], h=1e-4, target_chi2=0.7)
+    assert res.reason == "noise floor" and res.merit / 3 <= 0.7 and abs(res.x[0] - 1.0) < 0.3
