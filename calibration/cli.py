@@ -159,6 +159,8 @@ def _perturbed(lens, args):
     from .spot import refocus
 
     spec = getattr(args, "perturb", None)
+    if not spec and lens.metadata.get("perturbation"):  # a proxy lens file
+        return apply(lens, Perturbation.from_dict(lens.metadata["perturbation"])), "proxy (fitted perturbation)"
     if not spec or spec == "none":
         return lens, "nominal"
     if spec == "random":

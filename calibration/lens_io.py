@@ -77,7 +77,7 @@ from .materials import MaterialError, material, material_to_spec
 SCHEMA = "lens/v1"
 
 TOP_KEYS = ("schema", "name", "units", "surfaces", "aperture", "field", "wavelengths_nm",
-            "primary_nm", "object_distance", "sensor", "metadata")
+            "primary_nm", "object_distance", "sensor", "metadata", "perturbation")
 SURFACE_KEYS = ("name", "radius", "curvature", "conic", "aspheric", "thickness", "material",
                 "semi_diameter", "stop")
 APERTURE_KEYS = ("f_number", "epd", "stop_semi_diameter")
@@ -193,6 +193,11 @@ def lens_from_dict(data: Any, source: str = "<dict>") -> Lens:
     metadata = d.get("metadata", {})
     if not isinstance(metadata, dict):
         raise src.error(f"'metadata' must be a JSON object, got {metadata!r}")
+    if "perturbation" in d:  # a proxy lens: the nominal lens plus fitted perturbations
+        pert = d["perturbation"]
+        if not isinstance(pert, dict) or not all(isinstance(v, (int, float)) for v in pert.values()):
+            raise src.error(f"'perturbation' must map parameter names to numbers, got {str(pert)[:60]!r}")
+        metadata = {**metadata, "perturbation": dict(pert)}
 
     lens = src.build(surfaces=tuple(surfaces), f_number=f_number, epd=epd,
                      wavelengths_nm=wavelengths, primary_nm=primary, object_distance=obj,

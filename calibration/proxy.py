@@ -1,0 +1,335 @@
+"""Proxy cameras: perturbed lenses fitted to measured slanted-edge SFR
+(paper §3.2, Algorithm 1).
+
+``fit_proxy(nominal, observations)`` finds the perturbation of the nominal
+lens whose simulated SFRA matches the measured SFRA over the field:
+residuals ``f_i = (SFRA*_i − SFRA_i(P) − b_i) / σ_i`` per observation (an
+edge at a field position, orientation and colour channel), where
+``SFRA_i(P)`` is the noise-free prediction of :class:`calibration.sfr_model.SfrModel`,
+``b_i`` the rise of SFRA that the observation's own noise causes (eq. 14
+simulates the noise; computed once at the nominal lens) and ``σ_i`` the
+measurement's uncertainty. The solver is :func:`calibration.dls.damped_least_squares`
+(the paper's DLS with per-parameter dynamic damping); ``method="scipy"``
+runs ``scipy.optimize.least_squares`` (trust-region reflective) on the same
+residuals as a baseline.
+
+Parameters are the perturbation names of :mod:`calibration.perturb`,
+scaled by their tolerances: the fit works in tolerance units, bounded to
+±``bound_factor`` tolerances. Focus (the last air gap) is fitted too: a
+real device's focus is set at assembly and unknown to the model.
+
+The Jacobian's columns are independent lens evaluations and run on a
+process pool (``workers``, default 2).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .dls import DlsResult, damped_least_squares
+from .lens import Lens
+from .perturb import ParameterSpace, Perturbation, PerturbedLens, apply
+from .proxy_data import Observations
+
+#: the focus parameter's tolerance (mm): assembly sets focus within a few µm,
+#: but the fit starts from the nominal lens, so allow a wide range
+FOCUS_TOLERANCE_MM = 0.010
+
+_WORKER = {}
+
+
+def default_names(lens: Lens, kinds=("decenter", "tilt", "thickness", "focus")) -> list[str]:
+    """The fitted parameters by default: each element's decenter (x, y) and
+    tilt (about x and y), the air gaps, and focus — the perturbations that
+    break the field symmetry or move focus, to which SFRA over the field is
+    most sensitive; curvatures, conics and materials can be added by name."""
+    space = ParameterSpace.default(lens, kinds=[k for k in kinds if k != "focus"])
+    names = list(space.names)
+    if "focus" in kinds:
+        names.append(focus_name(lens))
+    return names
+
+
+def focus_name(lens: Lens) -> str:
+    """Name of the last gap (lens to image plane)."""
+    return f"s{len(lens.surfaces)}.thickness"
+
+
+def parameter_space(lens: Lens, names) -> ParameterSpace:
+    """The space of ``names`` with the default tolerances (focus: ±10 µm)."""
+    names = list(names)
+    fname = focus_name(lens)
+    overrides = {fname: FOCUS_TOLERANCE_MM} if fname in names else None
+    return ParameterSpace.default(lens, names, overrides=overrides)
+
+
+@dataclass
+class ProxyFit:
+    """A fitted proxy camera and how it was fitted."""
+
+    nominal: Lens
+    space: ParameterSpace
+    u: np.ndarray                       # parameters in tolerance units
+    result: DlsResult | None
+    observations: Observations
+    predicted_before: np.ndarray        # SFRA (with noise bias) of the nominal lens
+    predicted_after: np.ndarray         # SFRA (with noise bias) of the proxy
+    noise_bias: np.ndarray
+    method: str = "dls"
+    evaluations: int = 0
+    seconds: float = 0.0
+    settings: dict = field(default_factory=dict)
+
+    @property
+    def perturbation(self) -> Perturbation:
+        return self.space.to_perturbation(self.u * self.space.tolerance)
+
+    @property
+    def lens(self) -> PerturbedLens:
+        return apply(self.nominal, self.perturbation)
+
+    @property
+    def std(self) -> np.ndarray:
+        """1-σ uncertainty of each parameter, physical units."""
+        if self.result is None:
+            return np.full(len(self.u), np.nan)
+        return self.result.std * self.space.tolerance
+
+    def errors(self) -> dict:
+        """SFRA RMS error (cy/px) and χ² of the nominal and fitted models."""
+        obs = self.observations
+        out = {}
+        for label, pred in (("before", self.predicted_before), ("after", self.predicted_after)):
+            d = obs.sfra - pred
+            out[label] = {"sfra_rms": float(np.sqrt(np.mean(d ** 2))),
+                          "chi2_per_obs": float(np.mean((d / obs.sfra_std) ** 2))}
+        return out
+
+    def to_dict(self) -> dict:
+        tol = self.space.tolerance
+        return {
+            "method": self.method,
+            "parameters": [{"name": n, "value": float(v), "std": float(s), "tolerance": float(t)}
+                           for n, v, s, t in zip(self.space.names, self.u * tol, self.std, tol)],
+            "errors": self.errors(),
+            "evaluations": self.evaluations,
+            "seconds": round(self.seconds, 2),
+            "stop_reason": self.result.reason if self.result is not None else "",
+            "merit_history": [h["merit"] for h in (self.result.history if self.result else [])],
+            "observations": len(self.observations),
+            "settings": self.settings,
+        }
+
+    def save(self, directory) -> dict:
+        """Write ``proxy.json`` (lens/v1: nominal + fitted perturbation),
+        ``fit.json`` and the plots into ``directory``; returns the paths."""
+        from isp.io import write_bytes_atomic
+
+        from .lens_io import lens_to_dict
+
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        lens_doc = lens_to_dict(self.nominal)
+        lens_doc["perturbation"] = {n: float(v) for n, v in self.perturbation.as_dict().items()}
+        paths = {"proxy": write_bytes_atomic(d / "proxy.json", json.dumps(lens_doc, indent=2).encode()),
+                 "fit": write_bytes_atomic(d / "fit.json", json.dumps(self.to_dict(), indent=2).encode())}
+        paths.update(plot_fit(self, d))
+        return paths
+
+
+# -- evaluation (picklable: one model per worker process) -----------------------------
+def _init_worker(payload):
+    from .sfr_model import SfrModel
+
+    nominal, obs, settings, names, bias = payload
+    _WORKER["model"] = SfrModel(nominal, obs, settings)
+    _WORKER["space"] = parameter_space(nominal, names)
+    _WORKER["bias"] = bias
+
+
+def _residual_task(u: np.ndarray) -> np.ndarray:
+    return _residuals(_WORKER["model"], _WORKER["space"], _WORKER["bias"], u)
+
+
+def _residuals(model, space: ParameterSpace, bias: np.ndarray, u: np.ndarray) -> np.ndarray:
+    lens = space.apply(np.asarray(u) * space.tolerance)
+    pred = model.predict(lens)
+    obs = model.obs
+    r = (obs.sfra - pred.sfra - bias) / obs.sfra_std
+    return np.where(np.isfinite(r), r, 0.0)
+
+
+def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
+              workers: int | None = None, max_iter: int = 15, bound_factor: float = 2.0,
+              progress: bool = True, x0=None) -> ProxyFit:
+    """Fit a proxy camera to SFR observations (module docstring).
+
+    Parameters
+    ----------
+    nominal : Lens
+    obs : Observations
+    names : sequence of str, optional
+        Fitted parameters (default :func:`default_names`).
+    settings : calibration.sfr_model.ModelSettings, optional
+    method : {"dls", "scipy"}
+    workers : int, optional
+        Processes for the Jacobian (default up to 2).
+    max_iter : int
+        Jacobians (DLS) at most.
+    bound_factor : float
+        Bounds in tolerances.
+    progress : bool
+        Show a progress bar.
+    x0 : (N,) array_like, optional
+        Start (tolerance units); default the nominal lens (0).
+    """
+    from .sfr_model import ModelSettings, SfrModel
+
+    settings = settings or ModelSettings()
+    names = list(names) if names is not None else default_names(nominal)
+    space = parameter_space(nominal, names)
+    n = len(space.names)
+    model = SfrModel(nominal, obs, settings)
+    t0 = time.perf_counter()
+    bias = np.asarray(model.noise_bias(nominal, obs), float)
+    lower = np.full(n, -bound_factor)
+    upper = np.full(n, bound_factor)
+    u0 = np.zeros(n) if x0 is None else np.asarray(x0, float)
+    workers = max(1, min(2, os.cpu_count() or 1)) if workers is None else int(workers)
+    pool = None
+    if workers > 1:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+        pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+                                   initargs=((nominal, obs, settings, names, bias),))
+
+    def fun(u):
+        return _residuals(model, space, bias, u)
+
+    def fun_many(points):
+        if pool is None or len(points) == 1:
+            return [fun(p) for p in points]
+        return list(pool.map(_residual_task, points))
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=max_iter, unit="iter", desc=f"proxy fit ({n} parameters)")
+
+    def report(rec):
+        if bar is not None and rec["iteration"] > 0:
+            bar.update(1)
+            bar.set_postfix(merit=f"{rec['merit']:.4g}", evals=rec["evaluations"])
+
+    before = model.predict(nominal).sfra + bias
+    try:
+        if method == "dls":
+            res = damped_least_squares(fun, u0, lower=lower, upper=upper, fun_many=fun_many, h=0.1,
+                                       max_iter=max_iter, target_chi2=1.0, progress=report)
+            u, evals = res.x, res.evaluations
+        elif method == "scipy":
+            from scipy.optimize import least_squares
+
+            calls = {"n": 0}
+
+            def counted(u):
+                calls["n"] += 1
+                return fun(u)
+
+            ls = least_squares(counted, u0, bounds=(lower, upper), method="trf", diff_step=0.1,
+                               x_scale=1.0, max_nfev=max_iter * (n + 1))
+            u, evals = ls.x, calls["n"]
+            jtj = ls.jac.T @ ls.jac
+            res = DlsResult(ls.x, ls.fun, ls.jac, np.linalg.pinv(jtj) * max(1.0, 2 * ls.cost / max(len(ls.fun) - n, 1)),
+                            [], evals, ls.message)
+        else:
+            raise ValueError(f"unknown method {method!r}; valid: 'dls', 'scipy'")
+    finally:
+        if pool is not None:
+            pool.shutdown()
+        if bar is not None:
+            bar.close()
+    after = model.predict(space.apply(u * space.tolerance)).sfra + bias
+    return ProxyFit(nominal, space, np.asarray(u), res, obs, before, after, bias, method, evals,
+                    time.perf_counter() - t0, settings=_settings_dict(settings))
+
+
+def _settings_dict(settings) -> dict:
+    import dataclasses
+
+    return dataclasses.asdict(settings) if dataclasses.is_dataclass(settings) else dict(settings)
+
+
+def plot_fit(fit: ProxyFit, directory) -> dict:
+    """merit.png (merit per iteration), sfra_maps.png (measured, nominal,
+    fitted SFRA over the field) and parameters.png (values ± 1σ in
+    tolerances)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .cli import save_figure
+
+    d = Path(directory)
+    out = {}
+    hist = fit.result.history if fit.result is not None else []
+    if hist:
+        fig, ax = plt.subplots(figsize=(5, 3.4))
+        ax.semilogy([h["evaluations"] for h in hist], [h["merit"] for h in hist], "o-")
+        ax.set(xlabel="lens evaluations", ylabel="merit Σ f² (χ²)", title=f"proxy fit ({fit.method})")
+        ax.axhline(len(fit.observations), color="gray", ls=":", label="noise floor (χ² = N)")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        save_figure(fig, d / "merit.png")
+        out["merit_plot"] = d / "merit.png"
+    obs = fit.observations
+    maps = [obs.region_map(), obs.region_map(fit.predicted_before), obs.region_map(fit.predicted_after)]
+    vmin = np.nanmin([np.nanmin(m) for m in maps])
+    vmax = np.nanmax([np.nanmax(m) for m in maps])
+    fig, axes = plt.subplots(1, 4, figsize=(17, 3.6))
+    for ax, m, title in zip(axes, maps, ("measured SFRA", "nominal lens", "proxy camera")):
+        im = ax.imshow(m, vmin=vmin, vmax=vmax, cmap="viridis")
+        ax.set_title(title)
+    fig.colorbar(im, ax=axes[:3], shrink=0.8, label="SFRA (cy/px)")
+    r = maps[0] - maps[2]
+    lim = np.nanmax(np.abs(r)) if np.isfinite(r).any() else 1.0
+    im = axes[3].imshow(r, cmap="coolwarm", vmin=-lim, vmax=lim)
+    axes[3].set_title("measured − proxy")
+    fig.colorbar(im, ax=axes[3], shrink=0.8)
+    save_figure(fig, d / "sfra_maps.png")
+    out["sfra_plot"] = d / "sfra_maps.png"
+    fig, ax = plt.subplots(figsize=(max(6, 0.22 * len(fit.u)), 3.4))
+    std_u = fit.result.std if fit.result is not None else np.zeros_like(fit.u)
+    ax.bar(range(len(fit.u)), fit.u, yerr=std_u, capsize=2)
+    ax.set_xticks(range(len(fit.u)))
+    ax.set_xticklabels(fit.space.names, rotation=90, fontsize=7)
+    ax.set_ylabel("fitted value / tolerance")
+    ax.axhline(0, color="k", lw=0.5)
+    fig.tight_layout()
+    save_figure(fig, d / "parameters.png")
+    out["parameters_plot"] = d / "parameters.png"
+    return out
+
+
+def load_proxy(path) -> PerturbedLens:
+    """A proxy lens file (lens/v1 with a ``perturbation`` object) as a
+    PerturbedLens; a plain lens/v1 file gives the nominal lens."""
+    from .lens_io import read_lens
+
+    lens = read_lens(path)
+    pert = lens.metadata.get("perturbation") or {}
+    return apply(lens, Perturbation.from_dict(pert))
+
+
+__all__ = ["ProxyFit", "default_names", "fit_proxy", "focus_name", "load_proxy", "parameter_space",
+           "plot_fit", "FOCUS_TOLERANCE_MM"]
