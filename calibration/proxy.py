@@ -57,6 +57,29 @@ def default_names(lens: Lens, kinds=("decenter", "tilt", "thickness", "focus")) 
     return names
 
 
+def screen_parameters(model, names, n_keep: int, *, bias=None, fun_many=None, h: float = 0.5) -> list[str]:
+    """The ``n_keep`` parameters to which the observations' SFRA is most
+    sensitive (norm of the Jacobian column in tolerance units, one forward
+    difference of ``h`` tolerances each, at the nominal lens); focus is
+    always kept. With more parameters than the data constrain (e9 has 48
+    decenters, tilts and gaps), DLS wanders along weak directions; the most
+    sensitive ones make an equivalent proxy (paper §3.2 perturbs a chosen
+    subset too)."""
+    names = list(names)
+    space = parameter_space(model.nominal, names)
+    pts = [np.zeros(len(names))] + [np.eye(len(names))[j] * h for j in range(len(names))]
+    b = np.zeros(len(model.obs)) if bias is None else bias
+    if fun_many is None:
+        rs = [_residuals(model, space, b, u) for u in pts]
+    else:
+        rs = fun_many(pts)
+    sens = np.array([np.linalg.norm(r - rs[0]) for r in rs[1:]])
+    fname = focus_name(model.nominal)
+    order = [names[j] for j in np.argsort(-sens) if names[j] != fname]
+    keep = order[: max(0, n_keep - (fname in names))]
+    return [n for n in names if n in keep or n == fname]
+
+
 def focus_name(lens: Lens) -> str:
     """Name of the last gap (lens to image plane)."""
     return f"s{len(lens.surfaces)}.thickness"
@@ -168,7 +191,7 @@ def _residuals(model, space: ParameterSpace, bias: np.ndarray, u: np.ndarray) ->
 
 def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
               workers: int | None = None, max_iter: int = 15, bound_factor: float = 2.0,
-              progress: bool = True, x0=None) -> ProxyFit:
+              progress: bool = True, x0=None, n_params: int | None = 16) -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
 
     Parameters
@@ -189,27 +212,43 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         Show a progress bar.
     x0 : (N,) array_like, optional
         Start (tolerance units); default the nominal lens (0).
+    n_params : int, optional
+        Without ``names``: fit the ``n_params`` most sensitive of
+        :func:`default_names` (:func:`screen_parameters`); None: all.
     """
     from .sfr_model import ModelSettings, SfrModel
 
     settings = settings or ModelSettings()
-    names = list(names) if names is not None else default_names(nominal)
-    space = parameter_space(nominal, names)
-    n = len(space.names)
-    model = SfrModel(nominal, obs, settings)
     t0 = time.perf_counter()
+    model = SfrModel(nominal, obs, settings)
     bias = np.asarray(model.noise_bias(nominal, obs), float)
-    lower = np.full(n, -bound_factor)
-    upper = np.full(n, bound_factor)
-    u0 = np.zeros(n) if x0 is None else np.asarray(x0, float)
+    screen = names is None and n_params is not None
+    names = list(names) if names is not None else default_names(nominal)
     workers = max(1, min(2, os.cpu_count() or 1)) if workers is None else int(workers)
     pool = None
-    if workers > 1:
+
+    def start_pool():
         import multiprocessing as mp
 
         ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-        pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+        return ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                    initargs=((nominal, obs, settings, names, bias),))
+
+    if screen and len(names) > n_params:
+        if workers > 1:
+            pool = start_pool()
+        names = screen_parameters(model, names, n_params, bias=bias,
+                                  fun_many=None if pool is None else (lambda pts: list(pool.map(_residual_task, pts))))
+        if pool is not None:
+            pool.shutdown()
+            pool = None
+    space = parameter_space(nominal, names)
+    n = len(space.names)
+    lower = np.full(n, -bound_factor)
+    upper = np.full(n, bound_factor)
+    u0 = np.zeros(n) if x0 is None else np.asarray(x0, float)
+    if workers > 1:
+        pool = start_pool()
 
     def fun(u):
         return _residuals(model, space, bias, u)
@@ -331,5 +370,5 @@ def load_proxy(path) -> PerturbedLens:
     return apply(lens, Perturbation.from_dict(pert))
 
 
-__all__ = ["ProxyFit", "default_names", "fit_proxy", "focus_name", "load_proxy", "parameter_space",
+__all__ = ["ProxyFit", "default_names", "screen_parameters", "fit_proxy", "focus_name", "load_proxy", "parameter_space",
            "plot_fit", "FOCUS_TOLERANCE_MM"]
