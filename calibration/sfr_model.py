@@ -24,8 +24,9 @@ SFR of every observation directly from the lens:
    (masses ``w_i`` at offsets ``v_i``), exact below the first replica of
    the sample lattice (≥ 1.6 cycles/pixel at the default half-pixel PSF
    pitch, so exact on 0..1 cycles/pixel). It is computed by binning the
-   masses on the normal at 1/32 px with linear weights and one DFT; the
-   binning's own transfer ``sinc²(f·Δ)`` is divided out.
+   masses on the normal at Δ = 1/64 px with linear weights and one DFT
+   (the binning moves a mass by < Δ: transfer off by ≤ (πfΔ)²/3, 8e-4 at
+   1 cycle/pixel).
 4. ``SFR(f) = |OTF(f n̂)| · sinc(a f n_x) sinc(a f n_y)`` (square pixel
    aperture of side ``a``), times any multiplicative transfer the caller
    adds (the loop's effects: crosstalk, sharpening, glare).
@@ -62,9 +63,9 @@ from .psf_map import _wavelength_plan, chief_ray_fields, sensor_to_image
 from .sfr import LUMINANCE_WEIGHTS
 from .sfr_edge import area_to
 
-__all__ = ["ModelSettings", "Prediction", "SfrModel", "mtf_along", "sfra_of"]
+__all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "sfra_of"]
 
-BIN_STEP_PX = 1.0 / 32.0
+BIN_STEP_PX = 1.0 / 64.0
 CHANNELS = ("R", "G", "B")
 
 
@@ -92,7 +93,7 @@ class ModelSettings:
     camera: str = DEFAULT_CAMERA
     illuminant: str = "D65"
     aperture_px: float = 1.0
-    noise_realisations: int = 3
+    noise_realisations: int = 4
     seed: int = 0
 
 
@@ -113,6 +114,18 @@ def sfra_of(freq: np.ndarray, sfr: np.ndarray) -> np.ndarray:
 
 
 def mtf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
+    """|:func:`otf_along`|: the MTF of sampled PSFs along edge normals.
+
+    Examples
+    --------
+    >>> p = np.zeros((9, 9)); p[4, 4] = 1.0
+    >>> bool(np.allclose(mtf_along(p, 0.5, [30.0], [0.0, 0.5, 1.0]), 1.0))
+    True
+    """
+    return np.abs(otf_along(psf, pitch_px, normal_deg, freq))
+
+
+def otf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
     """|OTF| of sampled PSFs along edge normals (projection-slice theorem).
 
     Parameters
@@ -128,13 +141,8 @@ def mtf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
 
     Returns
     -------
-    (N, F) ndarray
-
-    Examples
-    --------
-    >>> p = np.zeros((9, 9)); p[4, 4] = 1.0
-    >>> bool(np.allclose(mtf_along(p, 0.5, [30.0], [0.0, 0.5, 1.0]), 1.0))
-    True
+    (N, F) complex ndarray
+        Phase relative to the PSF's centre sample.
     """
     p = np.asarray(psf, dtype=np.float64)
     if p.ndim == 2:
@@ -155,9 +163,7 @@ def mtf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
     hist = hist.reshape(n_obs, nb)
     x = (np.arange(nb) - half) * BIN_STEP_PX
     ph = 2.0 * np.pi * x[:, None] * f[None, :]
-    re = hist @ np.cos(ph)
-    im = hist @ np.sin(ph)
-    return np.hypot(re, im) / np.sinc(f * BIN_STEP_PX)[None, :] ** 2
+    return hist @ np.cos(ph) - 1j * (hist @ np.sin(ph))
 
 
 def aperture_mtf(freq, normal_deg, a: float = 1.0) -> np.ndarray:
@@ -208,6 +214,7 @@ class SfrModel:
         self._aim = _real_aim(nominal(nominal_lens), self.fields, s.pupil_samples) if s.aiming == "real" else None
         self._traced_key = None
         self._traced = None
+        self._mtf_cache = (None, None)
 
     # -- geometry ----------------------------------------------------------------------
     def _channel_mix(self) -> np.ndarray:
@@ -220,9 +227,14 @@ class SfrModel:
                     mix[i, self.channels.index(c)] = w
         return mix / mix.sum(axis=1, keepdims=True)
 
+    @staticmethod
+    def _trace_key_of(lens) -> tuple:
+        pl = nominal(lens)
+        return repr(pl.perturbation.as_dict()), id(pl.nominal)
+
     def _trace(self, lens: PerturbedLens):
         """Traced rays per node and wavelength, cached for the last lens."""
-        key = repr(lens.perturbation.as_dict()), id(lens.nominal)
+        key = self._trace_key_of(lens)
         if self._traced_key == key:
             return self._traced
         s = self.settings
@@ -259,11 +271,32 @@ class SfrModel:
         p = self.node_psfs(lens, defocus_mm)
         return np.einsum("nc,ncij->nij", self.mix, p[self.obs_node])
 
-    def optical_mtf(self, lens, defocus_mm=None) -> np.ndarray:
-        """(N, F) |OTF| of the optics along each observation's normal."""
-        return mtf_along(self.observation_psfs(lens, defocus_mm), self.pitch_px, self.obs.normal_deg, self.obs.freq)
+    def optical_mtf(self, lens, defocus_mm=None, shifts_px=None) -> np.ndarray:
+        """(N, F) |OTF| of the optics along each observation's normal.
+        ``shifts_px`` (N, channels, 2): extra lateral shift (x, y) of each
+        channel's PSF (lateral colour), which matters only where an
+        observation mixes channels ("L")."""
+        obs = self.obs
+        if shifts_px is None:
+            key = (self._trace_key_of(lens), None if defocus_mm is None else np.asarray(defocus_mm, float).tobytes())
+            if self._mtf_cache[0] != key:
+                self._mtf_cache = (key, mtf_along(self.observation_psfs(lens, defocus_mm), self.pitch_px,
+                                                  obs.normal_deg, obs.freq))
+            return self._mtf_cache[1]
+        p = self.node_psfs(lens, defocus_mm)[self.obs_node]            # (N, C, m, m)
+        t = np.radians(np.asarray(obs.normal_deg, float))
+        f = np.asarray(obs.freq, float)
+        total = np.zeros((len(obs), len(f)), complex)
+        for c in range(len(self.channels)):
+            w = self.mix[:, c]
+            if not np.any(w):
+                continue
+            d = shifts_px[:, c, 0] * np.cos(t) + shifts_px[:, c, 1] * np.sin(t)
+            total += w[:, None] * otf_along(p[:, c], self.pitch_px, obs.normal_deg, f) \
+                * np.exp(-2j * np.pi * f[None, :] * d[:, None])
+        return np.abs(total)
 
-    def predict(self, lens, *, defocus_mm=None, transfer=None) -> Prediction:
+    def predict(self, lens, *, defocus_mm=None, transfer=None, shifts_px=None) -> Prediction:
         """Noise-free SFR and SFRA of every observation.
 
         Parameters
@@ -275,7 +308,7 @@ class SfrModel:
             Extra multiplicative transfer (sensor MTF, sharpening, glare).
         """
         obs = self.obs
-        sfr = self.optical_mtf(lens, defocus_mm) * aperture_mtf(obs.freq, obs.normal_deg, self.settings.aperture_px)
+        sfr = self.optical_mtf(lens, defocus_mm, shifts_px) * aperture_mtf(obs.freq, obs.normal_deg, self.settings.aperture_px)
         if transfer is not None:
             sfr = sfr * transfer
         return Prediction(sfra_of(obs.freq, sfr), sfr, obs.freq)
@@ -287,25 +320,37 @@ class SfrModel:
 
     # -- the measurement's own noise and method ---------------------------------------------
     def noise_bias(self, lens, obs: Observations | None = None, *, psfs=None) -> np.ndarray:
+        """SFRA part of :meth:`measurement_bias` (N,), cycles/pixel."""
+        return self.measurement_bias(lens, obs, psfs=psfs)[0]
+
+    def measurement_bias(self, lens, obs: Observations | None = None, *, psfs=None) -> tuple[np.ndarray, np.ndarray]:
         """What the measurement adds to each observation's SFRA (N,),
         cycles/pixel: the mean SFRA of ``noise_realisations`` renders of its
         edge through its predicted PSF with its own noise, measured as it
         was measured (``obs.meta["measure"]``: "image" or "bayer:<channel>"),
         minus the model's noise-free SFRA. It holds the noise's rise (paper
         eq. 14) and the ISO method's own small bias (its binning and
-        derivative: +0.001 cycles/pixel on e9 noise-free)."""
+        derivative: +0.001 cycles/pixel on e9 noise-free). Returns
+        ``(sfra_bias (N,), sfr_bias (N, F))``, the second the same for the
+        SFR curves on ``obs.freq``."""
         obs = self.obs if obs is None else obs
         s = self.settings
         psfs = self.observation_psfs(lens) if psfs is None else psfs
-        exact = sfra_of(obs.freq, mtf_along(psfs, self.pitch_px, obs.normal_deg, obs.freq)
-                        * aperture_mtf(obs.freq, obs.normal_deg, s.aperture_px))
+        exact = (mtf_along(psfs, self.pitch_px, obs.normal_deg, obs.freq)
+                 * aperture_mtf(obs.freq, obs.normal_deg, s.aperture_px))
+        exact_a = sfra_of(obs.freq, exact)
         rng = np.random.default_rng(s.seed)
         out = np.zeros(len(obs))
+        spread = np.zeros(len(obs))
+        curves = np.zeros_like(exact)
         for i in range(len(obs)):
-            m = _measured_sfra(psfs[i], self.pitch_um, self.sensor.pixel_pitch_um, obs, i, s.noise_realisations,
-                               rng, s.aperture_px)
-            out[i] = m - exact[i] if np.isfinite(m) else 0.0
-        return out
+            m, c, sd = _measured_sfra(psfs[i], self.pitch_um, self.sensor.pixel_pitch_um, obs, i,
+                                      s.noise_realisations, rng, s.aperture_px)
+            out[i] = m - exact_a[i] if np.isfinite(m) else 0.0
+            curves[i] = np.where(np.isfinite(c), c - exact[i], 0.0)
+            spread[i] = sd
+        self.last_sfra_noise = spread
+        return out, curves
 
 
 def _real_aim(pl: PerturbedLens, fields, samples: int) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -391,15 +436,28 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
     clean = r.optical[:, :, 0]
     how = str(obs.meta.get("measure", "image"))
 
+    f = np.asarray(obs.freq)
+
     def sfra(img):
         try:
             if how.startswith("bayer:"):
-                return measure_sfr_bayer(img, "RGGB", channel=how.split(":", 1)[1]).sfra
-            return measure_sfr(img).sfra
+                r = measure_sfr_bayer(img, "RGGB", channel=how.split(":", 1)[1])
+            else:
+                r = measure_sfr(img)
         except SfrError:
-            return np.nan
+            return np.nan, np.full(f.shape, np.nan)
+        return r.sfra, np.interp(f, r.freq, r.sfr, right=np.nan)
 
-    if not noise > 0:
-        return float(sfra(clean))
-    vals = [sfra(clean + rng.normal(0.0, noise, clean.shape)) for _ in range(max(1, n_real))]
-    return float(np.nanmean(vals)) if np.isfinite(vals).any() else float("nan")
+    imgs = [clean] if not noise > 0 else [clean + rng.normal(0.0, noise, clean.shape) for _ in range(max(1, n_real))]
+    vals = [sfra(img) for img in imgs]
+    a = np.array([v[0] for v in vals])
+    c = np.array([v[1] for v in vals])
+    if not np.isfinite(a).any():
+        return float("nan"), np.full(f.shape, np.nan), float("nan")
+    with np.errstate(invalid="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sd = float(np.nanstd(a, ddof=1)) if np.isfinite(a).sum() > 1 else float("nan")
+            return float(np.nanmean(a)), np.nanmean(c, axis=0), sd
