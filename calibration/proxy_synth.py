@@ -15,12 +15,19 @@ ISO 12233 (:func:`calibration.sfr.measure_sfr`).
 for effects in the measurement chain the lens model does not have
 (crosstalk, sharpening, glare, ...) — the loop closure's tests inject them
 here, on pixels, not in the model's own terms.
+
+With ``return_edges=True`` the noisy ROI images come back too
+(:class:`SyntheticEdge`, one per observation, same order), each with the
+geometry it was rendered at, so a pixel-level fit
+(:mod:`calibration.proxy_pixel`) can render the same edge through another
+lens and compare pixels.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,9 +36,62 @@ from .proxy_data import GRID, Observations
 from .psf_map import region_centers_mm, image_to_sensor
 from .sfr_chart import classify_orientation
 
-__all__ = ["edge_sites", "synthetic_observations"]
+__all__ = ["SyntheticEdge", "edge_sites", "synthetic_observations"]
 
 EDGE_ANGLE_DEG = 5.0
+
+
+@dataclass(frozen=True, eq=False)
+class SyntheticEdge:
+    """One measured edge ROI of :func:`synthetic_observations` and how it
+    was rendered (arguments of :func:`calibration.imaging.render_slanted_edge`).
+
+    Attributes
+    ----------
+    image : (h, w) ndarray
+        The measured ROI: rendered, ``image_ops`` applied, noise added.
+    clean : (h, w) ndarray
+        The same before the noise.
+    center_px : (x, y)
+        Edge point and ROI centre, sensor pixels.
+    size : (h, w)
+    angle_deg : float
+    horizontal : bool
+    low, high : float
+        Scene levels either side of the edge.
+    pixel_pitch_um : float
+    box : (x, y, w, h)
+        Where the ROI sits on the sensor.
+    noise : float
+        Noise σ added (0..1 signal units).
+    channel : str
+    """
+
+    image: np.ndarray
+    clean: np.ndarray
+    center_px: tuple[float, float]
+    size: tuple[int, int]
+    angle_deg: float
+    horizontal: bool
+    low: float
+    high: float
+    pixel_pitch_um: float
+    box: tuple[int, int, int, int]
+    noise: float
+    channel: str
+
+    def render(self, psf_data, pitch_um: float) -> np.ndarray:
+        """The noise-free ROI (h, w) of this edge through another PSF
+        (``psf_data`` (m, m) masses at ``pitch_um``), same geometry and
+        levels."""
+        from types import SimpleNamespace
+
+        from .imaging import render_slanted_edge
+
+        psf = SimpleNamespace(data=np.asarray(psf_data, dtype=np.float64), pitch_um=float(pitch_um))
+        ren = render_slanted_edge(psf, self.center_px, self.size, self.angle_deg, horizontal=self.horizontal,
+                                  low=self.low, high=self.high, pixel_pitch_um=self.pixel_pitch_um, noise=False)
+        return ren.optical[:, :, 0]
 
 
 def edge_sites(sensor: Sensor, grid: tuple[int, int] = GRID) -> list[tuple[int, int, float, float]]:
@@ -49,7 +109,8 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
                            noise_growth: float = 1.0, channels: Sequence[str] = ("G",),
                            image_ops: Sequence[Callable[[np.ndarray, float, float], np.ndarray]] = (),
                            psf_ops: Sequence[Callable] = (), low: float = 0.2, high: float = 0.8,
-                           angle_deg: float = EDGE_ANGLE_DEG, rng=0, progress: bool = False) -> Observations:
+                           angle_deg: float = EDGE_ANGLE_DEG, rng=0, progress: bool = False,
+                           return_edges: bool = False):
     """Observations of the lens whose PSF map is ``psfmap``: one vertical
     and one horizontal edge at every region centre of the map's grid.
 
@@ -71,6 +132,14 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
     psf_ops : callables ``op(psf_data, x_px, y_px, channel) -> psf_data``
         Effects on the optics, applied to each PSF before rendering.
     rng : int or Generator
+    return_edges : bool
+        Also return the measured ROIs.
+
+    Returns
+    -------
+    Observations, or (Observations, list of SyntheticEdge) with ``return_edges``
+        The edges in the observations' order (an edge whose SFR could not
+        be measured is in neither).
     """
     from types import SimpleNamespace
 
@@ -82,7 +151,7 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
     grid = psfmap.grid
     half = 0.5 * math.hypot(sensor.width_px, sensor.height_px)
     cx, cy = (sensor.width_px - 1) / 2.0, (sensor.height_px - 1) / 2.0
-    items, chans, rois = [], [], []
+    items, chans, rois, edges = [], [], [], []
     sites = edge_sites(sensor, grid)
     it = sites
     if progress:
@@ -105,6 +174,7 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
                 img = ren.optical[:, :, 0]
                 for op in image_ops:
                     img = op(img, x, y)
+                clean = img
                 img = img + rng.normal(0.0, sigma, img.shape)
                 try:
                     res = measure_sfr(img)
@@ -118,8 +188,13 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
                 items.append((x, y, normal, orient, res))
                 chans.append(ch)
                 rois.append((ren.box[0], ren.box[1], size[1], size[0]))
+                if return_edges:
+                    edges.append(SyntheticEdge(img, clean, (x, y), size, float(angle_deg), horizontal, float(low),
+                                               float(high), float(sensor.pixel_pitch_um), tuple(ren.box), float(sigma),
+                                               str(ch)))
     obs = Observations.from_sfr_results(items, sensor, grid=grid, source="synthetic")
     fields = {k: getattr(obs, k) for k in ("x_px", "y_px", "normal_deg", "orientation", "sfra", "sfra_std",
                                            "noise", "step", "freq", "sfr", "sensor")}
-    return Observations(**fields, channel=np.array(chans), roi=np.array(rois), grid=grid, source="synthetic",
-                        meta={"measure": "image"})
+    obs = Observations(**fields, channel=np.array(chans), roi=np.array(rois), grid=grid, source="synthetic",
+                       meta={"measure": "image"})
+    return (obs, edges) if return_edges else obs

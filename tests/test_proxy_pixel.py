@@ -1,0 +1,84 @@
+"""The pixel-MSE competitor of the proxy fit (calibration.proxy_pixel) and
+the edge images of synthetic devices (proxy_synth, return_edges)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from calibration.proxy_pixel import _steps
+from tests.helpers import data_file
+
+E9 = ("lenses", "phone", "US-12210142-B2-e9.zmx")
+
+
+@pytest.fixture(scope="module")
+def device():
+    """e9 with focus and a decenter perturbed, measured on a 3 × 4 grid."""
+    from calibration.lens_io import read_lens
+    from calibration.proxy import focus_name, parameter_space
+    from calibration.proxy_synth import synthetic_observations
+    from calibration.psf_map import psf_map
+
+    lens = read_lens(data_file(*E9))
+    names = [focus_name(lens), "e1.decenter_x"]
+    space = parameter_space(lens, names)
+    truth = np.array([1.0, 0.8])
+    with warnings.catch_warnings():     # the corner PSF is truncated by the small window: immaterial here
+        warnings.simplefilter("ignore", UserWarning)
+        pm = psf_map(space.apply(truth * space.tolerance), grid=(3, 4), channels=("G",), n=32, pupil_samples=32,
+                     n_wavelengths=2, cache=False, progress=False, workers=1)
+    obs, edges = synthetic_observations(pm, noise=0.004, return_edges=True, rng=1)
+    return lens, names, truth, pm, obs, edges
+
+
+def test_return_edges_matches_observations(device):
+    from calibration.proxy_data import Observations
+    from calibration.proxy_synth import synthetic_observations
+
+    _, _, _, pm, obs, edges = device
+    assert len(edges) == len(obs) == 24
+    plain = synthetic_observations(pm, noise=0.004, rng=1)
+    assert isinstance(plain, Observations)                    # default unchanged
+    np.testing.assert_array_equal(plain.sfra, obs.sfra)       # same noise draws
+    for i, e in enumerate(edges):
+        assert e.image.shape == e.size == (int(obs.roi[i][3]), int(obs.roi[i][2]))
+        assert tuple(e.box) == tuple(int(v) for v in obs.roi[i])
+        assert e.center_px == (obs.x_px[i], obs.y_px[i])
+        assert 0.5 * e.noise < np.std(e.image - e.clean) < 2.0 * e.noise
+    # rendering through the truth PSF gives back the clean ROI
+    e = edges[0]
+    r, c = obs.region[0]
+    np.testing.assert_allclose(e.render(pm.psf(r, c, "G").data, pm.pitch_um), e.clean, atol=1e-9)
+
+
+def test_pixel_fit_moves_toward_truth(device):
+    from calibration.proxy_pixel import fit_pixel_mse
+    from calibration.sfr_model import ModelSettings
+
+    lens, names, truth, _, obs, edges = device
+    fit = fit_pixel_mse(lens, obs, edges, names=names, settings=ModelSettings(pupil_samples=32), max_iter=5)
+    assert fit.u.shape == (2,) and np.all(np.abs(fit.u) <= 2.0)
+    assert tuple(fit.space.names) == tuple(names)
+    assert abs(fit.u[0] - truth[0]) < 0.3 * abs(truth[0])    # focus: from 1 tolerance off to < 0.3
+    assert np.linalg.norm(fit.u - truth) < np.linalg.norm(truth)
+    assert fit.mse_after < 0.5 * fit.mse_before
+    assert fit.evaluations >= 3 and fit.seconds > 0
+    assert fit.lens.perturbation.as_dict()[names[0]] == pytest.approx(fit.u[0] * fit.space.tolerance[0])
+    assert fit.to_dict()["method"] == "pixel-mse"
+
+
+def test_pixel_fit_rejects_mismatched_edges(device):
+    from calibration.proxy_pixel import fit_pixel_mse
+
+    lens, names, _, _, obs, edges = device
+    with pytest.raises(ValueError, match="edge images"):
+        fit_pixel_mse(lens, obs, edges[:-1], names=names)
+
+
+def test_steps_stay_in_bounds():
+    lo, hi = np.full(3, -2.0), np.full(3, 2.0)
+    h = _steps(np.array([0.0, -1.5, 1.95]), lo, hi, 0.1)
+    np.testing.assert_allclose(h, [0.1, -0.15, -0.195])
