@@ -192,11 +192,10 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
         elif m in ("scipy", "ours"):
             iters = args.max_iter
             if m == "scipy":
-                # fit_proxy gives scipy max_nfev = max_iter·(P + 1), and TRF counts in it neither the
-                # Jacobian's finite differences nor the Jacobians: that is ~max_iter·(P + 1) iterations,
-                # (P + 1)× the others' budget. Scale it to about max_iter iterations.
-                iters = args.scipy_max_iter or max(1, round(args.max_iter / (len(names) + 1)))
-                extra = {"scipy_max_nfev": iters * (len(names) + 1)}
+                # fit_proxy's scipy max_iter is scipy's max_nfev, which TRF counts without its
+                # finite differences: about max_iter iterations, as the others
+                iters = args.scipy_max_iter or args.max_iter
+                extra = {"scipy_max_nfev": iters}
             fit = fit_proxy(lens, obs, names=names, settings=settings, method="dls" if m == "ours" else "scipy",
                             workers=args.workers if m == "ours" else 1, max_iter=iters, progress=False)
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
@@ -267,8 +266,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--n-params", type=int, default=16, help="fitted parameters (screened); 0: all")
     ap.add_argument("--max-iter", type=int, default=15, help="iterations (Jacobians) per fit")
     ap.add_argument("--scipy-max-iter", type=int, default=None,
-                    help="fit_proxy max_iter for scipy (its max_nfev = this·(P+1) TRF iterations); "
-                         "default round(max_iter/(P+1)) ≥ 1: about max_iter iterations, as the others")
+                    help="fit_proxy max_iter for scipy (its max_nfev: about this many TRF iterations); "
+                         "default --max-iter, as the others")
     ap.add_argument("--workers", type=int, default=2, help="processes for ours' Jacobian and the screening")
     ap.add_argument("--pixel-workers", type=int, default=1,
                     help="processes for the pixel fit's Jacobian (1: scipy's own, as the scipy baseline)")

@@ -35,6 +35,7 @@ and χ² per observation.
 
 from __future__ import annotations
 
+import copy
 import json
 import time
 from dataclasses import dataclass, field
@@ -140,7 +141,7 @@ class _Problem:
         f = np.asarray(obs.freq)
         m = f <= 0.5
         with np.errstate(invalid="ignore"):
-            mse = np.nanmean((np.asarray(obs.sfr)[:, m] - pred.sfr[:, m] - 0.0) ** 2)
+            mse = np.nanmean((np.asarray(obs.sfr)[:, m] - pred.sfr[:, m]) ** 2)
         r = self.residuals(pred)
         out = {"sfra_rms": float(np.sqrt(np.mean(d ** 2))), "sfr_mse": float(mse),
                "chi2_per_obs": float(np.mean(r ** 2))}
@@ -297,8 +298,8 @@ def _cv_gain(prob: _Problem, p, e, fold, k):
     the other folds, the rest held)."""
     g_old = g_new = 0.0
     xs_all = []
-    trial = _Problem(prob.base, prob.obs, prob.bias_a, np.zeros(np.shape(prob.obs.sfr)), prob.sigma)
-    trial.bias_bands, trial.effects = prob.bias_bands, prob.effects + [e]
+    trial = copy.copy(prob)
+    trial.effects = prob.effects + [e]
     q0 = np.concatenate([p, e.x0])
     free = np.zeros(len(q0), bool)
     free[len(p):] = True
@@ -318,7 +319,6 @@ def _cv_gain(prob: _Problem, p, e, fold, k):
         xs_all.append(q[len(p):])
     gain = 1.0 - g_new / g_old if g_old > 0 else 0.0
     return gain, g_old, g_new, np.median(np.array(xs_all), axis=0)
-
 
 
 def _unexplained(prob, pred, obs, d, floor, ratio) -> list:

@@ -93,8 +93,21 @@ def parameter_space(lens: Lens, names) -> ParameterSpace:
     return ParameterSpace.default(lens, names, overrides=overrides)
 
 
+class FittedLens:
+    """The fitted lens of a fit holding ``nominal``, ``space`` and ``u``
+    (parameters in tolerance units): shared by every proxy fitter."""
+
+    @property
+    def perturbation(self) -> Perturbation:
+        return self.space.to_perturbation(self.u * self.space.tolerance)
+
+    @property
+    def lens(self) -> PerturbedLens:
+        return apply(self.nominal, self.perturbation)
+
+
 @dataclass
-class ProxyFit:
+class ProxyFit(FittedLens):
     """A fitted proxy camera and how it was fitted."""
 
     nominal: Lens
@@ -109,14 +122,6 @@ class ProxyFit:
     evaluations: int = 0
     seconds: float = 0.0
     settings: dict = field(default_factory=dict)
-
-    @property
-    def perturbation(self) -> Perturbation:
-        return self.space.to_perturbation(self.u * self.space.tolerance)
-
-    @property
-    def lens(self) -> PerturbedLens:
-        return apply(self.nominal, self.perturbation)
 
     @property
     def std(self) -> np.ndarray:
@@ -205,7 +210,9 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     workers : int, optional
         Processes for the Jacobian (default up to 2).
     max_iter : int
-        Jacobians (DLS) at most.
+        Jacobians (DLS) at most; for scipy its ``max_nfev``, which TRF
+        counts without its finite differences (about ``max_iter``
+        iterations).
     bound_factor : float
         Bounds in tolerances.
     progress : bool
@@ -284,8 +291,10 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
                 calls["n"] += 1
                 return fun(u)
 
+            # TRF counts in max_nfev neither its finite differences nor the Jacobians, so
+            # max_iter here is about max_iter iterations: the same budget as DLS's Jacobians
             ls = least_squares(counted, u0, bounds=(lower, upper), method="trf", diff_step=0.1,
-                               x_scale=1.0, max_nfev=max_iter * (n + 1))
+                               x_scale=1.0, max_nfev=max_iter)
             u, evals = ls.x, calls["n"]
             jtj = ls.jac.T @ ls.jac
             res = DlsResult(ls.x, ls.fun, ls.jac, np.linalg.pinv(jtj) * max(1.0, 2 * ls.cost / max(len(ls.fun) - n, 1)),
@@ -370,5 +379,5 @@ def load_proxy(path) -> PerturbedLens:
     return apply(lens, Perturbation.from_dict(pert))
 
 
-__all__ = ["ProxyFit", "default_names", "screen_parameters", "fit_proxy", "focus_name", "load_proxy", "parameter_space",
+__all__ = ["FittedLens", "ProxyFit", "default_names", "screen_parameters", "fit_proxy", "focus_name", "load_proxy", "parameter_space",
            "plot_fit", "FOCUS_TOLERANCE_MM"]

@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .lens import Lens
-from .perturb import ParameterSpace, Perturbation, PerturbedLens, apply
-from .proxy import default_names, parameter_space
+from .perturb import ParameterSpace
+from .proxy import FittedLens, default_names, parameter_space
 from .proxy_data import Observations
 
 __all__ = ["PixelFit", "fit_pixel_mse", "pixel_residuals", "render_edges"]
@@ -38,7 +38,7 @@ _WORKER: dict = {}
 
 
 @dataclass
-class PixelFit:
+class PixelFit(FittedLens):
     """A lens fitted to edge images (the fields :class:`calibration.proxy.ProxyFit` shares)."""
 
     nominal: Lens
@@ -53,14 +53,6 @@ class PixelFit:
     message: str = ""
     iterations: int = 0
     settings: dict = field(default_factory=dict)
-
-    @property
-    def perturbation(self) -> Perturbation:
-        return self.space.to_perturbation(self.u * self.space.tolerance)
-
-    @property
-    def lens(self) -> PerturbedLens:
-        return apply(self.nominal, self.perturbation)
 
     def to_dict(self) -> dict:
         tol = self.space.tolerance

@@ -313,11 +313,6 @@ class SfrModel:
             sfr = sfr * transfer
         return Prediction(sfra_of(obs.freq, sfr), sfr, obs.freq)
 
-    def residuals(self, lens, bias=None) -> np.ndarray:
-        """Measured − predicted SFRA (− noise bias), cycles/pixel."""
-        p = self.predict(lens).sfra
-        return self.obs.sfra - p - (0.0 if bias is None else bias)
-
     # -- the measurement's own noise and method ---------------------------------------------
     def noise_bias(self, lens, obs: Observations | None = None, *, psfs=None) -> np.ndarray:
         """SFRA part of :meth:`measurement_bias` (N,), cycles/pixel."""
