@@ -420,7 +420,8 @@ def render_chart(chart: Chart, psf, sensor: SensorModel, *, exposure: float = 1.
 # -- raster scenes ---------------------------------------------------------------------
 
 def blur_image(image: np.ndarray, psf, *, pixel_pitch_um: float | None = None, supersample: int = 1,
-               blend: str = "bilinear", fill_factor: float = 1.0, size_px: tuple[int, int] | None = None) -> np.ndarray:
+               blend: str = "bilinear", fill_factor: float = 1.0, size_px: tuple[int, int] | None = None,
+               origin: tuple[int, int] = (0, 0)) -> np.ndarray:
     """Spatially varying blur of a raster scene by a PSF map, per region tile.
 
     Parameters
@@ -443,6 +444,10 @@ def blur_image(image: np.ndarray, psf, *, pixel_pitch_um: float | None = None, s
     size_px : (H, W), optional
         Sensor size the PSF map's regions divide (default the map's, else
         the image's).
+    origin : (row, col)
+        Sensor pixel of the image's first pixel: a crop of the sensor is
+        blurred with the PSFs of where it lies (may reach outside the
+        sensor, where the border regions' PSFs continue).
 
     Returns
     -------
@@ -480,7 +485,8 @@ def blur_image(image: np.ndarray, psf, *, pixel_pitch_um: float | None = None, s
     ap = bank.aperture_px if s > 1 else 1.0
     chans = [1] if mono else [0, 1, 2]
     out = np.zeros((h, w, len(chans)))
-    ys, xs = np.arange(h, dtype=np.float64), np.arange(w, dtype=np.float64)
+    ys = np.arange(h, dtype=np.float64) + float(origin[0])
+    xs = np.arange(w, dtype=np.float64) + float(origin[1])
     for ri, wy in bank.axis_weights(0, ys, blend, size):
         rsel = np.nonzero(wy > 0)[0]
         for ci, wx in bank.axis_weights(1, xs, blend, size):

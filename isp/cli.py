@@ -1,7 +1,8 @@
 """The ``isp`` command line.
 
 Sub-commands of this package (process, info, stages, batch, demo) are
-defined here; those of the other packages (calibration, training, export)
+defined here; those of the other packages (calibration, data synthesis,
+training, export)
 are imported only when called, so ``isp process`` never imports torch.
 
 Exit codes: 0 success; 1 a batch finished with failures; 2 bad input or
@@ -225,6 +226,7 @@ def cmd_demo(args) -> int:
 # -- other packages' commands (imported only when called) ----------------------
 EXTERNAL = {
     "calib": ("calibration.cli", "lens files, ray tracing, PSFs, simulated captures, SFR"),
+    "synth": ("restoration.cli", "training pairs from latent images through a proxy camera"),
 }
 
 

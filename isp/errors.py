@@ -26,6 +26,9 @@ class InputError(IspError):
         self.reason = reason
         super().__init__(f"{self.path}: {reason}" if self.path else reason)
 
+    def __reduce__(self):  # picklable, so an error in a worker process reaches the parent intact
+        return (type(self), (self.path, self.reason))
+
 
 class ConfigError(IspError):
     """A pipeline or stage configuration that cannot run: unknown stage,

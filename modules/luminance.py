@@ -53,6 +53,36 @@ def tone_aces(y):
 TONE_CURVES = {"none": None, "reinhard": tone_reinhard, "aces": tone_aces}
 
 
+def tone_reinhard_inverse(t, white: float = 4.0):
+    """Inverse of :func:`tone_reinhard` on [0, ∞): the root ``y ≥ 0`` of
+    ``y²/white² + (1 − t)·y − t = 0``, in the cancellation-free form
+    ``2t / ((1 − t) + sqrt((1 − t)² + 4t/white²))``.
+
+    >>> round(float(tone_reinhard_inverse(tone_reinhard(np.float64(2.5)))), 12)
+    2.5
+    """
+    xp = array_namespace(t)
+    b = 1.0 - t
+    return 2.0 * t / (b + xp.sqrt(b * b + 4.0 * t / (white * white)))
+
+
+def tone_aces_inverse(t):
+    """Inverse of :func:`tone_aces` for ``0 ≤ t < 2.51/2.43`` (its limit at
+    infinity): the root ``y ≥ 0`` of
+    ``(2.51 − 2.43t)·y² + (0.03 − 0.59t)·y − 0.14t = 0``, cancellation-free.
+
+    >>> round(float(tone_aces_inverse(tone_aces(np.float64(0.7)))), 12)
+    0.7
+    """
+    xp = array_namespace(t)
+    a = 2.51 - 2.43 * t
+    b = 0.03 - 0.59 * t
+    return 0.28 * t / (b + xp.sqrt(b * b + 0.56 * a * t))
+
+
+TONE_INVERSES = {"none": None, "reinhard": tone_reinhard_inverse, "aces": tone_aces_inverse}
+
+
 def luminance_weights(frame: Frame) -> np.ndarray:
     """Weights w (sum 1) with ``Y = w · rgb`` for the frame's data.
 
@@ -114,6 +144,50 @@ def adjust_luminance(x, gain: float, weights=BT709_Y, tone: str = "none",
     curve = TONE_CURVES[tone]
     t = curve(y, white) if tone == "reinhard" else curve(y)
     return x * (gain * t / y)
+
+
+def invert_luminance(y, gain: float, weights=BT709_Y, tone: str = "none", white: float = 4.0,
+                     channel_axis: int = -1):
+    """The inverse of :func:`adjust_luminance`: the data that the stage maps
+    to ``y`` (used to synthesise training data from display images).
+
+    Parameters
+    ----------
+    y : array, linear RGB (numpy or torch), 3 channels on ``channel_axis``
+        Output of :func:`adjust_luminance` (with ``"aces"``, luminance below
+        2.51/2.43, the curve's limit).
+    gain, weights, tone, white, channel_axis
+        As :func:`adjust_luminance`.
+
+    Returns
+    -------
+    array like y; not clipped.
+
+    Notes
+    -----
+    The stage multiplies each pixel by ``g·T(gY)/(gY)``, so the output's
+    luminance is ``Y' = w·y = T(gY)``; hence ``gY = T⁻¹(Y')`` and
+    ``x = y · T⁻¹(Y') / (g·Y')``.
+
+    >>> x = np.array([[[0.2, 0.5, 0.1]]], np.float32)
+    >>> y = adjust_luminance(x, 2.0, tone="reinhard")
+    >>> bool(np.allclose(invert_luminance(y, 2.0, tone="reinhard"), x, rtol=1e-5))
+    True
+    """
+    if tone not in TONE_CURVES:
+        raise ValueError(f"unknown tone curve {tone!r}; valid: {', '.join(TONE_CURVES)}")
+    if TONE_CURVES[tone] is None:
+        if gain == 1.0:
+            return y
+        return y * (np.float32(1.0 / gain) if is_numpy_array(y) else 1.0 / gain)
+    xp = array_namespace(y)
+    w = as_like(np.asarray(weights, dtype=np.float64), y)
+    shape = [1] * y.ndim
+    shape[channel_axis] = 3
+    yl = xp.clip(xp.sum(y * xp.reshape(w, tuple(shape)), axis=channel_axis, keepdims=True), 1e-8, None)
+    inv = TONE_INVERSES[tone]
+    t = inv(yl, white) if tone == "reinhard" else inv(yl)
+    return y * (t / (gain * yl))
 
 
 @dataclass(frozen=True)
