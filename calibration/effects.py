@@ -35,7 +35,7 @@ from importlib.metadata import entry_points
 
 import numpy as np
 
-__all__ = ["Effect", "Geometry", "create_effect", "list_effects", "register_effect"]
+__all__ = ["ROI_ACROSS_PX", "Effect", "Geometry", "create_effect", "list_effects", "register_effect"]
 
 ENTRY_POINT_GROUP = "calib.effects"
 _REGISTRY: dict[str, type] = {}
@@ -85,7 +85,9 @@ class Geometry:
     (N,), ``freq`` (F,), ``channel`` (N,) of the observations; ``obs_r``
     (N,) normalised radius; ``obs_xy`` (N, 2) offsets from the centre in
     pixels, ``half_diag_px`` the centre-to-corner distance; ``channels``:
-    the model's colour channels."""
+    the model's colour channels; ``roi_across_px`` (N,): each edge ROI's
+    extent across the edge, pixels — the length of the LSF record the SFR
+    was computed over (None: unknown, :data:`ROI_ACROSS_PX` assumed)."""
 
     x_mm: np.ndarray
     y_mm: np.ndarray
@@ -97,6 +99,11 @@ class Geometry:
     obs_xy: np.ndarray
     channels: tuple
     half_diag_px: float
+    roi_across_px: np.ndarray | None = None
+
+
+#: LSF record length assumed where the observations carry no ROI, pixels
+ROI_ACROSS_PX = 64.0
 
 
 class Effect:
@@ -111,6 +118,11 @@ class Effect:
     lower: tuple = ()
     upper: tuple = ()
     scale: tuple = ()
+    #: further start points for the fit besides ``x0`` — for an effect whose
+    #: response is flat at ``x0`` (|Δz| of a uniform defocus) and which the
+    #: base may have absorbed already (a uniform blur): the fit from x0 alone
+    #: stalls there
+    starts: tuple = ()
 
     def defocus_mm(self, x, geom: Geometry):
         return None
@@ -134,6 +146,7 @@ class FocusShift(Effect):
     name = "focus_shift"
     names, units = ("dz_um",), ("µm",)
     x0, lower, upper, scale = (0.0,), (-40.0,), (40.0,), (3.0,)
+    starts = ((6.0,), (-6.0,))
 
     def defocus_mm(self, x, geom):
         return np.full(len(geom.x_mm), 1e-3 * x[0])
@@ -169,13 +182,22 @@ class FieldCurvature(Effect):
 @register_effect
 class LateralCA(Effect):
     """Lateral chromatic aberration: R and B magnified differently from G
-    (shift ∝ field radius); seen only on edges that mix colours."""
+    (shift ∝ field radius); seen only on edges that mix colours.
+
+    An "L" edge's transfer is |Σ_c w_c exp(−2πi f d_c)| (d_c: channel c's
+    shift along the normal, w_c its luminance weight): to second order the
+    SFR falls by 2π²f²·s², s² = Σ w_c d_c² − (Σ w_c d_c)² the weighted
+    spread of the colour planes. SFRs therefore determine that spread, not R
+    and B apart (B weighs 0.07), and never the overall sign (a modulus):
+    edge positions per channel would be needed for those."""
 
     name = "lateral_ca"
     names, units = ("red_px_at_corner", "blue_px_at_corner"), ("px", "px")
     x0, lower, upper, scale = (0.0, 0.0), (-5.0, -5.0), (5.0, 5.0), (0.3, 0.3)
 
     def shifts_px(self, x, geom):
+        if not np.any(np.asarray(geom.channel) == "L") or not ({"R", "B"} & set(geom.channels)):
+            return None             # no edge mixes colours: nothing to see (and nothing to recompute)
         n = len(geom.obs_r)
         out = np.zeros((n, len(geom.channels), 2))
         radial = geom.obs_xy / geom.half_diag_px        # 1 at the corner
@@ -190,7 +212,9 @@ class LateralCA(Effect):
 @register_effect
 class PixelCrosstalk(Effect):
     """Pixel crosstalk / sensor MTF: a share c of each pixel's charge leaks
-    to each 4-neighbour (transfer (1 − 2c + 2c·cos 2πf_x)(…f_y))."""
+    to each 4-neighbour (kernel [[0, c, 0], [c, 1 − 4c, c], [0, c, 0]],
+    transfer 1 − 2c(1 − cos 2πf_x) − 2c(1 − cos 2πf_y), f_x, f_y the
+    frequency's components along the pixel axes)."""
 
     name = "pixel_crosstalk"
     names, units = ("leak",), ("fraction",)
@@ -200,8 +224,8 @@ class PixelCrosstalk(Effect):
         c = x[0]
         t = np.radians(geom.normal_deg)[:, None]
         f = geom.freq[None, :]
-        return np.abs((1 - 2 * c + 2 * c * np.cos(2 * np.pi * f * np.cos(t)))
-                      * (1 - 2 * c + 2 * c * np.cos(2 * np.pi * f * np.sin(t))))
+        return np.abs(1 - 2 * c * (1 - np.cos(2 * np.pi * f * np.cos(t)))
+                      - 2 * c * (1 - np.cos(2 * np.pi * f * np.sin(t))))
 
 
 @register_effect
@@ -222,18 +246,48 @@ class Sharpening(Effect):
 
 @register_effect
 class VeilingGlare(Effect):
-    """Veiling glare: a share g of the light spread far beyond the ROI
-    (the SFR above the lowest frequencies falls to 1 − g)."""
+    """Veiling glare: a share g of the light in a wide halo (Gaussian of σ_h
+    px), seen through the ISO LSF record window — a low-frequency shelf.
+
+    The slanted-edge SFR is normalised at DC by the *windowed* LSF over the
+    ROI: halo light beyond the record is simply not seen, and the part
+    inside is weighted by the record window (sfrmat5: a Hann over the whole
+    record, centred on the LSF peak). So the measured SFR is
+
+        SFR(f) = core(f) · |(1 − g) + g·Ĥ_w(f)| / ((1 − g) + g·Ĥ_w(0)),
+        Ĥ_w(f) = ∫ h(u) w(u) cos(2πfu) du,
+
+    h the halo's LSF (unit area), w the record window over the ROI's extent
+    across the edge (:attr:`Geometry.roi_across_px`). Above the halo's
+    frequencies the SFR sits at (1 − g)/((1 − g) + g·Ĥ_w(0)): for σ_h = 20 px
+    in a 64-px ROI about half of g. A halo much wider than the ROI only
+    offsets the ROI and leaves the SFR unchanged (so glare far wider than
+    the ROI is not measurable here; σ_h is bounded accordingly)."""
 
     name = "veiling_glare"
-    names, units = ("share",), ("fraction",)
-    x0, lower, upper, scale = (0.0,), (0.0,), (0.5,), (0.02,)
+    names, units = ("share", "halo_sigma_px"), ("fraction", "px")
+    x0, lower, upper, scale = (0.0, 12.0), (0.0, 2.0), (0.5, 40.0), (0.02, 3.0)
 
-    #: transfer of the halo itself: gone by ~0.02 cycles/pixel (wider than an ROI)
-    HALO_F = 0.01
+    #: sampling of the halo's LSF across the record, px
+    STEP_PX = 0.25
+
+    @classmethod
+    def seen(cls, sigma_px: float, across_px: float, freq) -> np.ndarray:
+        """Ĥ_w(f) (F,): the halo's LSF (unit area) windowed by the Hann
+        record window of ``across_px``, transformed at ``freq``."""
+        half = 0.5 * float(across_px)
+        u = np.arange(-half, half + 1e-9, cls.STEP_PX)
+        h = np.exp(-0.5 * (u / sigma_px) ** 2) / (math.sqrt(2.0 * math.pi) * sigma_px) * cls.STEP_PX
+        w = 0.5 + 0.5 * np.cos(np.pi * u / half)
+        return np.cos(2.0 * np.pi * np.asarray(freq, float)[:, None] * u[None, :]) @ (h * w)
 
     def transfer(self, x, geom):
-        g = x[0]
-        f = geom.freq[None, :]
-        return np.broadcast_to((1.0 - g) + g * np.exp(-(f / self.HALO_F) ** 2),
-                               (len(geom.normal_deg), len(geom.freq)))
+        g, s = float(x[0]), float(x[1])
+        n = len(geom.normal_deg)
+        across = np.full(n, ROI_ACROSS_PX) if geom.roi_across_px is None else np.asarray(geom.roi_across_px, float)
+        out = np.empty((n, len(geom.freq)))
+        for a in np.unique(across):
+            hw = self.seen(s, a, geom.freq)
+            h0 = float(self.seen(s, a, [0.0])[0])
+            out[across == a] = np.abs((1.0 - g) + g * hw) / ((1.0 - g) + g * h0)
+        return out

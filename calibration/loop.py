@@ -18,7 +18,9 @@ effects of the registry (:mod:`calibration.effects`):
    decomposed by field position (x, y, radius), orientation, channel and
    band for the report.
 4. Every registry effect not yet in the model is tried: its parameters are
-   fitted (base held) on the training folds of a K-fold split *by field
+   fitted (base held, or refitted with it where the base is cheap; from
+   ``x0`` and the effect's further ``starts``, the best on the training
+   data kept) on the training folds of a K-fold split *by field
    region* and scored on the held-out regions; its gain is the fall of the
    held-out χ², penalised by 2 per parameter per fold (AIC). The best is
    kept if it explains at least ``min_gain`` of the held-out χ²; then all
@@ -310,9 +312,11 @@ def _cv_gain(prob: _Problem, p, e, fold, k):
     hi = np.concatenate([np.asarray(prob.base.upper, float), np.full(len(p) - nb, np.inf), e.upper])
     pred_old = prob.predict(p)
     r_old = prob.residuals(pred_old).reshape(len(prob.obs), -1)
+    starts = [q0] + [np.concatenate([p, np.asarray(x, float)]) for x in getattr(e, "starts", ())]
     for j in range(k):
         train = fold != j
-        q, _ = _fit(trial, q0, lo, hi, free, mask=train, max_iter=6)
+        fits = [_fit(trial, s, lo, hi, free, mask=train, max_iter=6) for s in starts]
+        q, _ = min(fits, key=lambda qr: float(np.sum(trial.residuals(trial.predict(qr[0]), train) ** 2)))
         r_new = trial.residuals(trial.predict(q)).reshape(len(prob.obs), -1)
         g_old += float(np.sum(r_old[~train] ** 2))
         g_new += float(np.sum(r_new[~train] ** 2)) + 2.0 * len(e.names)
