@@ -1,21 +1,82 @@
 """The optical-correction slot: runs an ONNX restoration model, or nothing.
 
 Without a model the stage is the identity (and says so in the history).
-With one, it reads the model's metadata (``domain``, ``placement``, ``lens``,
-``tile_size``, ``fov_encoding``: written by ``isp export``) and refuses, when
-the pipeline is built, a position whose domain differs from the one the
-model was trained for, saying where it belongs. The model runs through
-onnxruntime (never torch) with two intra-op threads.
+With one, it reads the model's metadata (written by ``isp export``; table
+below) and refuses, when the pipeline is built, a position whose domain
+differs from the one the model was trained for, saying where it belongs.
+The model runs through onnxruntime (never torch): two intra-op threads,
+one inter-op thread, sequential execution, all graph optimisations; one
+session per model file, shared by every stage that names it.
+
+Full frames run tile by tile (:mod:`modules.tiling`, crop-centre
+stitching): each tile is read with a context margin of ``tile_overlap``
+pixels on every side, the model runs on it, and only the tile's core is
+kept, so with a margin at least the model's receptive-field radius the
+stitched frame equals a whole-frame run (to float rounding; tested), and
+the extra memory is the output frame plus one tile. Frame borders are
+padded by reflection, in the whole-frame run as in the tiled one.
 
 Field-of-view encoding ``"xy"`` appends two channels holding each pixel's
 normalised position on the *full* active area, in [-1, 1] (x right, y
-down), so the model knows where in the field a pixel is even when it sees a
-crop or a tile. (Tiling and the shipped model arrive with the export
-issue; this stage runs the whole frame in one call.)
+down), computed per tile from the tile's position in the full frame (in
+the reflected border margin, the position of the pixel that was mirrored
+there, so the pair image/position stays one the model has seen).
+
+Model contract
+--------------
+Inputs: the image ``(1, C, H, W)`` float32, ``C = 3`` (RGB in the slot's
+domain) or ``5`` (RGB, field x, field y), ``H, W`` any multiple of
+``input_multiple``; optionally ``stats`` (below). Output: ``(1, 3, H, W)``.
+Quantised (QDQ INT8) and float models go through the same path; the
+quantisation must be static (fixed scales), since a scale computed from
+the input would differ between tiles.
+
+========================  =========  ======================================================
+metadata key              default    meaning
+========================  =========  ======================================================
+``domain``                required   domain the model was trained in (``camera_rgb`` ...)
+``placement``             ""         where that is in the pipeline, for the error message
+``lens``                  "?"        lens identity (reported in the history)
+``fov_encoding``          "none"     ``"none"`` or ``"xy"`` (two field channels)
+``tile_size``             512        tile side the model sees, margins included (px);
+                                     ``0``: whole frame in one call
+``tile_overlap``          see text   context margin per side (px); else
+                                     ``receptive_radius`` (px), else ``receptive_field``
+                                     (full width, px; margin = width // 2), else 32
+``input_multiple``        4          H and W of every call are multiples of it, and tile
+                                     origins too (a UNet's total stride)
+``attention``             "local"    ``"local"``: attention statistics from a bounded
+                                     neighbourhood (tile-consistent, nothing to do);
+                                     ``"global"``: pooled over the whole input, so the
+                                     model must take them as a ``stats`` input
+========================  =========  ======================================================
+
+Attention statistics
+--------------------
+A model whose attention pools over its whole input would see different
+statistics in every tile. Such a model (``attention = "global"``) exposes
+the pooled statistics as a second input named ``stats``, shape ``(1, K)``
+or ``(1, K, 1, 1)``; the stage computes them once per frame and feeds the
+same value to every tile:
+
+.. math::
+
+    \\mathrm{stats}_k = \\frac{1}{H W} \\sum_{i, j} x_k(i, j),
+    \\quad k < K \\in \\{3, 5\\}
+
+the per-channel mean of the model's input over the frame it is given
+(RGB, then the field channels when ``K = 5``), accumulated in float64
+(an area-downscaled frame has the same mean). Training must feed the
+mean of the same channels over the whole training image (``x.mean((2,
+3))`` in torch). A ``"global"`` model without a ``stats`` input runs only
+untiled (``tile_size = 0``), and the stage says so at build time. Any
+model that declares a ``stats`` input gets it, whatever its ``attention``.
 """
 
 from __future__ import annotations
 
+import functools
+import os
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -26,8 +87,46 @@ from isp.errors import ConfigError, PlacementError
 from isp.frame import Domain, Frame
 from isp.stage import StageBase
 
+from .tiling import plan_tiles, run_tiled
+
 #: domains the slot can stand in (the model decides which one)
 SLOT_DOMAINS = (Domain.RAW_LINEAR, Domain.CAMERA_RGB, Domain.LINEAR_RGB, Domain.DISPLAY_RGB)
+#: defaults for absent metadata (see the module table)
+DEFAULT_TILE_SIZE = 512
+DEFAULT_OVERLAP = 32
+DEFAULT_MULTIPLE = 4
+FOV_ENCODINGS = ("none", "xy")
+ATTENTION_MODES = ("local", "global")
+#: name of the optional frame-statistics input
+STATS_INPUT = "stats"
+_DTYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16}
+
+
+def field_coordinates_at(rows: np.ndarray, cols: np.ndarray, full_size: tuple[int, int]) -> np.ndarray:
+    """Normalised field position of the pixels ``rows × cols``, (2, h, w) float32.
+
+    Parameters
+    ----------
+    rows, cols : (h,), (w,) int arrays
+        Row and column of each pixel in the full frame (active area).
+    full_size : (H, W)
+        Size of the full frame.
+
+    Returns
+    -------
+    ndarray; channel 0 = x (columns), 1 = y (rows), ``(i + ½) / N · 2 - 1``
+    for pixel ``i`` of ``N``: in (-1, 1) on the frame.
+
+    >>> field_coordinates_at(np.array([0]), np.array([0, 1]), (1, 2))[0]
+    array([[-0.5,  0.5]], dtype=float32)
+    """
+    fh, fw = full_size
+    ys = ((np.asarray(rows) + 0.5) / fh * 2.0 - 1.0).astype(np.float32)
+    xs = ((np.asarray(cols) + 0.5) / fw * 2.0 - 1.0).astype(np.float32)
+    out = np.empty((2, ys.size, xs.size), np.float32)
+    out[0] = xs[None, :]
+    out[1] = ys[:, None]
+    return out
 
 
 def field_coordinates(shape: tuple[int, int], origin: tuple[int, int],
@@ -52,13 +151,156 @@ def field_coordinates(shape: tuple[int, int], origin: tuple[int, int],
     array([[-0.5,  0.5]], dtype=float32)
     """
     h, w = shape
-    fh, fw = full_size
-    ys = ((np.arange(h) + origin[0] + 0.5) / fh * 2.0 - 1.0).astype(np.float32)
-    xs = ((np.arange(w) + origin[1] + 0.5) / fw * 2.0 - 1.0).astype(np.float32)
-    out = np.empty((2, h, w), np.float32)
-    out[0] = xs[None, :]
-    out[1] = ys[:, None]
-    return out
+    return field_coordinates_at(np.arange(h) + origin[0], np.arange(w) + origin[1], full_size)
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_session(path: str, mtime_ns: int, threads: int):
+    import onnxruntime as ort
+
+    try:
+        return ort.InferenceSession(path, session_options(threads), providers=["CPUExecutionProvider"])
+    except Exception as e:  # noqa: BLE001 — ORT's load errors share no base class but Exception
+        raise ConfigError(f"{path}: not a loadable ONNX model ({str(e)[:120]})") from None
+
+
+def session_options(threads: int = 2):
+    """onnxruntime options of the stage: ``threads`` intra-op threads, one
+    inter-op thread, sequential execution, every graph optimisation, and no
+    spin-waiting.
+
+    ORT's worker threads spin after each run by default; between tiles the
+    stage's own thread (gathering the next tile, stitching the last) then
+    competes with them for the two cores. Measured on a loaded 2-core
+    machine, 12 MP in 63 tiles: 2.2–2.7 s CPU with spinning, 1.4–1.7 s
+    without (``benchmarks/correction_tiling.py``)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = threads
+    opts.inter_op_num_threads = 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    opts.add_session_config_entry("session.inter_op.allow_spinning", "0")
+    return opts
+
+
+def onnx_session(path: str | os.PathLike, threads: int = 2):
+    """The onnxruntime session for a model file, created once per (file,
+    modification time, threads) and shared."""
+    p = Path(path).resolve()
+    return _cached_session(str(p), p.stat().st_mtime_ns, threads)
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """What the stage needs to know about a model: its metadata (module
+    table) and its declared inputs. Built by :func:`model_info`."""
+
+    name: str
+    meta: dict
+    fov_encoding: str
+    tile_size: int
+    overlap: int
+    multiple: int
+    attention: str
+    input_name: str
+    in_channels: int
+    dtype: type
+    stats_name: str | None
+    stats_shape: tuple[int, ...] | None
+
+
+def _int_meta(meta: dict, key: str, default: int, name: str, minimum: int = 0) -> int:
+    v = meta.get(key)
+    if v is None:
+        return default
+    try:
+        i = int(str(v).strip())
+    except ValueError:
+        i = None
+    if i is None or i < minimum:
+        raise ConfigError(f"model {name}: metadata {key}={v!r} is not an integer ≥ {minimum}")
+    return i
+
+
+def _choice_meta(meta: dict, key: str, valid: tuple[str, ...], name: str) -> str:
+    v = meta.get(key, valid[0])
+    if v not in valid:
+        raise ConfigError(f"model {name}: metadata {key}={v!r}; valid: {', '.join(map(repr, valid))}")
+    return v
+
+
+def model_info(session, name: str = "model") -> ModelInfo:
+    """Parse a session's metadata and inputs; ConfigError naming the key,
+    value and valid choices on anything the stage cannot run."""
+    meta = dict(session.get_modelmeta().custom_metadata_map)
+    fov = _choice_meta(meta, "fov_encoding", FOV_ENCODINGS, name)
+    attention = _choice_meta(meta, "attention", ATTENTION_MODES, name)
+    if "tile_overlap" in meta:
+        overlap = _int_meta(meta, "tile_overlap", DEFAULT_OVERLAP, name)
+    elif "receptive_radius" in meta:
+        overlap = _int_meta(meta, "receptive_radius", DEFAULT_OVERLAP, name)
+    elif "receptive_field" in meta:
+        overlap = _int_meta(meta, "receptive_field", DEFAULT_OVERLAP, name) // 2
+    else:
+        overlap = DEFAULT_OVERLAP
+    inputs = session.get_inputs()
+    images = [i for i in inputs if i.name != STATS_INPUT]
+    stats = [i for i in inputs if i.name == STATS_INPUT]
+    if len(images) != 1:
+        raise ConfigError(f"model {name}: expected one image input (plus optional {STATS_INPUT!r}); "
+                          f"got {[i.name for i in inputs]}")
+    img = images[0]
+    want = 5 if fov == "xy" else 3
+    if len(img.shape) != 4 or (isinstance(img.shape[1], int) and img.shape[1] != want):
+        raise ConfigError(f"model {name}: input {img.name!r} has shape {img.shape}; with fov_encoding "
+                          f"{fov!r} it must be (1, {want}, H, W)")
+    if img.type not in _DTYPES:
+        raise ConfigError(f"model {name}: input type {img.type}; valid: {', '.join(_DTYPES)}")
+    stats_shape = None
+    if stats:
+        s = stats[0].shape
+        k = s[1] if len(s) in (2, 4) and isinstance(s[1], int) else None
+        if k not in (3, want):
+            raise ConfigError(f"model {name}: input {STATS_INPUT!r} has shape {s}; expected (1, K) or "
+                              f"(1, K, 1, 1) with K = 3 or {want}")
+        stats_shape = (1, k) if len(s) == 2 else (1, k, 1, 1)
+    return ModelInfo(
+        name=name, meta=meta, fov_encoding=fov,
+        tile_size=_int_meta(meta, "tile_size", DEFAULT_TILE_SIZE, name),
+        overlap=overlap, multiple=_int_meta(meta, "input_multiple", DEFAULT_MULTIPLE, name, minimum=1),
+        attention=attention, input_name=img.name, in_channels=want, dtype=_DTYPES[img.type],
+        stats_name=STATS_INPUT if stats else None, stats_shape=stats_shape)
+
+
+def frame_statistics(data: np.ndarray, channels: int, origin: tuple[int, int] = (0, 0),
+                     full_size: tuple[int, int] | None = None) -> np.ndarray:
+    """Per-channel mean of the model input over a whole frame (the
+    ``stats`` input; module Notes).
+
+    Parameters
+    ----------
+    data : (H, W, 3) float32
+        The frame (or crop) the stage processes.
+    channels : 3 or 5
+        3: RGB means; 5: RGB then the mean field position (x, y).
+    origin, full_size
+        As for :func:`field_coordinates`.
+
+    Returns
+    -------
+    (channels,) float32.
+    """
+    rgb = data.mean(axis=(0, 1), dtype=np.float64)
+    if channels == 3:
+        return rgb.astype(np.float32)
+    h, w = data.shape[:2]
+    fs = full_size or (h, w)
+    f = field_coordinates_at(np.arange(h) + origin[0], np.arange(w) + origin[1], fs)
+    xy = [f[0, 0].mean(dtype=np.float64), f[1, :, 0].mean(dtype=np.float64)]
+    return np.concatenate([rgb, xy]).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -69,9 +311,17 @@ class Correction(StageBase):
     ----------
     model : path, optional
         ONNX file exported by ``isp export``; its metadata fixes the domain
-        it must stand in.
+        it must stand in, the tile size and the overlap (module table).
     threads : int
         onnxruntime intra-op threads (the phone budget is 2).
+    tile_size : int, optional
+        Override of the model's ``tile_size`` (px, margins included; 0: the
+        whole frame in one call, memory growing with the frame).
+    overlap : int, optional
+        Override of the model's context margin per side (px).
+    progress : bool, optional
+        Progress bar on stderr; by default when stderr is a terminal and the
+        frame takes at least 4 tiles.
     """
 
     name = "correction"
@@ -79,25 +329,28 @@ class Correction(StageBase):
 
     model: Path | None = None
     threads: int = 2
+    tile_size: int | None = None
+    overlap: int | None = None
+    progress: bool | None = None
 
     def __post_init__(self):
         if self.threads < 1:
             raise ValueError(f"threads must be ≥ 1, got {self.threads}")
+        if self.tile_size is not None and self.tile_size < 0:
+            raise ValueError(f"tile_size must be ≥ 0 (0: whole frame), got {self.tile_size}")
+        if self.overlap is not None and self.overlap < 0:
+            raise ValueError(f"overlap must be ≥ 0, got {self.overlap}")
         if self.model is not None and not Path(self.model).is_file():
             raise ValueError(f"model file {str(self.model)!r} not found")
 
-    @cached_property
+    @property
     def session(self):
-        import onnxruntime as ort
+        """The shared onnxruntime session (:func:`onnx_session`)."""
+        return onnx_session(self.model, self.threads)
 
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = self.threads
-        opts.inter_op_num_threads = 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        try:
-            return ort.InferenceSession(str(self.model), opts, providers=["CPUExecutionProvider"])
-        except Exception as e:
-            raise ConfigError(f"{self.model}: not a loadable ONNX model ({str(e)[:120]})") from None
+    @cached_property
+    def info(self) -> ModelInfo:
+        return model_info(self.session, Path(self.model).name)
 
     @cached_property
     def model_meta(self) -> dict[str, str]:
@@ -105,6 +358,13 @@ class Correction(StageBase):
         if self.model is None:
             return {}
         return dict(self.session.get_modelmeta().custom_metadata_map)
+
+    def tiling(self) -> tuple[int, int, int]:
+        """(tile side, margin, multiple) in pixels, the stage's overrides
+        applied to the model's metadata."""
+        i = self.info
+        tile = i.tile_size if self.tile_size is None else self.tile_size
+        return tile, (i.overlap if self.overlap is None else self.overlap), i.multiple
 
     def check(self, domain: Domain) -> None:
         if self.model is None:
@@ -118,19 +378,44 @@ class Correction(StageBase):
             raise PlacementError(
                 f"model {Path(self.model).name} was trained for {want} data ({where}); "
                 f"at this position the data is {domain.value}: move the correction stage there")
+        info = self.info
+        tile, margin, mult = self.tiling()
+        if info.attention == "global" and info.stats_name is None and tile != 0:
+            raise ConfigError(
+                f"model {info.name} pools its attention over the whole input (metadata "
+                f"attention='global') and has no {STATS_INPUT!r} input, so every tile would see "
+                "different statistics: set tile_size = 0 (whole frame, memory grows with it) or "
+                f"export it with local attention or a {STATS_INPUT!r} input")
+        if tile:
+            try:
+                plan_tiles((tile, tile), tile, margin, mult)
+            except ValueError as e:
+                raise ConfigError(f"model {info.name}: {e}") from None
 
     def process(self, frame: Frame) -> Frame:
         if self.model is None:
             return frame.evolve(stage=self.name, note="identity (no model)")
-        if frame.data.ndim != 3:
-            raise ConfigError(f"correction model {self.model} expects 3-channel data, got a mosaic")
-        x = np.ascontiguousarray(np.moveaxis(frame.data, -1, 0))[None]
-        enc = self.model_meta.get("fov_encoding", "none")
-        if enc == "xy":
-            fov = field_coordinates(frame.data.shape[:2], frame.meta.origin, frame.full_size)
-            x = np.concatenate([x, fov[None]], axis=1)
-        inp = self.session.get_inputs()[0].name
-        y = self.session.run(None, {inp: x.astype(np.float32, copy=False)})[0]
-        out = np.ascontiguousarray(np.moveaxis(y[0], 0, -1), dtype=np.float32)
-        lens = self.model_meta.get("lens", "?")
-        return frame.evolve(out, stage=self.name, note=f"{Path(self.model).name} (lens {lens}, fov {enc})")
+        if frame.data.ndim != 3 or frame.data.shape[2] != 3:
+            raise ConfigError(f"correction model {self.model} expects 3-channel data, "
+                              f"got shape {frame.data.shape}")
+        info, sess = self.info, self.session
+        tile, margin, mult = self.tiling()
+        origin, full = frame.meta.origin, frame.full_size
+        feeds = {}
+        if info.stats_name is not None:
+            s = frame_statistics(frame.data, info.stats_shape[1], origin, full)
+            feeds[info.stats_name] = s.reshape(info.stats_shape).astype(info.dtype)
+
+        def run(x: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+            if info.fov_encoding == "xy":
+                x[3:] = field_coordinates_at(rows + origin[0], cols + origin[1], full)
+            return sess.run(None, {info.input_name: x[None], **feeds})[0][0]
+
+        n = len(plan_tiles(frame.data.shape[:2], tile, margin, mult))
+        out = run_tiled(run, frame.data, tile=tile, margin=margin, multiple=mult, out_channels=3,
+                        extra_channels=info.in_channels - 3, dtype=info.dtype,
+                        progress=self.progress, desc=f"correction {info.name}")
+        lens = info.meta.get("lens", "?")
+        how = f"{n} tiles of {tile} px, overlap {margin} px" if n > 1 else f"whole frame, margin {margin} px"
+        return frame.evolve(out, stage=self.name,
+                            note=f"{info.name} (lens {lens}, fov {info.fov_encoding}, {how})")

@@ -96,3 +96,205 @@ def test_field_coordinates_symmetric_on_full_frame():
     c = field_coordinates((6, 8), (0, 0), (6, 8))
     assert np.allclose(c[0], -c[0][:, ::-1]) and np.allclose(c[1], -c[1][::-1])
     assert c.min() > -1 and c.max() < 1
+
+
+# ------------------------------------------------------------ tiled inference
+
+def _conv_model(path, *, fov="xy", dilations=(1, 2, 4), s2d=False, meta=None, stats=False, seed=0):
+    """A small local network, dynamic H/W: 3×3 convolutions with
+    ``dilations`` and ReLUs between, zero-padded like a trained model's.
+    Receptive-field radius Σ dilations (× 2 with ``s2d``: the convs then run
+    at ½ resolution between SpaceToDepth and DepthToSpace, so the model is
+    equivariant to even shifts only). Input 5 channels (RGB + field) with
+    ``fov="xy"``, else 3; output 3. ``stats``: a second input (1, 3, 1, 1)
+    added to the output."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    rng = np.random.default_rng(seed)
+    cin = 5 if fov == "xy" else 3
+    inputs = [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, cin, "h", "w"])]
+    nodes, inits, cur, c = [], [], "x", cin
+    if s2d:
+        nodes.append(helper.make_node("SpaceToDepth", [cur], ["s2d"], blocksize=2))
+        cur, c = "s2d", 4 * cin
+    widths = [8] * (len(dilations) - 1) + [12 if s2d else 3]
+    for i, (d, co) in enumerate(zip(dilations, widths)):
+        w = rng.normal(0, 1.5 / np.sqrt(9 * c), (co, c, 3, 3)).astype(np.float32)
+        inits += [numpy_helper.from_array(w, f"w{i}"),
+                  numpy_helper.from_array(rng.normal(0, 0.1, co).astype(np.float32), f"b{i}")]
+        nodes.append(helper.make_node("Conv", [cur, f"w{i}", f"b{i}"], [f"c{i}"], kernel_shape=[3, 3],
+                                      pads=[d] * 4, dilations=[d, d]))
+        cur, c = f"c{i}", co
+        if i < len(dilations) - 1:
+            nodes.append(helper.make_node("Relu", [cur], [f"r{i}"]))
+            cur = f"r{i}"
+    if s2d:
+        nodes.append(helper.make_node("DepthToSpace", [cur], ["d2s"], blocksize=2, mode="DCR"))
+        cur = "d2s"
+    if stats:
+        inputs.append(helper.make_tensor_value_info("stats", TensorProto.FLOAT, [1, 3, 1, 1]))
+        nodes.append(helper.make_node("Add", [cur, "stats"], ["withstats"]))
+        cur = "withstats"
+    nodes.append(helper.make_node("Identity", [cur], ["y"]))
+    out = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, "h", "w"])
+    m = helper.make_model(helper.make_graph(nodes, "t", inputs, [out], initializer=inits),
+                          opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    radius = sum(dilations) * (2 if s2d else 1)
+    md = {"domain": "camera_rgb", "placement": "after demosaic", "lens": "test-lens",
+          "fov_encoding": fov, "tile_size": "256", "receptive_radius": str(radius),
+          "input_multiple": "2" if s2d else "1", **(meta or {})}
+    for k, v in md.items():
+        e = m.metadata_props.add()
+        e.key, e.value = k, v
+    onnx.save(m, str(path))
+    return path
+
+
+def _rgb_frame(rng, h, w, origin=(0, 0), full=None):
+    full = full or (h, w)
+    meta = CameraMeta(cfa=CFA.RGGB, raw_size=full, active_area=(0, 0, *full), origin=origin)
+    return Frame(rng.random((h, w, 3), dtype=np.float32), Domain.CAMERA_RGB, meta)
+
+
+def _run(model, frame, **kw):
+    from modules.correction import Correction
+
+    return Correction(model=model, **kw)(frame).data
+
+
+def test_tiled_equals_untiled_700x900(tmp_path, rng):
+    """Deliverable: max seam error ≤ 1 DN at 8 bits against an untiled run
+    (measured: ~1e-6, float rounding); the field channels depend on the
+    tile's position, so a wrong origin would show."""
+    from modules.correction import Correction
+
+    m = _conv_model(tmp_path / "c.onnx")
+    f = _rgb_frame(rng, 700, 900)
+    stage = Correction(model=m)
+    tiled = stage(f)
+    assert "tiles of 256 px, overlap 7 px" in tiled.history[-1].note
+    untiled = _run(m, f, tile_size=0)
+    assert np.abs(tiled.data - untiled).max() < 1e-5
+    # the untiled run is the model on the reflect-padded frame (image and field)
+    x = np.concatenate([f.data.transpose(2, 0, 1), field_coordinates((700, 900), (0, 0), (700, 900))])
+    x = np.pad(x, ((0, 0), (7, 7), (7, 7)), mode="reflect")[None]
+    ref = stage.session.run(None, {"x": x})[0][0, :, 7:-7, 7:-7].transpose(1, 2, 0)
+    assert np.abs(untiled - ref).max() < 1e-5
+
+
+def test_tiled_equals_untiled_with_downsampling_and_odd_size(tmp_path, rng):
+    """A stride-2 model on a 301×403 frame: windows of even size at even
+    origins (input_multiple), padding to the multiple by reflection."""
+    m = _conv_model(tmp_path / "s.onnx", s2d=True, dilations=(1, 2), meta={"input_multiple": "4"})
+    f = _rgb_frame(rng, 301, 403)
+    tiled = _run(m, f, tile_size=96)
+    assert tiled.shape == (301, 403, 3)
+    assert np.abs(tiled - _run(m, f, tile_size=0)).max() < 1e-5
+
+
+def test_seam_error_grows_when_overlap_below_receptive_field(tmp_path, rng):
+    """Proves the test above can fail: radius 7, overlap 7 / 4 / 1."""
+    m = _conv_model(tmp_path / "c.onnx")
+    f = _rgb_frame(rng, 200, 260)
+    untiled = _run(m, f, tile_size=0)
+    err = [np.abs(_run(m, f, tile_size=64, overlap=o) - untiled).max() for o in (7, 4, 1)]
+    assert err[0] < 1e-5 and 1 / 255 < err[1] < err[2]
+
+
+def test_field_channels_per_tile_on_a_crop(tmp_path):
+    """The field model (output = field x, y, x) on a crop of a larger frame,
+    in 24 tiles: each pixel gets its position on the full frame."""
+    m = _model(tmp_path / "fov.onnx", fov="xy")
+    meta = CameraMeta(cfa=CFA.RGGB, raw_size=(300, 400), active_area=(0, 0, 300, 400), origin=(37, 51))
+    crop = Frame(np.zeros((130, 190, 3), np.float32), Domain.CAMERA_RGB, meta)
+    out = _run(m, crop, tile_size=40, overlap=3)
+    expect = field_coordinates((130, 190), (37, 51), (300, 400))
+    assert np.array_equal(out[..., 0], expect[0]) and np.array_equal(out[..., 1], expect[1])
+
+
+def test_stats_input_is_the_frame_mean_in_every_tile(tmp_path, rng):
+    m = _conv_model(tmp_path / "g.onnx", stats=True, meta={"attention": "global"})
+    f = _rgb_frame(rng, 150, 170)
+    f = f.evolve(f.data * np.array([1.0, 2.0, 3.0], np.float32))
+    tiled, untiled = _run(m, f, tile_size=48), _run(m, f, tile_size=0)
+    assert np.abs(tiled - untiled).max() < 1e-5
+    # the stats term is the mean of the frame, not of a tile: remove it and compare
+    m0 = _conv_model(tmp_path / "l.onnx")
+    diff = tiled - _run(m0, f, tile_size=48)
+    assert np.allclose(diff, f.data.mean(axis=(0, 1)), atol=1e-5)
+
+
+def test_global_attention_without_stats_runs_untiled_only(tmp_path):
+    m = _conv_model(tmp_path / "g.onnx", meta={"attention": "global"})
+    with pytest.raises(ConfigError, match="attention='global'.*tile_size = 0"):
+        Pipeline.from_names(["correction"], {"correction": {"model": str(m)}}, start="camera_rgb")
+    Pipeline.from_names(["correction"], {"correction": {"model": str(m), "tile_size": 0}}, start="camera_rgb")
+
+
+@pytest.mark.parametrize("key,value,match", [
+    ("tile_overlap", "a lot", "tile_overlap='a lot'"),
+    ("attention", "tiled", "'local', 'global'"),
+    ("fov_encoding", "polar", "'none', 'xy'"),
+    ("tile_size", "14", "at least 15 px"),
+])
+def test_bad_metadata_is_named(tmp_path, key, value, match):
+    m = _conv_model(tmp_path / "b.onnx", meta={key: value})
+    with pytest.raises(ConfigError, match=match):
+        Pipeline.from_names(["correction"], {"correction": {"model": str(m)}}, start="camera_rgb")
+
+
+def test_session_options_and_sharing(tmp_path):
+    import onnxruntime as ort
+
+    from modules.correction import Correction
+
+    m = _conv_model(tmp_path / "c.onnx")
+    a, b = Correction(model=m), Correction(model=str(m))
+    assert a.session is b.session
+    o = a.session.get_session_options()
+    assert o.intra_op_num_threads == 2 and o.inter_op_num_threads == 1
+    assert o.execution_mode == ort.ExecutionMode.ORT_SEQUENTIAL
+    assert o.graph_optimization_level == ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    assert o.get_session_config_entry("session.intra_op.allow_spinning") == "0"
+
+
+def test_int8_model_goes_through_the_same_tiling(tmp_path, rng):
+    """A static QDQ INT8 model: tiles agree with the untiled run (fixed
+    scales), and the output stays near the float model's."""
+    from onnxruntime.quantization import (
+        CalibrationDataReader,
+        QuantFormat,
+        quantize_static,
+    )
+
+    fp = _conv_model(tmp_path / "fp.onnx")
+
+    class Reader(CalibrationDataReader):
+        def __init__(self):
+            self.it = iter([{"x": np.concatenate([rng.random((1, 3, 32, 32), dtype=np.float32),
+                                                  rng.uniform(-1, 1, (1, 2, 32, 32)).astype(np.float32)], 1)}
+                            for _ in range(4)])
+
+        def get_next(self):
+            return next(self.it, None)
+
+    q = tmp_path / "int8.onnx"
+    quantize_static(str(fp), str(q), Reader(), quant_format=QuantFormat.QDQ)
+    md = onnx.load(str(q))
+    assert any(n.op_type == "QuantizeLinear" for n in md.graph.node)
+    assert {p.key for p in md.metadata_props} >= {"domain", "receptive_radius"}
+    f = _rgb_frame(rng, 150, 170)
+    tiled, untiled = _run(q, f, tile_size=64), _run(q, f, tile_size=0)
+    assert np.abs(tiled - untiled).max() < 1e-5  # measured: 0
+    assert np.abs(tiled - _run(fp, f)).mean() < 0.02
+
+
+def test_frame_statistics_rgb_and_field(rng):
+    from modules.correction import frame_statistics
+
+    d = rng.random((30, 40, 3), dtype=np.float32)
+    assert np.allclose(frame_statistics(d, 3), d.mean(axis=(0, 1)), atol=1e-6)
+    s = frame_statistics(d, 5, origin=(0, 0), full_size=(60, 40))  # the top half of the frame
+    assert np.allclose(s[3:], field_coordinates((30, 40), (0, 0), (60, 40)).mean(axis=(1, 2)), atol=1e-6)
+    assert abs(s[3]) < 1e-6 and np.isclose(s[4], -0.5)

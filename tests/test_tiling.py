@@ -1,0 +1,94 @@
+"""Tiled execution (modules.tiling): the tiles cover the frame once, the
+windows are aligned and padded by reflection, and a local operator run
+tile by tile equals the whole-frame run when the margin covers its radius,
+and not when it does not (kind: property)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from modules.tiling import plan_tiles, reflect_indices, run_tiled, split_axis
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 16])
+@pytest.mark.parametrize("pad", [0, 1, 3, 20])
+def test_reflect_indices_is_numpy_reflect(n, pad):
+    a = np.arange(n)
+    expect = np.pad(a, pad, mode="reflect") if n > 1 else np.zeros(n + 2 * pad, int)
+    assert np.array_equal(a[reflect_indices(-pad, n + pad, n)], expect)
+
+
+@pytest.mark.parametrize("n", [1, 7, 64, 700, 901])
+@pytest.mark.parametrize("tile,margin,mult", [(0, 8, 4), (64, 8, 4), (256, 30, 4), (256, 7, 1), (40, 3, 2)])
+def test_cores_cover_axis_once_aligned(n, tile, margin, mult):
+    spans = split_axis(n, tile, margin, mult)
+    cover = np.zeros(n, int)
+    for s in spans:
+        cover[s.core_start:s.core_stop] += 1
+        size = s.win_stop - s.win_start
+        assert s.core_start % mult == 0 and size % mult == 0
+        assert s.core_start - s.win_start >= margin and s.win_stop - s.core_stop >= margin
+        if len(spans) > 1:
+            assert size <= tile
+    assert np.all(cover == 1)
+    assert len({s.win_stop - s.win_start for s in spans}) == 1  # one window size per axis
+
+
+def test_tile_too_small_for_margin_is_refused():
+    with pytest.raises(ValueError, match="at least 68 px"):
+        split_axis(100, 64, 32, 4)
+
+
+def _box(x: np.ndarray, r: int) -> np.ndarray:
+    """(C, h, w) → mean over a (2r+1)² box with zero padding (as a network's
+    convolutions pad): a local operator of radius r, wrong near the window edge."""
+    p = np.pad(x.astype(np.float64), ((0, 0), (r, r), (r, r)))  # float64: cumsum rounding
+    c = np.pad(p.cumsum(1).cumsum(2), ((0, 0), (1, 0), (1, 0)))
+    k = 2 * r + 1
+    return (c[:, k:, k:] - c[:, :-k, k:] - c[:, k:, :-k] + c[:, :-k, :-k]) / k ** 2
+
+
+def test_tiled_equals_whole_frame_when_margin_covers_radius(rng):
+    img = rng.random((150, 170, 3), dtype=np.float32)
+    op = lambda x, rows, cols: _box(x, 5)
+    whole = run_tiled(op, img, tile=0, margin=5)
+    tiled = run_tiled(op, img, tile=48, margin=5)
+    assert len(plan_tiles(img.shape[:2], 48, 5)) > 9
+    assert np.abs(tiled - whole).max() < 1e-5
+    # the whole-frame run is the operator on the reflect-padded frame
+    ref = _box(np.pad(img, ((5, 5), (5, 5), (0, 0)), mode="reflect").transpose(2, 0, 1), 5)
+    assert np.abs(whole - ref[:, 5:-5, 5:-5].transpose(1, 2, 0)).max() < 1e-5
+
+
+def test_seam_error_grows_as_margin_drops_below_radius(rng):
+    """Proves the equality test above can fail."""
+    img = rng.random((150, 170, 3), dtype=np.float32)
+    op = lambda x, rows, cols: _box(x, 6)
+    whole = run_tiled(op, img, tile=0, margin=6)
+    err = [np.abs(run_tiled(op, img, tile=48, margin=m) - whole).max() for m in (6, 4, 2, 0)]
+    assert err[0] < 1e-5 and err[1] > 1 / 255 and err[1] < err[2] < err[3]
+
+
+def test_operator_sees_frame_positions(rng):
+    img = np.zeros((37, 53, 1), np.float32)
+
+    def where(x, rows, cols):
+        return np.stack([np.broadcast_to(rows[:, None], x.shape[1:]),
+                         np.broadcast_to(cols[None, :], x.shape[1:])]).astype(np.float32)
+
+    out = run_tiled(where, img, tile=16, margin=3, multiple=2, out_channels=2)
+    yy, xx = np.mgrid[:37, :53]
+    assert np.array_equal(out[..., 0], yy) and np.array_equal(out[..., 1], xx)
+
+
+def test_wrong_operator_output_is_named():
+    with pytest.raises(ValueError, match="tile operator returned shape"):
+        run_tiled(lambda x, r, c: x[:, 1:], np.zeros((8, 8, 3), np.float32), tile=0, margin=0)
+
+
+def test_progress_bar_on_request(capsys):
+    run_tiled(lambda x, r, c: x, np.zeros((40, 40, 3), np.float32), tile=16, margin=2, progress=True,
+              desc="corr")
+    err = capsys.readouterr().err
+    assert "corr" in err and "tile" in err
