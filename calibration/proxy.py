@@ -42,6 +42,12 @@ from .proxy_data import Observations
 #: but the fit starts from the nominal lens, so allow a wide range
 FOCUS_TOLERANCE_MM = 0.010
 
+#: DLS finite-difference step (tolerance units): forward differences are
+#: biased by O(h); on e9 h = 0.1 stalled the fit where 0.03 did not, and the
+#: model is smooth well below that (central differences at 0.0125-tolerance
+#: steps matched the linear model to ρ = 1.000)
+DLS_STEP = 0.03
+
 _WORKER = {}
 
 
@@ -176,14 +182,20 @@ class ProxyFit(FittedLens):
 def _init_worker(payload):
     from .sfr_model import SfrModel
 
-    nominal, obs, settings, names, bias = payload
+    nominal, obs, settings, names, bias, *rest = payload
     _WORKER["model"] = SfrModel(nominal, obs, settings)
+    jac_settings = rest[0] if rest else None
+    _WORKER["cheap"] = SfrModel(nominal, obs, jac_settings) if jac_settings is not None else _WORKER["model"]
     _WORKER["space"] = parameter_space(nominal, names)
     _WORKER["bias"] = bias
 
 
 def _residual_task(u: np.ndarray) -> np.ndarray:
     return _residuals(_WORKER["model"], _WORKER["space"], _WORKER["bias"], u)
+
+
+def _cheap_residual_task(u: np.ndarray) -> np.ndarray:
+    return _residuals(_WORKER["cheap"], _WORKER["space"], _WORKER["bias"], u)
 
 
 def _residuals(model, space: ParameterSpace, bias: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -196,7 +208,8 @@ def _residuals(model, space: ParameterSpace, bias: np.ndarray, u: np.ndarray) ->
 
 def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
               workers: int | None = None, max_iter: int = 15, bound_factor: float = 2.0,
-              progress: bool = True, x0=None, n_params: int | None = 16) -> ProxyFit:
+              progress: bool = True, x0=None, n_params: int | None = 16,
+              jacobian_settings=None) -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
 
     Parameters
@@ -222,6 +235,11 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     n_params : int, optional
         Without ``names``: fit the ``n_params`` most sensitive of
         :func:`default_names` (:func:`screen_parameters`); None: all.
+    jacobian_settings : calibration.sfr_model.ModelSettings, optional
+        A cheaper forward model for the Jacobian only (DLS), e.g. one
+        wavelength and fewer pupil samples; steps are still accepted on the
+        full model's merit (``benchmarks/proxy.py --fast-jacobian`` measures
+        what it costs).
     """
     from .sfr_model import ModelSettings, SfrModel
 
@@ -239,7 +257,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
 
         ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
         return ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                                   initargs=((nominal, obs, settings, names, bias),))
+                                   initargs=((nominal, obs, settings, names, bias, jacobian_settings),))
 
     if screen and len(names) > n_params:
         if workers > 1:
@@ -265,6 +283,15 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
             return [fun(p) for p in points]
         return list(pool.map(_residual_task, points))
 
+    jac_many = None
+    if jacobian_settings is not None:
+        cheap = SfrModel(nominal, obs, jacobian_settings) if pool is None else None
+
+        def jac_many(points):
+            if pool is None:
+                return [_residuals(cheap, space, bias, p) for p in points]
+            return list(pool.map(_cheap_residual_task, points))
+
     bar = None
     if progress:
         from tqdm import tqdm
@@ -279,8 +306,9 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     before = model.predict(nominal).sfra + bias
     try:
         if method == "dls":
-            res = damped_least_squares(fun, u0, lower=lower, upper=upper, fun_many=fun_many, h=0.1,
-                                       max_iter=max_iter, target_chi2=1.0, progress=report)
+            res = damped_least_squares(fun, u0, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
+                                       max_iter=max_iter, target_chi2=1.0, trials=workers, jac_many=jac_many,
+                                       progress=report)
             u, evals = res.x, res.evaluations
         elif method == "scipy":
             from scipy.optimize import least_squares
@@ -293,7 +321,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
 
             # TRF counts in max_nfev neither its finite differences nor the Jacobians, so
             # max_iter here is about max_iter iterations: the same budget as DLS's Jacobians
-            ls = least_squares(counted, u0, bounds=(lower, upper), method="trf", diff_step=0.1,
+            ls = least_squares(counted, u0, bounds=(lower, upper), method="trf", diff_step=DLS_STEP,
                                x_scale=1.0, max_nfev=max_iter)
             u, evals = ls.x, calls["n"]
             jtj = ls.jac.T @ ls.jac

@@ -66,3 +66,49 @@ def test_stops_at_the_noise_floor():
 
     res = damped_least_squares(f, np.array([5.0]), lower=[-10.0], upper=[10.0], h=1e-4, target_chi2=0.7)
     assert res.reason == "noise floor" and res.merit / 3 <= 0.7 and abs(res.x[0] - 1.0) < 0.3
+
+
+def test_steps_stay_within_the_trust_radius():
+    # the Gauss–Newton step is 7.07 long; the first step must respect Δ = 0.1 (and keep GN's direction)
+    y = np.array([5.0, -4.0, 3.0])
+    res = damped_least_squares(lambda x: x - y, np.zeros(3), lower=np.full(3, -1e3), upper=np.full(3, 1e3),
+                               h=1e-3, radius=0.1, max_iter=1)
+    assert 0.05 <= np.linalg.norm(res.x) <= 0.1 + 1e-12
+    assert np.allclose(res.x / np.linalg.norm(res.x), y / np.linalg.norm(y), atol=1e-9)
+    # without a radius the same damping takes (nearly) the whole Gauss–Newton step
+    free = damped_least_squares(lambda x: x - y, np.zeros(3), lower=np.full(3, -1e3), upper=np.full(3, 1e3),
+                                h=1e-3, radius=None, max_iter=1)
+    assert np.linalg.norm(free.x) > 0.9 * np.linalg.norm(y)
+
+
+def test_central_differences_are_exact_on_a_quadratic():
+    from calibration.dls import forward_jacobian
+
+    def many(points):
+        return [np.array([p[0] ** 2 + 3 * p[1], p[1] ** 2]) for p in points]
+
+    x = np.array([1.0, 2.0])
+    f0 = many([x])[0]
+    lo, hi = np.full(2, -10.0), np.full(2, 10.0)
+    exact = np.array([[2.0, 3.0], [0.0, 4.0]])
+    central = forward_jacobian(many, x, f0, 0.5, lo, hi, central=True)
+    forward = forward_jacobian(many, x, f0, 0.5, lo, hi)
+    assert np.allclose(central, exact, atol=1e-12)
+    # forward differences are off by h·f''/2 = 0.5 on the diagonal
+    assert np.allclose(forward - exact, [[0.5, 0.0], [0.0, 0.5]], atol=1e-12)
+
+
+def test_cheap_jacobian_reaches_the_same_minimum(rng):
+    t = np.linspace(0, 4, 50)
+    y = 2.0 * np.exp(-1.3 * t) + 0.4
+
+    def f(p):
+        return (p[0] * np.exp(-p[1] * t) + p[2] - y) / 0.01
+
+    def cheap(points):   # a coarser model: every other sample's slope, scaled back up
+        return [np.repeat(f(p)[::2], 2)[: t.size] for p in points]
+
+    lo, hi = np.array([0.0, 0.0, -5.0]), np.array([10.0, 10.0, 5.0])
+    res = damped_least_squares(f, np.array([1.0, 0.5, 0.0]), lower=lo, upper=hi, h=1e-6, gtol=1e-9,
+                               jac_many=cheap, max_iter=60)
+    assert np.allclose(res.x, [2.0, 1.3, 0.4], atol=2e-3)
