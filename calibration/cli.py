@@ -17,6 +17,9 @@ commands never load the optics code. Sub-commands:
     lens, written as a DNG that ``isp process`` reads like a real one.
 ``sfr``
     ISO 12233 slanted-edge SFR of an image, an ROI or a whole chart.
+``loop``
+    Close the loop on a measurement: fit, find the effects the model lacks,
+    refit, report before/after (:mod:`calibration.loop_cli`).
 
 Errors print one line and exit with code 2, like the rest of ``isp``.
 """
@@ -40,6 +43,7 @@ examples:
   isp calib psf phone.json --map --plot psf_map.png
   isp calib simulate phone.json -o capture.dng --perturb random --seed 3
   isp calib sfr capture.png --chart --json sfr.json --plot sfr.png
+  isp calib loop --lens parametric --measured edge.jpg --encoding srgb -o edge_loop/
 """
 
 
@@ -272,10 +276,13 @@ def load_image(path: str):
 
 
 def _sfr_row(roi_box, res, field=None, orientation=None) -> dict:
+    from .sfr_chart import esf_step
+
     r = res.to_dict()
     return {"freq": r["freq_cy_per_px"], "sfr": r["sfr"], "mtf50": r["mtf50_cy_per_px"],
             "sfra": r["sfra_to_nyquist"], "angle_deg": r["angle_deg"], "roi": list(roi_box),
-            "field": field, "orientation": orientation,
+            "field": field, "orientation": orientation, "direction": r["orientation"],
+            "edge_fit_linear": r["edge_fit_linear"], "step": esf_step(res),
             "mtf_nyquist_half": r["mtf_nyquist_half"], "mtf_nyquist": r["mtf_nyquist"],
             "contrast": r["contrast"], "noise": r["noise"],
             "mtf50_std": r.get("mtf50_std"), "sfra_std": r.get("sfra_std"),
@@ -487,6 +494,10 @@ def make_parser() -> argparse.ArgumentParser:
     sp.add_argument("--json", metavar="OUT.json", help="write the results as JSON")
     sp.add_argument("--plot", metavar="OUT.png", help="write a plot")
     sp.set_defaults(func=cmd_sfr)
+
+    from .loop_cli import add_parser as add_loop_parser
+
+    add_loop_parser(sub)
     return p
 
 

@@ -80,6 +80,7 @@ class LoopReport:
     sfra_measured: np.ndarray = field(repr=False, default=None)
     sfra_before: np.ndarray = field(repr=False, default=None)
     sfra_after: np.ndarray = field(repr=False, default=None)
+    base_x_before: np.ndarray = field(repr=False, default=None)    # the base fit before any effect
 
     def to_dict(self) -> dict:
         return {"schema": "loop-report/v1", "base": self.base,
@@ -172,11 +173,18 @@ def _decompose(obs, d_sfra) -> dict:
                    for k, (lo, hi) in enumerate(((0, .25), (.25, .5), (.5, .75), (.75, 1.0)))}
     cx, cy = obs.center_px
     x, y = np.asarray(obs.x_px) - cx, np.asarray(obs.y_px) - cy
-    out["x_slope_per_half_width"] = float(np.polyfit(x / cx, d_sfra, 1)[0]) if len(obs) > 2 else 0.0
-    out["y_slope_per_half_height"] = float(np.polyfit(y / cy, d_sfra, 1)[0]) if len(obs) > 2 else 0.0
+    # a slope needs a spread of positions (observations on one line have none)
+    out["x_slope_per_half_width"] = float(np.polyfit(x / cx, d_sfra, 1)[0]) if np.ptp(x) > 1e-6 * cx else 0.0
+    out["y_slope_per_half_height"] = float(np.polyfit(y / cy, d_sfra, 1)[0]) if np.ptp(y) > 1e-6 * cy else 0.0
     for key in ("orientation", "channel"):
         v = np.asarray(getattr(obs, key))
         out[key] = {str(k): float(np.mean(d_sfra[v == k])) for k in np.unique(v)}
+    # edge direction: sagittal/tangential is blind to an x/y anisotropy at the
+    # centre of the field (all four sides of a centred square are "tangential")
+    a = np.asarray(obs.normal_deg, float) % 180.0
+    vert = (a < 45.0) | (a >= 135.0)
+    out["direction"] = {k: float(np.mean(d_sfra[m])) for k, m in (("vertical", vert), ("horizontal", ~vert))
+                        if m.any()}
     return out
 
 
@@ -215,7 +223,7 @@ def prob_scale(prob: _Problem) -> np.ndarray:
 
 
 def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.15, stop_ratio: float = 1.2,
-               max_effects: int = 3, base_iter: int = 12, progress: bool = True) -> LoopReport:
+               max_effects: int = 3, base_iter: int = 12, progress: bool = True, seed: int = 0, fold=None) -> LoopReport:
     """Fit ``base`` to ``obs`` and add effects while they explain held-out
     data (module docstring). ``effects``: registry names to try (default
     all)."""
@@ -246,10 +254,15 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     noise_floor = float(np.sqrt(np.mean(sigma ** 2)))
     tick("base fitted")
     pred0 = prob.predict(p)
+    x_before = p.copy()
     before = prob.errors(pred0)
     dec_before = _decompose(obs, obs.sfra - pred0.sfra - prob.bias_a)
     tried, kept = [], []
-    fold = _folds(obs, folds)
+    if fold is None:
+        fold = _folds(obs, folds, seed)
+    else:                       # the caller's split (e.g. by edge segment); K from its labels
+        fold = np.unique(np.asarray(fold), return_inverse=True)[1]
+        folds = int(fold.max()) + 1
     lower = np.asarray(base.lower, float)
     upper = np.asarray(base.upper, float)
     while len(kept) < max_effects:
@@ -295,7 +308,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     return LoopReport(base.description, tuple(base.names), xb, kept, values, tried, before, after, noise_floor,
                       _unexplained(prob, pred1, obs, d_after, noise_floor, stop_ratio), dec_before,
                       _decompose(obs, d_after), time.perf_counter() - t0, np.asarray(obs.sfra),
-                      pred0.sfra + prob.bias_a, pred1.sfra + prob.bias_a)
+                      pred0.sfra + prob.bias_a, pred1.sfra + prob.bias_a, x_before)
 
 
 def _sigma_law(obs, sd) -> np.ndarray:

@@ -306,7 +306,8 @@ class ChartResult:
             d.update({"freq": r["freq_cy_per_px"], "sfr": r["sfr"], "mtf50": r["mtf50_cy_per_px"],
                       "sfra": r["sfra_to_nyquist"], "angle_deg": r["angle_deg"],
                       "mtf_nyquist_half": r["mtf_nyquist_half"], "mtf_nyquist": r["mtf_nyquist"],
-                      "contrast": r["contrast"], "noise": r["noise"], "warnings": r["warnings"]})
+                      "contrast": r["contrast"], "noise": r["noise"], "step": esf_step(res),
+                      "edge_fit_linear": r["edge_fit_linear"], "warnings": r["warnings"]})
             edges.append(d)
         maps = {v: {o or "all": grid_list(self.field_map(v, o)) for o in (None, "sagittal", "tangential")}
                 for v in ("sfra", "mtf50")}
@@ -314,6 +315,14 @@ class ChartResult:
                 "edges": edges,
                 "skipped": [{**roi.as_dict(), "reason": reason} for roi, reason in self.skipped],
                 "maps": maps}
+
+
+def esf_step(r) -> float:
+    """Bright − dark of an SfrResult's ESF plateaus (its outer tenths), in
+    the input's units: with ``noise``, the edge's signal-to-noise ratio."""
+    esf = np.asarray(r.esf, dtype=np.float64)
+    m = max(4, esf.size // 10)
+    return float(abs(esf[-m:].mean() - esf[:m].mean()))
 
 
 def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None, min_length: float = 40.0,
