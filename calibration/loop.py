@@ -122,19 +122,7 @@ class _Problem:
     def predict(self, p, effects=None, xs=None):
         effects = self.effects if effects is None else effects
         xb, xe = self.split(p) if xs is None else (p, xs)
-        g = self.base.geometry
-        dz = shifts = transfer = None
-        for e, x in zip(effects, xe):
-            d = e.defocus_mm(x, g)
-            if d is not None:
-                dz = d if dz is None else dz + d
-            s = e.shifts_px(x, g)
-            if s is not None:
-                shifts = s if shifts is None else shifts + s
-            t = e.transfer(x, g)
-            if t is not None:
-                transfer = t if transfer is None else transfer * t
-        return self.base.predict(xb, defocus_mm=dz, shifts_px=shifts, transfer=transfer)
+        return predict_with_effects(self.base, xb, zip(effects, xe))
 
     def residuals(self, pred, mask=None):
         obs = self.obs
@@ -309,6 +297,25 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
                       _unexplained(prob, pred1, obs, d_after, noise_floor, stop_ratio), dec_before,
                       _decompose(obs, d_after), time.perf_counter() - t0, np.asarray(obs.sfra),
                       pred0.sfra + prob.bias_a, pred1.sfra + prob.bias_a, x_before)
+
+
+def predict_with_effects(base, xb, effects):
+    """The base model's prediction at parameters ``xb`` with ``effects``
+    ((Effect, parameters) pairs) applied: defocus and shifts add, transfer
+    functions multiply."""
+    g = base.geometry
+    dz = shifts = transfer = None
+    for e, x in effects:
+        d = e.defocus_mm(x, g)
+        if d is not None:
+            dz = d if dz is None else dz + d
+        s = e.shifts_px(x, g)
+        if s is not None:
+            shifts = s if shifts is None else shifts + s
+        t = e.transfer(x, g)
+        if t is not None:
+            transfer = t if transfer is None else transfer * t
+    return base.predict(np.asarray(xb, float), defocus_mm=dz, shifts_px=shifts, transfer=transfer)
 
 
 def _sigma_law(obs, sd) -> np.ndarray:

@@ -487,22 +487,13 @@ def model_sfr(base, xb, effects: dict) -> np.ndarray:
     """(N, F) noise-free SFR of ``base`` at ``xb`` with ``effects``
     ({name: {parameter: value}}), as the loop combines them."""
     from .effects import create_effect
+    from .loop import predict_with_effects
 
-    g = base.geometry
-    dz = shifts = transfer = None
+    pairs = []
     for name, vals in effects.items():
         e = create_effect(name)
-        x = np.array([vals[n] for n in e.names], float)
-        d = e.defocus_mm(x, g)
-        if d is not None:
-            dz = d if dz is None else dz + d
-        s = e.shifts_px(x, g)
-        if s is not None:
-            shifts = s if shifts is None else shifts + s
-        t = e.transfer(x, g)
-        if t is not None:
-            transfer = t if transfer is None else transfer * t
-    return base.predict(np.asarray(xb, float), defocus_mm=dz, shifts_px=shifts, transfer=transfer).sfr
+        pairs.append((e, np.array([vals[n] for n in e.names], float)))
+    return predict_with_effects(base, xb, pairs).sfr
 
 
 def plot_sfr_curves(obs, sfr_before, sfr_after, path, title: str = "") -> Path:
