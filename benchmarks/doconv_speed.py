@@ -1,0 +1,128 @@
+"""ONNX Runtime speed of the restoration-network variants on 2 threads.
+
+For each variant: export (opset 17, dynamic H/W, TorchScript exporter),
+optionally a static INT8 QDQ copy (per-channel int8 weights, uint8
+activations, calibrated on random inputs — enough for timing, not for
+quality), then time all sessions *interleaved* on a 512 × 512 input and keep
+each one's best of ``--rounds`` (a shared machine's load moves every number;
+interleaving keeps the ratios honest). Also times one dense 3×3 conv 64→64
+as a yardstick of what the machine sustains. Reports ms per megapixel
+(one 512² run × 1/0.262144) and the MAC rate achieved.
+
+Run::
+
+    python -m benchmarks.doconv_speed doconv static 'doconv:{"scale": 4, "widths": [64, 128]}'
+    python -m benchmarks.doconv_speed --no-int8 doconv_spatial_tap
+
+A variant is ``name`` or ``name:{json overrides}``. This is a design aid for
+the network; the shipped model's export and benchmark belong to ``export/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from restoration.macs import macs_per_pixel
+from restoration.network import build_model
+
+SIZE = 512
+
+
+def parse(spec: str):
+    name, _, kw = spec.partition(":")
+    kw = json.loads(kw) if kw else {}
+    return name, {k: tuple(v) if isinstance(v, list) else v for k, v in kw.items()}
+
+
+def export(model, path: Path) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(model.eval(), (torch.rand(1, model.in_channels, 64, 96),), str(path), dynamo=False,
+                          opset_version=17, input_names=["input"], output_names=["output"],
+                          dynamic_axes={"input": {2: "h", 3: "w"}, "output": {2: "h", 3: "w"}})
+
+
+def quantize(src: Path, dst: Path, channels: int) -> None:
+    from onnxruntime.quantization import (
+        CalibrationDataReader,
+        QuantFormat,
+        QuantType,
+        quantize_static,
+    )
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    class Reader(CalibrationDataReader):
+        def __init__(self):
+            rng = np.random.default_rng(0)
+            self.it = iter([{"input": rng.random((1, channels, 128, 128), dtype=np.float32)} for _ in range(4)])
+
+        def get_next(self):
+            return next(self.it, None)
+
+    pre = dst.with_suffix(".pre.onnx")
+    quant_pre_process(str(src), str(pre), skip_symbolic_shape=True)
+    quantize_static(str(pre), str(dst), Reader(), quant_format=QuantFormat.QDQ, per_channel=True,
+                    activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8)
+
+
+def session(path: Path, threads: int):
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = threads
+    opts.inter_op_num_threads = 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("variants", nargs="+")
+    ap.add_argument("--no-int8", action="store_true")
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    tmp = Path(tempfile.mkdtemp())
+    runs = []  # (label, session, input, MACs per run)
+    ref = torch.nn.Conv2d(64, 64, 3, padding=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(ref, (torch.rand(1, 64, 32, 32),), str(tmp / "ref.onnx"), dynamo=False, opset_version=17,
+                          input_names=["input"], dynamic_axes={"input": {2: "h", 3: "w"}})
+    rng = np.random.default_rng(0)
+    runs.append(("dense conv 3×3 64→64 (yardstick)", session(tmp / "ref.onnx", args.threads),
+                 rng.random((1, 64, SIZE // 2, SIZE // 2), dtype=np.float32), 64 * 64 * 9 * (SIZE // 2) ** 2))
+    for k, spec in enumerate(args.variants):
+        name, kw = parse(spec)
+        model = build_model(name, **kw)
+        macs = macs_per_pixel(model) * SIZE * SIZE
+        x = rng.random((1, model.in_channels, SIZE, SIZE), dtype=np.float32)
+        f32 = tmp / f"m{k}.onnx"
+        export(model, f32)
+        runs.append((f"{spec} FP32", session(f32, args.threads), x, macs))
+        if not args.no_int8:
+            q8 = tmp / f"m{k}.int8.onnx"
+            quantize(f32, q8, model.in_channels)
+            runs.append((f"{spec} INT8", session(q8, args.threads), x, macs))
+    best = [float("inf")] * len(runs)
+    for _ in range(args.rounds + 1):  # the first round warms up
+        for i, (_, sess, x, _) in enumerate(runs):
+            t = time.perf_counter()
+            sess.run(None, {sess.get_inputs()[0].name: x})
+            best[i] = min(best[i], time.perf_counter() - t) if _ else best[i]
+    mp = SIZE * SIZE / 1e6
+    for (label, _, _, macs), t in zip(runs, best):
+        per_mp = t * 1e3 / mp if "yardstick" not in label else float("nan")
+        print(f"{label:56s} {t * 1e3:7.0f} ms  {per_mp:6.0f} ms/MP  {macs / t / 1e9:6.1f} GMAC/s", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,409 @@
+"""The restoration network: a reduced-stage UNet of ConvNeXt-style blocks
+whose spatial convolution is a DOConv (paper section 4.2, Fig. "network").
+
+Layout (``c1, c2 = widths``; resolutions relative to the input)::
+
+    RGB (3, H, W) ─ PixelUnshuffle 2 ─┐                                      ┌─ + RGB ─ out (3, H, W)
+    field (2, H, W) → φ½ (3, H/2) ────┴ stem 3×3 → c1 ─ d1 blocks ─┬─ ... ─ d3 blocks ─ head 3×3 → 12 ─ PixelShuffle 2
+                                                          (½)      │                (½)
+                                         down 2×2/2 → c2 ─ d2 blocks (¼, field φ¼) ─ up 1×1 → 4·c1 ─ PixelShuffle 2 ─ (+ skip)
+
+* **Space-to-depth first.** Every layer runs at ½ or ¼ resolution: the
+  2-core export budget is ≈ 20 kMAC per output pixel (:mod:`.macs`), and a
+  MAC at ½ resolution costs ¼ MAC per output pixel.
+* **Blocks** (ConvNeXt [1]_): ``x + pw₂(ReLU(pw₁(DOConv_dw(x, φ))))``, the
+  depthwise 7×7 replaced by a depthwise DOConv (3×3 kernels, dilations
+  1–4: a 9×9 footprint). No normalisation: LayerNorm has no INT8 kernel in
+  ONNX Runtime's CPU provider (it would run in float between Q/DQ pairs), BatchNorm's
+  batch statistics hurt restoration networks (EDSR [2]_ removed them) and
+  a frame-level norm would break tile consistency. ReLU instead of GELU:
+  it fuses into the INT8 convolution (QLinearConv), GELU does not. The
+  residual branch's last 1×1 conv starts at 0.1 of its default scale (what
+  layer scale does at initialisation, without a Mul in the graph).
+* **Field position** ``(x, y) ∈ [-1, 1]`` of every pixel on the full frame
+  (channels 3–4 of the input, :func:`modules.correction.field_coordinates`)
+  enters as ``φ = (x, y, x² + y²)`` averaged to each resolution: into the
+  stem, and into every DOConv's attention (spatially varying attention
+  maps, tile-consistent by construction).
+* **Residual output**: the network predicts a correction added to the
+  input RGB; the head starts small, so an untrained network is close to the
+  identity.
+
+Input ``(N, 5, H, W)`` (``(N, 3, H, W)`` without field encoding), ``H`` and
+``W`` multiples of :attr:`DOConvUNet.input_multiple` (4); other sizes go
+through :func:`forward_padded`. Output ``(N, 3, H, W)``, float32 linear
+camera RGB, not clipped.
+
+Tiling: with the default local attention nothing depends on the extent of
+the input, so a tile whose origin is a multiple of 4 (the ¼-resolution grid)
+and whose context reaches :func:`receptive_radius` beyond the kept core
+reproduces the full-frame output exactly (tested); in practice the
+influence decays well inside that radius (``benchmarks/doconv_toy.py``
+prints the tile error by overlap for a trained model).
+
+Variants (``build_model(variant)``, :func:`list_models`) cover the paper's
+ablations (section 5.4) and the export choices of the spatial attention.
+
+Speed (``benchmarks/doconv_speed.py``, ONNX Runtime, 2 threads, a shared
+2-core x86 machine under load): the default's MACs fit the budget
+(14 kMAC/px) but it runs far below the MAC rate of a dense conv — depthwise
+and 32/64-channel convs, and DOConv's per-pixel products (``Mul``/``Add``
+on every branch) are memory-bound: ≈ 1.5 s/MP in FP32 and hardly less in
+INT8, against ≈ 0.75 s/MP INT8 for the static ablation of equal MACs. A
+space-to-depth factor of 4 (``scale=4``, widths 64/128) ran ≈ 1.8× faster
+in INT8 but trained clearly worse on the toy task
+(``benchmarks/doconv_toy.py``); the default stays at 2.
+
+References
+----------
+.. [1] Z. Liu, H. Mao, C.-Y. Wu, C. Feichtenhofer, T. Darrell, S. Xie,
+   "A ConvNet for the 2020s", CVPR 2022.
+.. [2] B. Lim, S. Son, H. Kim, S. Nah, K. M. Lee, "Enhanced Deep Residual
+   Networks for Single Image Super-Resolution", CVPRW 2017.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from isp.errors import ConfigError
+
+from .doconv import POOL_MODES, SPATIAL_MODES, DOConv2d, _choose
+
+#: ``conv`` choices of the blocks' spatial convolution
+CONV_KINDS = ("doconv", "static")
+#: field features per pixel: x, y, x² + y²
+FIELD_FEATURES = 3
+
+
+def field_features(field: Tensor, factor: int) -> Tensor:
+    """Field features at ``1/factor`` resolution, (N, 2, H, W) → (N, 3, H/f, W/f).
+
+    The mean over each ``factor × factor`` block of the coordinates (the
+    block centre's position, exactly, for coordinates linear in the pixel
+    index), and the squared radius ``x² + y²`` (aberrations vary mostly with
+    the radius).
+    """
+    f = F.avg_pool2d(field, factor) if factor > 1 else field
+    r2 = f[:, :1] * f[:, :1] + f[:, 1:2] * f[:, 1:2]
+    return torch.cat([f, r2], dim=1)
+
+
+class ConvNeXtBlock(nn.Module):
+    """``x + pw₂(ReLU(pw₁(conv(x))))``, ``conv`` a depthwise DOConv or a
+    depthwise static conv; (N, C, H, W) → (N, C, H, W).
+
+    Parameters
+    ----------
+    channels, expansion : int
+        Width, and the MLP's hidden width ``expansion · channels``.
+    conv : {"doconv", "static"}
+        ``"static"``: a plain depthwise ``k × k`` conv (dilation 1), the
+        "ordinary convolution" of the paper's ablation.
+    kernel_size, dilations, spatial, pool, window, field_channels
+        Of the DOConv (:class:`~restoration.doconv.DOConv2d`).
+    """
+
+    def __init__(self, channels: int, *, expansion: int, conv: str, kernel_size: int,
+                 dilations: tuple[int, ...], spatial: str, pool: str, window: int, field_channels: int):
+        super().__init__()
+        self.dynamic = conv == "doconv"
+        if self.dynamic:
+            self.conv = DOConv2d(channels, channels, kernel_size, dilations, groups=channels,
+                                 spatial=spatial, pool=pool, window=window, field_channels=field_channels)
+        else:
+            self.conv = nn.Conv2d(channels, channels, kernel_size, padding=kernel_size // 2,
+                                  groups=channels, bias=False)
+        self.pw1 = nn.Conv2d(channels, expansion * channels, 1)
+        self.pw2 = nn.Conv2d(expansion * channels, channels, 1)
+        with torch.no_grad():
+            self.pw2.weight.mul_(0.1)
+            self.pw2.bias.zero_()
+
+    def forward(self, x: Tensor, field: Tensor | None = None) -> Tensor:
+        h = self.conv(x, field) if self.dynamic else self.conv(x)
+        return x + self.pw2(F.relu(self.pw1(h)))
+
+
+class DOConvUNet(nn.Module):
+    """Reduced-stage UNet with DOConv ConvNeXt blocks (module docstring).
+
+    Parameters
+    ----------
+    widths : (c1, c2)
+        Channels at ½ and ¼ resolution.
+    depths : (d1, d2, d3)
+        Blocks in the encoder (½), the bottleneck (¼) and the decoder (½).
+    expansion : int
+        MLP expansion of the blocks.
+    conv : {"doconv", "static"}
+        Spatial conv of the blocks.
+    dilations : tuple of int
+        Of the DOConv kernels, one per kernel.
+    spatial : {"none", "tap", "frozen"}
+        DOConv spatial attention (:mod:`~restoration.doconv`).
+    pool : {"local", "global"}
+        DOConv attention statistics; ``"global"`` is ODConv's and is *not*
+        tile-consistent.
+    window : int
+        Box side (odd) of the local attention statistics, in pixels of each
+        block's resolution (×2 resp. ×4 at full resolution).
+    field : bool
+        Field-position encoding: input has 5 channels (RGB, x, y), else 3.
+    kernel_size : int
+        Of the DOConv kernels and the static convs.
+    scale : {2, 4}
+        Space-to-depth factor at the input: the two scales run at
+        ``1/scale`` and ``1/(2·scale)`` resolution.
+
+    Attributes
+    ----------
+    in_channels : int
+        5 with field encoding, else 3.
+    fov_encoding : {"xy", "none"}
+        For the ONNX metadata read by the correction stage.
+    input_multiple : int
+        ``H`` and ``W`` must be multiples of it (``2·scale``: 4 by default).
+    config : dict
+        The constructor arguments.
+    """
+
+    def __init__(self, *, widths: tuple[int, int] = (32, 64), depths: tuple[int, int, int] = (2, 4, 2),
+                 expansion: int = 2, conv: str = "doconv", dilations: tuple[int, ...] = (1, 2, 3, 4),
+                 spatial: str = "none", pool: str = "local", window: int = 7, field: bool = True,
+                 kernel_size: int = 3, scale: int = 2):
+        super().__init__()
+        _choose(conv, CONV_KINDS, "conv")
+        _choose(spatial, SPATIAL_MODES, "spatial")
+        _choose(pool, POOL_MODES, "pool")
+        if len(widths) != 2 or len(depths) != 3 or min(widths) < 1 or min(depths) < 0:
+            raise ConfigError(f"widths must be 2 positive ints and depths 3 ints ≥ 0; got {widths}, {depths}")
+        if scale not in (2, 4):
+            raise ConfigError(f"scale must be 2 or 4; got {scale}")
+        self.config = {"widths": tuple(widths), "depths": tuple(depths), "expansion": expansion,
+                       "conv": conv, "dilations": tuple(dilations), "spatial": spatial, "pool": pool,
+                       "window": window, "field": field, "kernel_size": kernel_size, "scale": scale}
+        self.field = field
+        self.scale = scale
+        self.input_multiple = 2 * scale
+        self.in_channels = 5 if field else 3
+        self.fov_encoding = "xy" if field else "none"
+        nf = FIELD_FEATURES if field else 0
+        c1, c2 = widths
+        block = {"expansion": expansion, "conv": conv, "kernel_size": kernel_size,
+                 "dilations": tuple(dilations), "spatial": spatial, "pool": pool, "window": window,
+                 "field_channels": nf}
+        self.unshuffle = nn.PixelUnshuffle(scale)
+        self.stem = nn.Conv2d(3 * scale * scale + nf, c1, 3, padding=1)
+        self.enc = nn.ModuleList(ConvNeXtBlock(c1, **block) for _ in range(depths[0]))
+        self.down = nn.Conv2d(c1, c2, 2, stride=2)
+        self.mid = nn.ModuleList(ConvNeXtBlock(c2, **block) for _ in range(depths[1]))
+        self.up = nn.Sequential(nn.Conv2d(c2, 4 * c1, 1), nn.PixelShuffle(2))
+        self.dec = nn.ModuleList(ConvNeXtBlock(c1, **block) for _ in range(depths[2]))
+        self.head = nn.Sequential(nn.Conv2d(c1, 3 * scale * scale, 3, padding=1), nn.PixelShuffle(scale))
+        with torch.no_grad():
+            self.head[0].weight.mul_(0.1)
+            self.head[0].bias.zero_()
+
+    def forward(self, x: Tensor) -> Tensor:
+        """``x`` (N, 5, H, W): linear camera RGB and the field ``(x, y)`` in
+        [-1, 1] (N, 3, H, W without field encoding) → corrected RGB (N, 3, H, W)."""
+        if not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
+            self._check(x)
+        rgb = x[:, :3]
+        f1 = f2 = None
+        h = self.unshuffle(rgb)
+        if self.field:
+            fld = x[:, 3:5]
+            f1, f2 = field_features(fld, self.scale), field_features(fld, 2 * self.scale)
+            h = torch.cat([h, f1], dim=1)
+        h = self.stem(h)
+        for b in self.enc:
+            h = b(h, f1)
+        skip = h
+        h = self.down(h)
+        for b in self.mid:
+            h = b(h, f2)
+        h = self.up(h) + skip
+        for b in self.dec:
+            h = b(h, f1)
+        return rgb + self.head(h)
+
+    def _check(self, x: Tensor) -> None:
+        if x.ndim != 4 or x.shape[1] != self.in_channels:
+            what = "RGB + field (x, y)" if self.field else "RGB"
+            raise ConfigError(f"expected input (N, {self.in_channels}, H, W) ({what}); got {tuple(x.shape)}")
+        m = self.input_multiple
+        if x.shape[2] % m or x.shape[3] % m:
+            raise ConfigError(f"H and W must be multiples of {m}; got {tuple(x.shape[2:])} "
+                              "(use restoration.network.forward_padded)")
+
+
+def pad_to_multiple(x: Tensor, multiple: int = 4, n_field: int = 2) -> tuple[Tensor, tuple[int, int]]:
+    """Pad (N, C, H, W) at the bottom and right to multiples of ``multiple``.
+
+    Image channels (the first ``C - n_field``) are padded by replicating the
+    edge; the last ``n_field`` channels are field coordinates and are
+    extrapolated linearly (their step is read from the last two rows /
+    columns), so the padding has the positions it would have on a larger
+    frame. Returns the padded tensor and the original ``(H, W)``.
+    """
+    h, w = x.shape[-2:]
+    ph, pw = (-h) % multiple, (-w) % multiple
+    if not (ph or pw):
+        return x, (h, w)
+    img = F.pad(x[:, :x.shape[1] - n_field], (0, pw, 0, ph), mode="replicate")
+    if not n_field:
+        return img, (h, w)
+    fld = x[:, x.shape[1] - n_field:]
+    for dim, p in ((3, pw), (2, ph)):
+        if p:
+            n = fld.shape[dim]
+            last = fld.narrow(dim, n - 1, 1)
+            step = last - fld.narrow(dim, n - 2, 1) if n > 1 else torch.zeros_like(last)
+            k = torch.arange(1, p + 1, dtype=fld.dtype, device=fld.device)
+            shape = [1, 1, 1, 1]
+            shape[dim] = p
+            fld = torch.cat([fld, last + step * k.view(shape)], dim=dim)
+    return torch.cat([img, fld], dim=1), (h, w)
+
+
+def forward_padded(model: DOConvUNet, x: Tensor) -> Tensor:
+    """``model(x)`` for any ``H, W``: pad (:func:`pad_to_multiple`), run, crop."""
+    xp, (h, w) = pad_to_multiple(x, model.input_multiple, 2 if model.field else 0)
+    return model(xp)[..., :h, :w]
+
+
+def receptive_radius(model: nn.Module, size: int = 256) -> int:
+    """Measured receptive-field radius in input pixels: the largest
+    Chebyshev distance from the centre output pixel to an input pixel whose
+    gradient is non-zero, on a random ``size × size`` input (float64).
+
+    A tile whose overlap is at least this radius on each side gives, in its
+    interior, the same output as the full frame — with ``pool="local"``.
+    Returns ``size // 2`` or more when the field reaches the border (e.g.
+    ``pool="global"``).
+    """
+    m = model.double().eval()
+    try:
+        x = torch.rand(1, m.in_channels, size, size, dtype=torch.float64, requires_grad=True)
+        c = size // 2
+        m(x)[0, :, c, c].sum().backward()
+        g = x.grad[0].abs().sum(0)
+        ys, xs = torch.nonzero(g > 0, as_tuple=True)
+        return int(torch.maximum((ys - c).abs(), (xs - c).abs()).max())
+    finally:
+        model.float()
+
+
+# ---------------------------------------------------------------- registry
+
+_MODELS: dict[str, Callable[..., DOConvUNet]] = {}
+
+
+def register_model(fn: Callable[..., DOConvUNet]) -> Callable[..., DOConvUNet]:
+    """Decorator: register a factory under its function name (timm's
+    ``register_model``); re-registering a name replaces it."""
+    _MODELS[fn.__name__] = fn
+    return fn
+
+
+def list_models() -> list[str]:
+    """Registered variant names, sorted."""
+    return sorted(_MODELS)
+
+
+def build_model(variant: str = "doconv", **overrides) -> DOConvUNet:
+    """Build a registered variant; ``overrides`` replace its
+    :class:`DOConvUNet` arguments.
+
+    >>> build_model("doconv", depths=(1, 1, 1)).config["depths"]
+    (1, 1, 1)
+    >>> build_model("nope")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    isp.errors.ConfigError: unknown model variant 'nope'; valid: doconv, ...
+    """
+    try:
+        factory = _MODELS[variant]
+    except KeyError:
+        raise ConfigError(f"unknown model variant {variant!r}; valid: {', '.join(list_models())}") from None
+    valid = inspect.signature(DOConvUNet).parameters
+    bad = sorted(set(overrides) - set(valid))
+    if bad:
+        raise ConfigError(f"unknown argument(s) {', '.join(bad)} for model {variant!r}; "
+                          f"valid: {', '.join(valid)}")
+    return factory(**overrides)
+
+
+#: the default configuration; every variant departs from it in one respect
+DEFAULT = {"widths": (32, 64), "depths": (2, 4, 2), "expansion": 2, "conv": "doconv",
+           "dilations": (1, 2, 3, 4), "spatial": "none", "pool": "local", "window": 7, "field": True,
+           "kernel_size": 3, "scale": 2}
+
+
+@register_model
+def doconv(**kw) -> DOConvUNet:
+    """The default: DOConv blocks, dilations 1–4, local attention with
+    field features, no spatial attention (exports as constant-weight convs)."""
+    return DOConvUNet(**{**DEFAULT, **kw})
+
+
+@register_model
+def doconv_spatial_tap(**kw) -> DOConvUNet:
+    """Per-pixel spatial attention, exact, as ``k²`` shifted 1×1 convs per kernel (same MACs)."""
+    return DOConvUNet(**{**DEFAULT, "spatial": "tap", **kw})
+
+
+@register_model
+def doconv_spatial_frozen(**kw) -> DOConvUNet:
+    """Spatial attention trained per pixel, frozen to its running mean (folded
+    into the weights) in eval mode and export."""
+    return DOConvUNet(**{**DEFAULT, "spatial": "frozen", **kw})
+
+
+@register_model
+def doconv_global(**kw) -> DOConvUNet:
+    """ODConv's global-average-pool attention (per image; not tile-consistent)."""
+    return DOConvUNet(**{**DEFAULT, "pool": "global", **kw})
+
+
+@register_model
+def equal_dilation(**kw) -> DOConvUNet:
+    """Ablation: four kernels, all dilation 1."""
+    return DOConvUNet(**{**DEFAULT, "dilations": (1, 1, 1, 1), **kw})
+
+
+@register_model
+def no_field(**kw) -> DOConvUNet:
+    """Ablation: no field-position encoding (3-channel input)."""
+    return DOConvUNet(**{**DEFAULT, "field": False, **kw})
+
+
+@register_model
+def static(**kw) -> DOConvUNet:
+    """Ablation: plain depthwise convs, widths raised (c2 = 2·c1) until the
+    MACs per pixel are closest to those of ``doconv`` with the same other
+    arguments (unless ``widths`` is given)."""
+    from .macs import macs_per_pixel
+
+    if "widths" in kw:
+        return DOConvUNet(**{**DEFAULT, "conv": "static", **kw})
+    cfg = {**DEFAULT, **kw}
+    target = macs_per_pixel(DOConvUNet(**cfg), (16, 16))
+
+    def macs(c1):
+        return macs_per_pixel(DOConvUNet(**{**cfg, "conv": "static", "widths": (c1, 2 * c1)}), (16, 16))
+
+    # MACs grow about with the square of the width: start there, then step
+    c0 = cfg["widths"][0]
+    c1 = max(1, round(c0 * (target / macs(c0)) ** 0.5))
+    step = 1 if macs(c1) < target else -1
+    while c1 + step >= 1 and abs(macs(c1 + step) - target) < abs(macs(c1) - target):
+        c1 += step
+    return DOConvUNet(**{**cfg, "conv": "static", "widths": (c1, 2 * c1)})
