@@ -227,6 +227,8 @@ def cmd_demo(args) -> int:
 EXTERNAL = {
     "calib": ("calibration.cli", "lens files, ray tracing, PSFs, simulated captures, SFR"),
     "synth": ("restoration.cli", "training pairs from latent images through a proxy camera"),
+    "train": ("restoration.train_cli", "train the optical-correction network on synthesised pairs"),
+    "eval": ("restoration.eval_cli", "PSNR/SSIM per field ring of a correction model on unseen proxy cameras"),
 }
 
 
