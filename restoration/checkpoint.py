@@ -42,6 +42,7 @@ an interrupted save never leaves a truncated checkpoint.
 from __future__ import annotations
 
 import json
+import pickle
 from pathlib import Path
 
 import torch
@@ -123,8 +124,9 @@ def load_checkpoint(path, map_location="cpu") -> dict:
         raise InputError(p, "no such checkpoint")
     try:
         ckpt = torch.load(p, map_location=map_location, weights_only=True)
-    except Exception as e:  # torch raises several types for a bad file
-        raise InputError(p, f"not a readable checkpoint: {type(e).__name__}: {str(e).splitlines()[0]}") from None
+    except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError) as e:  # what a bad file raises
+        why = "not a torch.save file of plain data" if isinstance(e, pickle.UnpicklingError) else str(e).splitlines()[0]
+        raise InputError(p, f"not a readable checkpoint ({type(e).__name__}: {why})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         got = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
         raise InputError(p, f"checkpoint format {got!r}, expected {FORMAT!r}")
