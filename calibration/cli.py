@@ -17,6 +17,9 @@ commands never load the optics code. Sub-commands:
     lens, written as a DNG that ``isp process`` reads like a real one.
 ``sfr``
     ISO 12233 slanted-edge SFR of an image, an ROI or a whole chart.
+``fit``
+    Fit a proxy camera to a measurement: lens/v1 + fitted perturbation, and
+    a report (:mod:`calibration.fit_cli`).
 ``loop``
     Close the loop on a measurement: fit, find the effects the model lacks,
     refit, report before/after (:mod:`calibration.loop_cli`).
@@ -43,6 +46,7 @@ examples:
   isp calib psf phone.json --map --plot psf_map.png
   isp calib simulate phone.json -o capture.dng --perturb random --seed 3
   isp calib sfr capture.png --chart --json sfr.json --plot sfr.png
+  isp calib fit --lens phone.zmx --measured capture.dng -o proxy/  # proxy camera (paper Alg. 1)
   isp calib loop --lens parametric --measured edge.jpg --encoding srgb -o edge_loop/
 """
 
@@ -495,8 +499,10 @@ def make_parser() -> argparse.ArgumentParser:
     sp.add_argument("--plot", metavar="OUT.png", help="write a plot")
     sp.set_defaults(func=cmd_sfr)
 
+    from .fit_cli import add_parser as add_fit_parser
     from .loop_cli import add_parser as add_loop_parser
 
+    add_fit_parser(sub)
     add_loop_parser(sub)
     return p
 

@@ -55,10 +55,10 @@ import numpy as np
 
 from .dls import damped_least_squares
 from .effects import create_effect, list_effects
+from .sfr_model import BANDS, band_means
 
 __all__ = ["LoopReport", "close_loop", "BANDS"]
 
-BANDS = ((0.02, 0.125), (0.125, 0.25), (0.25, 0.375), (0.375, 0.5))
 MODEL_FLOOR = 5e-4      # SFRA error a perfect fit still has (model discretisation), cycles/pixel
 
 
@@ -92,23 +92,14 @@ class LoopReport:
                 "decomposition_after": self.decomposition_after, "seconds": round(self.seconds, 1)}
 
 
-def _band_means(freq, sfr) -> np.ndarray:
-    f = np.asarray(freq)
-    out = []
-    for lo, hi in BANDS:
-        m = (f >= lo) & (f <= hi)
-        out.append(np.nanmean(sfr[:, m], axis=1))
-    return np.stack(out, axis=1)
-
-
 class _Problem:
     """Parameters [base | effects...] → weighted residuals."""
 
     def __init__(self, base, obs, bias_a, bias_c, sigma):
         self.base, self.obs = base, obs
-        self.bias_a, self.bias_bands = bias_a, _band_means(obs.freq, bias_c)
+        self.bias_a, self.bias_bands = bias_a, band_means(obs.freq, bias_c)
         self.sigma = sigma
-        self.meas_bands = _band_means(obs.freq, np.asarray(obs.sfr))
+        self.meas_bands = band_means(obs.freq, np.asarray(obs.sfr))
         self.effects = []
 
     def split(self, p):
@@ -127,7 +118,7 @@ class _Problem:
     def residuals(self, pred, mask=None):
         obs = self.obs
         ra = (obs.sfra - pred.sfra - self.bias_a) / self.sigma
-        rb = (self.meas_bands - _band_means(obs.freq, pred.sfr) - self.bias_bands) / (4.0 * self.sigma[:, None])
+        rb = (self.meas_bands - band_means(obs.freq, pred.sfr) - self.bias_bands) / (4.0 * self.sigma[:, None])
         r = np.concatenate([ra[:, None], rb], axis=1)
         r = np.where(np.isfinite(r), r, 0.0)
         if mask is not None:
@@ -237,7 +228,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     p, _ = _fit(prob, base.x0, np.asarray(base.lower, float), np.asarray(base.upper, float), np.ones(nb, bool),
                 max_iter=base_iter)
     a1, c1, sd1 = base.measurement_bias(p[:nb])          # bias at the fitted base
-    prob.bias_a, prob.bias_bands = a1, _band_means(obs.freq, c1)
+    prob.bias_a, prob.bias_bands = a1, band_means(obs.freq, c1)
     prob.sigma = sigma = _sigma_law(obs, sd1)
     noise_floor = float(np.sqrt(np.mean(sigma ** 2)))
     tick("base fitted")

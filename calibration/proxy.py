@@ -29,6 +29,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from typing import NamedTuple
 from pathlib import Path
 
 import numpy as np
@@ -198,18 +199,36 @@ def _cheap_residual_task(u: np.ndarray) -> np.ndarray:
     return _residuals(_WORKER["cheap"], _WORKER["space"], _WORKER["bias"], u)
 
 
-def _residuals(model, space: ParameterSpace, bias: np.ndarray, u: np.ndarray) -> np.ndarray:
+class BandBias(NamedTuple):
+    """Measurement bias for SFRA + band residuals: SFRA bias (N,), band
+    bias (N, 4) and the measured band means (N, 4)."""
+
+    sfra: np.ndarray
+    bands: np.ndarray
+    measured_bands: np.ndarray
+
+
+def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
+    """SFRA residuals (N,) over their σ; with a :class:`BandBias`, also the
+    mean SFR in four bands, each over 4σ (a band mean of a quarter of the
+    range: about four SFRA's worth of noise), flattened (N·5,)."""
     lens = space.apply(np.asarray(u) * space.tolerance)
     pred = model.predict(lens)
     obs = model.obs
-    r = (obs.sfra - pred.sfra - bias) / obs.sfra_std
+    bands = isinstance(bias, BandBias)
+    r = (obs.sfra - pred.sfra - (bias.sfra if bands else bias)) / obs.sfra_std
+    if bands:
+        from .sfr_model import band_means
+
+        rb = (bias.measured_bands - band_means(obs.freq, pred.sfr) - bias.bands) / (4.0 * obs.sfra_std[:, None])
+        r = np.concatenate([r[:, None], rb], axis=1).ravel()
     return np.where(np.isfinite(r), r, 0.0)
 
 
 def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
               workers: int | None = None, max_iter: int = 15, bound_factor: float = 2.0,
               progress: bool = True, x0=None, n_params: int | None = 16,
-              jacobian_settings=None) -> ProxyFit:
+              jacobian_settings=None, residuals: str = "sfra") -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
 
     Parameters
@@ -235,6 +254,10 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     n_params : int, optional
         Without ``names``: fit the ``n_params`` most sensitive of
         :func:`default_names` (:func:`screen_parameters`); None: all.
+    residuals : {"sfra", "bands"}
+        "sfra": the paper's SFRA per observation; "bands": SFRA plus the
+        mean SFR in four frequency bands (:data:`calibration.sfr_model.BANDS`),
+        which pins the curve's shape (see ``benchmarks/proxy.py``).
     jacobian_settings : calibration.sfr_model.ModelSettings, optional
         A cheaper forward model for the Jacobian only (DLS), e.g. one
         wavelength and fewer pupil samples; steps are still accepted on the
@@ -246,7 +269,10 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     settings = settings or ModelSettings()
     t0 = time.perf_counter()
     model = SfrModel(nominal, obs, settings)
-    bias = np.asarray(model.noise_bias(nominal, obs), float)
+    if residuals not in ("sfra", "bands"):
+        raise ValueError(f"unknown residuals {residuals!r}; valid: 'sfra', 'bands'")
+    bias_a, bias_c = model.measurement_bias(nominal, obs)
+    bias = np.asarray(bias_a, float)
     screen = names is None and n_params is not None
     names = list(names) if names is not None else default_names(nominal)
     workers = max(1, min(2, os.cpu_count() or 1)) if workers is None else int(workers)
@@ -267,6 +293,10 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         if pool is not None:
             pool.shutdown()
             pool = None
+    if residuals == "bands":
+        from .sfr_model import band_means
+
+        bias = BandBias(bias, band_means(obs.freq, bias_c), band_means(obs.freq, obs.sfr))
     space = parameter_space(nominal, names)
     n = len(space.names)
     lower = np.full(n, -bound_factor)
@@ -303,7 +333,8 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
             bar.update(1)
             bar.set_postfix(merit=f"{rec['merit']:.4g}", evals=rec["evaluations"])
 
-    before = model.predict(nominal).sfra + bias
+    bias_sfra = bias.sfra if isinstance(bias, BandBias) else bias
+    before = model.predict(nominal).sfra + bias_sfra
     try:
         if method == "dls":
             res = damped_least_squares(fun, u0, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
@@ -334,8 +365,8 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
             pool.shutdown()
         if bar is not None:
             bar.close()
-    after = model.predict(space.apply(u * space.tolerance)).sfra + bias
-    return ProxyFit(nominal, space, np.asarray(u), res, obs, before, after, bias, method, evals,
+    after = model.predict(space.apply(u * space.tolerance)).sfra + bias_sfra
+    return ProxyFit(nominal, space, np.asarray(u), res, obs, before, after, bias_sfra, method, evals,
                     time.perf_counter() - t0, settings=_settings_dict(settings))
 
 

@@ -456,3 +456,23 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
             warnings.simplefilter("ignore", RuntimeWarning)
             sd = float(np.nanstd(a, ddof=1)) if np.isfinite(a).sum() > 1 else float("nan")
             return float(np.nanmean(a)), np.nanmean(c, axis=0), sd
+
+
+#: frequency bands (cycles/pixel) whose mean SFR joins SFRA as a residual: SFRA
+#: alone (one number per edge) does not pin the curve's shape
+BANDS = ((0.02, 0.125), (0.125, 0.25), (0.25, 0.375), (0.375, 0.5))
+
+
+def band_means(freq, sfr) -> np.ndarray:
+    """Mean of each row of ``sfr`` (N, F) over each of :data:`BANDS`, (N, 4).
+
+    >>> import numpy as np
+    >>> band_means(np.linspace(0, 1, 129), np.ones((2, 129))).shape
+    (2, 4)
+    """
+    f = np.asarray(freq)
+    out = []
+    for lo, hi in BANDS:
+        m = (f >= lo) & (f <= hi)
+        out.append(np.nanmean(np.asarray(sfr)[:, m], axis=1))
+    return np.stack(out, axis=1)

@@ -1,0 +1,97 @@
+"""``isp calib fit``: a proxy camera fitted to a measurement (paper §3.2,
+Algorithm 1) — the lens file plus the perturbation that makes its simulated
+slanted-edge SFR match the measured one.
+
+Reads the measurement as ``isp calib loop`` does (a chart capture, the JSON
+of ``isp calib sfr`` or an ``sfr-observations/v1`` file), fits with
+:func:`calibration.proxy.fit_proxy` and writes, into one folder (built in a
+temporary folder and renamed, so a failed fit leaves nothing):
+
+* ``proxy.json``: lens/v1 with the fitted ``perturbation`` (nominal +
+  perturbations; :func:`calibration.proxy.load_proxy` reads it back, and
+  ``isp synth --lens proxy.json`` makes training data from it);
+* ``fit.json``: parameters with 1σ uncertainty, errors before/after, merit
+  per iteration, lens evaluations, time;
+* ``merit.png``, ``sfra_maps.png``, ``parameters.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from isp.errors import IspError
+
+EPILOG = """examples:
+  isp calib fit --lens e9.zmx --measured capture.dng -o e9_proxy/
+  isp calib fit --lens e9.zmx --measured chart_sfr.json --method scipy --max-iter 20
+  isp calib fit --lens e9.zmx --measured obs.json --residuals bands --fast-jacobian
+"""
+
+
+def cmd_fit(args) -> int:
+    from .cli import _load
+    from .loop_cli import _check_out, _publish, load_measured, match_sensor
+    from .proxy import fit_proxy
+    from .sfr_model import ModelSettings
+
+    t0 = time.perf_counter()
+    if args.max_iter < 1:
+        raise IspError(f"--max-iter {args.max_iter}: at least 1")
+    if args.n_params < 1:
+        raise IspError(f"--n-params {args.n_params}: at least 1")
+    out = Path(args.output)
+    _check_out(out)
+    nominal = _load(args.lens)                  # a bad lens file fails before any measurement
+    obs, notes = load_measured(args.measured, channel=args.channel, encoding=args.encoding,
+                               pixel_um=args.pixel_um, progress=True)
+    for n in notes:
+        print(f"note: {n}")
+    nominal, obs = match_sensor(nominal, obs, pixel_um=args.pixel_um)
+    print(f"{args.measured}: {len(obs)} observations; fitting {args.n_params} parameters "
+          f"({args.method}, {args.residuals} residuals)", flush=True)
+    fit = fit_proxy(nominal, obs, method=args.method, workers=args.workers, max_iter=args.max_iter,
+                    n_params=args.n_params, residuals=args.residuals,
+                    jacobian_settings=ModelSettings(pupil_samples=32) if args.fast_jacobian else None)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        fit.save(tmp)
+        _publish(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    e = fit.errors()
+    print(f"SFRA RMS {e['before']['sfra_rms']:.4f} → {e['after']['sfra_rms']:.4f} cycles/pixel, "
+          f"χ²/obs {e['before']['chi2_per_obs']:.1f} → {e['after']['chi2_per_obs']:.2f}; "
+          f"{fit.evaluations} lens evaluations, {fit.seconds:.0f} s")
+    print(f"wrote {out}/proxy.json, fit.json, merit.png, sfra_maps.png, parameters.png "
+          f"({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+def add_parser(sub) -> None:
+    """Register ``fit`` on the ``isp calib`` sub-parsers."""
+    sp = sub.add_parser("fit", help="fit a proxy camera (lens perturbations) to a measured SFR",
+                        description=__doc__.split("\n\n")[0].replace("``", "`"), epilog=EPILOG,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    sp.add_argument("--lens", required=True, metavar="LENS", help="lens file (lens/v1 .json, Zemax .zmx, ...)")
+    sp.add_argument("--measured", required=True, metavar="MEAS",
+                    help="chart capture (DNG/raw or image), SFR JSON of `isp calib sfr`, or sfr-observations/v1")
+    sp.add_argument("-o", "--output", default="proxy_fit", metavar="DIR", help="output folder (default proxy_fit/)")
+    sp.add_argument("--method", choices=("dls", "scipy"), default="dls",
+                    help="dls: damped least squares, dynamic damping (default); scipy: least_squares TRF")
+    sp.add_argument("--residuals", choices=("sfra", "bands"), default="sfra",
+                    help="sfra: SFRA per edge (the paper); bands: plus the mean SFR in four frequency bands")
+    sp.add_argument("--n-params", type=int, default=16, help="perturbations fitted, the most sensitive (default 16)")
+    sp.add_argument("--max-iter", type=int, default=15, help="iterations (Jacobians) at most (default 15)")
+    sp.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
+    sp.add_argument("--fast-jacobian", action="store_true",
+                    help="Jacobian from a cheaper model (pupil 32 samples); steps judged on the full model")
+    sp.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
+    sp.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")
+    sp.add_argument("--pixel-um", type=float, metavar="UM", help="pixel pitch, µm (default: the capture's)")
+    sp.set_defaults(func=cmd_fit)
