@@ -16,6 +16,8 @@ from pathlib import Path
 
 from isp.errors import ConfigError, InputError
 
+from .cli import _grid
+
 EPILOG = """\
 examples:
   isp eval runs/doconv/best.pt --images ../shared/data/latent/Kodak24 --lens proxy.json --json eval.json
@@ -33,16 +35,6 @@ a non-blind deconvolution with the true PSF (scikit-image Wiener or Richardson-L
 The JSON holds `rings` ("0.1", "0.5", "0.9": psnr_/ssim_ uncorrected, corrected, baseline),
 `overall`, `per_image`, `per_lens`, `crops`, `settings` and `timing`.
 """
-
-
-def _grid(text: str) -> tuple[int, int]:
-    try:
-        rows, cols = (int(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected ROWS,COLS (two integers), got {text!r}") from None
-    if rows < 1 or cols < 1:
-        raise argparse.ArgumentTypeError(f"the grid needs at least 1 row and 1 column, got {text!r}")
-    return rows, cols
 
 
 def make_parser() -> argparse.ArgumentParser:

@@ -16,3 +16,26 @@ def data_file(*parts: str) -> Path:
     if not p.exists():
         pytest.skip(f"shared data not available: {p} (tests that use ../shared/data skip without it)")
     return p
+
+
+def kernel_psf_map(kernel, *, height: int, width: int, grid=(3, 4), n: int = 16, pitch_um: float = 0.5):
+    """A PSFMap on a sensor of 1-µm pixels whose PSF in region (r, c),
+    channel ch (R, G, B) is ``kernel(r, c, ch, xx, yy)`` on an n×n grid of
+    ``pitch_um`` offsets (µm from the centre sample), normalised to sum 1."""
+    import numpy as np
+
+    from calibration.lens import Sensor
+    from calibration.psf_map import PSFMap, region_centers_mm
+
+    sensor = Sensor(pixel_pitch_um=1.0, width_px=width, height_px=height)
+    rows, cols = grid
+    o = (np.arange(n) - n // 2) * pitch_um
+    xx, yy = np.meshgrid(o, o)
+    psfs = np.zeros((rows, cols, 3, n, n))
+    for r in range(rows):
+        for c in range(cols):
+            for ch in range(3):
+                g = np.asarray(kernel(r, c, ch, xx, yy), float)
+                psfs[r, c, ch] = g / g.sum()
+    centers = region_centers_mm(sensor, grid)
+    return PSFMap(psfs, pitch_um, centers, np.zeros_like(centers), ("R", "G", "B"), sensor)

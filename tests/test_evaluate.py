@@ -18,10 +18,9 @@ import math
 import cv2
 import numpy as np
 import pytest
-from helpers import data_file
+from helpers import data_file, kernel_psf_map
 
-from calibration.lens import Sensor
-from calibration.psf_map import PSFMap, region_centers_mm
+from calibration.psf_map import PSFMap
 
 S6 = ("raw", "SYNTHETIC_phone_S6meta_512x384.dng")
 E9 = ("lenses", "phone", "US-12210142-B2-e9.zmx")
@@ -35,24 +34,19 @@ def psf_map(kind="gauss", shift=(0, 0), grid=(3, 4), n=32, pitch_um=0.5) -> PSFM
     """Gaussians widening with the field radius (σ 0.3 px at the centre to
     ≈ 1.8 px in the corners, per channel a little wider), or deltas
     displaced by ``shift`` PSF samples (``pitch_um`` µm on 1-µm pixels)."""
-    h, w = FRAME
-    sensor = Sensor(pixel_pitch_um=1.0, width_px=w, height_px=h)
     rows, cols = grid
-    o = (np.arange(n) - n // 2) * pitch_um
-    xx, yy = np.meshgrid(o, o)
-    psfs = np.zeros((rows, cols, 3, n, n))
-    for r in range(rows):
-        for c in range(cols):
-            rho = math.hypot((r + 0.5) / rows - 0.5, (c + 0.5) / cols - 0.5) / math.hypot(0.5, 0.5)
-            for ch in range(3):
-                if kind == "delta":
-                    psfs[r, c, ch, n // 2 + shift[0], n // 2 + shift[1]] = 1.0
-                else:
-                    s = 0.3 + 1.5 * rho + 0.1 * ch
-                    g = np.exp(-(xx ** 2 + yy ** 2) / (2 * s * s))
-                    psfs[r, c, ch] = g / g.sum()
-    centers = region_centers_mm(sensor, grid)
-    return PSFMap(psfs, pitch_um, centers, np.zeros_like(centers), ("R", "G", "B"), sensor)
+
+    def kernel(r, c, ch, xx, yy):
+        if kind == "delta":
+            k = np.zeros_like(xx)
+            k[n // 2 + shift[0], n // 2 + shift[1]] = 1.0
+            return k
+        rho = math.hypot((r + 0.5) / rows - 0.5, (c + 0.5) / cols - 0.5) / math.hypot(0.5, 0.5)
+        s = 0.3 + 1.5 * rho + 0.1 * ch
+        return np.exp(-(xx ** 2 + yy ** 2) / (2 * s * s))
+
+    h, w = FRAME
+    return kernel_psf_map(kernel, height=h, width=w, grid=grid, n=n, pitch_um=pitch_um)
 
 
 @pytest.fixture(scope="module")

@@ -16,10 +16,9 @@ import json
 import cv2
 import numpy as np
 import pytest
-from helpers import data_file
+from helpers import data_file, kernel_psf_map
 
-from calibration.lens import Sensor
-from calibration.psf_map import PSFMap, region_centers_mm
+from calibration.psf_map import PSFMap
 from isp.cli import main
 from isp.frame import CFA, Domain, Frame
 
@@ -32,22 +31,13 @@ LG = ("raw", "skia_sample_1mp.dng")
 def gaussian_map(height=96, width=128, grid=(3, 4), n=16, pitch_um=0.5, sigmas=None, delta=False) -> PSFMap:
     """A PSF map of Gaussians whose width grows over the field (and differs
     per channel), or of deltas (an ideal lens)."""
-    sensor = Sensor(pixel_pitch_um=1.0, width_px=width, height_px=height)
-    rows, cols = grid
-    o = (np.arange(n) - n // 2) * pitch_um
-    xx, yy = np.meshgrid(o, o)
-    psfs = np.zeros((rows, cols, 3, n, n))
-    for r in range(rows):
-        for c in range(cols):
-            for ch in range(3):
-                if delta:
-                    psfs[r, c, ch, n // 2, n // 2] = 1.0
-                    continue
-                s = sigmas[r, c, ch] if sigmas is not None else 0.4 + 0.35 * (r + c) + 0.15 * ch
-                g = np.exp(-((xx - 0.2 * c) ** 2 + (yy - 0.1 * r) ** 2) / (2 * s * s))
-                psfs[r, c, ch] = g / g.sum()
-    centers = region_centers_mm(sensor, grid)
-    return PSFMap(psfs, pitch_um, centers, np.zeros_like(centers), ("R", "G", "B"), sensor)
+    def kernel(r, c, ch, xx, yy):
+        if delta:
+            return (xx == 0) & (yy == 0)
+        s = sigmas[r, c, ch] if sigmas is not None else 0.4 + 0.35 * (r + c) + 0.15 * ch
+        return np.exp(-((xx - 0.2 * c) ** 2 + (yy - 0.1 * r) ** 2) / (2 * s * s))
+
+    return kernel_psf_map(kernel, height=height, width=width, grid=grid, n=n, pitch_um=pitch_um)
 
 
 def latent_png(tmp_path, size=96, seed=0):

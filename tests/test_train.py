@@ -19,12 +19,11 @@ import json
 import cv2
 import numpy as np
 import pytest
-from helpers import data_file
+from helpers import data_file, kernel_psf_map
 
 torch = pytest.importorskip("torch")
 
-from calibration.lens import Sensor
-from calibration.psf_map import PSFMap, region_centers_mm
+from calibration.psf_map import PSFMap
 from isp.cli import main
 from isp.errors import ConfigError
 
@@ -36,19 +35,11 @@ STEPS = 24
 
 def gaussian_map(height=96, width=128, grid=(3, 4), n=16, pitch_um=0.5) -> PSFMap:
     """Gaussian PSFs whose width grows over the field (a known blur)."""
-    sensor = Sensor(pixel_pitch_um=1.0, width_px=width, height_px=height)
-    rows, cols = grid
-    o = (np.arange(n) - n // 2) * pitch_um
-    xx, yy = np.meshgrid(o, o)
-    psfs = np.zeros((rows, cols, 3, n, n))
-    for r in range(rows):
-        for c in range(cols):
-            for ch in range(3):
-                s = 0.6 + 0.4 * (r + c) + 0.15 * ch
-                g = np.exp(-(xx ** 2 + yy ** 2) / (2 * s * s))
-                psfs[r, c, ch] = g / g.sum()
-    centers = region_centers_mm(sensor, grid)
-    return PSFMap(psfs, pitch_um, centers, np.zeros_like(centers), ("R", "G", "B"), sensor)
+    def kernel(r, c, ch, xx, yy):
+        s = 0.6 + 0.4 * (r + c) + 0.15 * ch
+        return np.exp(-(xx ** 2 + yy ** 2) / (2 * s * s))
+
+    return kernel_psf_map(kernel, height=height, width=width, grid=grid, n=n, pitch_um=pitch_um)
 
 
 def latent_pngs(d, size=144, count=3):
