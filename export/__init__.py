@@ -1,3 +1,9 @@
-"""ONNX export, INT8 quantization and the 2-core benchmark (torch).
-(Contents arrive with the export issue.)
+"""ONNX export and static INT8 quantization of the restoration network for
+the ``correction`` stage (torch).
+
+* :mod:`.onnx_export` — checkpoint → FP32 ONNX (opset ≥ 17, dynamic H/W),
+  constant-weight check, torch ↔ ONNX parity, metadata, measured tile overlap;
+* :mod:`.quantize` — static INT8 (QDQ), conv counts after ORT's
+  optimisation, INT8 vs FP32 PSNR, mobile-usability checker;
+* :mod:`.cli` — ``isp export``.
 """

@@ -229,6 +229,7 @@ EXTERNAL = {
     "synth": ("restoration.cli", "training pairs from latent images through a proxy camera"),
     "train": ("restoration.train_cli", "train the optical-correction network on synthesised pairs"),
     "eval": ("restoration.eval_cli", "PSNR/SSIM per field ring of a correction model on unseen proxy cameras"),
+    "export": ("export.cli", "checkpoint -> ONNX (FP32, static INT8) for the correction stage, with parity checks"),
 }
 
 

@@ -1,0 +1,366 @@
+"""ONNX export of a restoration checkpoint for the ``correction`` stage.
+
+:func:`export_onnx` rebuilds the model of a checkpoint
+(:func:`restoration.checkpoint.load_model`), exports it with the
+TorchScript exporter (opset ≥ 17, dynamic ``H`` and ``W``), checks that
+every ``Conv`` has constant weights (initializers or ``Constant`` nodes:
+what static INT8 can quantise), writes the metadata the correction stage
+reads (:mod:`modules.correction`, table below), measures the torch ↔ ONNX
+parity and the tile overlap the stage needs, and writes the file
+atomically.
+
+==================  =========================================================
+metadata key        value
+==================  =========================================================
+``domain``          from the checkpoint (``camera_rgb``)
+``placement``       from the checkpoint (``camera_rgb after demosaic``)
+``lens``            from the checkpoint
+``fov_encoding``    ``"xy"`` (RGB + field x, y) or ``"none"``
+``tile_size``       tile side in px, margins included (``--tile-size``)
+``tile_overlap``    context margin per side in px, *measured*
+                    (:func:`measure_tile_overlap`); else ``receptive_radius``
+``receptive_radius`` gradient-measured radius (px; an upper bound)
+``input_multiple``  4 (the UNet's total stride)
+``attention``       ``"local"`` or ``"global"``
+``training_data``   the synth manifests' ``data_sha256`` (comma-joined)
+``precision``       ``fp32`` (``int8`` after :func:`export.quantize.quantize_int8`)
+``producer``        ``isp export`` + variant, training step, torch version
+==================  =========================================================
+
+Tile overlap
+------------
+The gradient-measured receptive radius (174 px for the default model) is a
+bound: the influence of far pixels decays long before it. The overlap
+written is the smallest candidate margin ``m`` for which the stage's own
+tiled run (:class:`modules.correction.Correction`, tiles of
+``2 m + 128`` px so a 256 × 320 frame is cut in several) differs from its
+whole-frame run with the same margin (so the same reflected border) by at
+most ``tolerance`` (0.5/255 by default) on a smooth random input with
+edges and noise (:func:`sample_frame`). It is measured once, on one input:
+a property of the trained weights, so re-export after training.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import tempfile
+import time
+import warnings
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from isp.errors import ConfigError, IspError
+
+__all__ = [
+    "METADATA_KEYS",
+    "ExportError",
+    "check_constant_weights",
+    "export_onnx",
+    "measure_tile_overlap",
+    "onnx_parity",
+    "op_counts",
+    "sample_frame",
+    "set_metadata",
+]
+
+#: keys written into every exported model (module table)
+METADATA_KEYS = ("domain", "placement", "lens", "fov_encoding", "tile_size", "tile_overlap", "receptive_radius",
+                 "input_multiple", "attention", "training_data", "precision", "producer")
+MIN_OPSET = 17
+#: margins tried by :func:`measure_tile_overlap` (px)
+OVERLAP_CANDIDATES = (16, 24, 32, 48, 64, 96, 128)
+OVERLAP_TOLERANCE = 0.5 / 255
+#: torch ↔ ONNX FP32 parity required (max abs, linear camera RGB)
+PARITY_TOLERANCE = 1e-4
+
+
+class ExportError(IspError):
+    """The model cannot be exported as the correction stage needs it."""
+
+
+def op_counts(model) -> dict[str, int]:
+    """Nodes per op type of an ``onnx.ModelProto`` (sorted by name)."""
+    return dict(sorted(Counter(n.op_type for n in model.graph.node).items()))
+
+
+def check_constant_weights(model) -> int:
+    """Check that every ``Conv`` of a float ONNX model reads its weight (and
+    bias) from an initializer or a ``Constant`` node (through ``Identity``
+    aliases, which the exporter inserts for shared initializers).
+
+    Returns
+    -------
+    int : the number of Conv nodes.
+
+    Raises
+    ------
+    ExportError
+        Naming the convs whose weights are computed (a per-image weight, as
+        in ODConv's usual form, stays float under static INT8).
+    """
+    g = model.graph
+    const = {i.name for i in g.initializer} | {o for n in g.node if n.op_type == "Constant" for o in n.output}
+    alias = {n.output[0]: n.input[0] for n in g.node if n.op_type == "Identity"}
+
+    def resolve(name):
+        seen = set()
+        while name in alias and name not in seen:
+            seen.add(name)
+            name = alias[name]
+        return name
+
+    convs = [n for n in g.node if n.op_type == "Conv"]
+    bad = [n.name or n.output[0] for n in convs
+           if any(resolve(v) not in const for v in list(n.input[1:3]) if v)]
+    if bad:
+        raise ExportError(f"{len(bad)} of {len(convs)} Conv nodes have computed (non-constant) weights, "
+                          f"which static INT8 leaves in float: {', '.join(bad[:5])}"
+                          + (" ..." if len(bad) > 5 else "") + "; export a constant-weight variant")
+    return len(convs)
+
+
+def set_metadata(model, meta: dict) -> None:
+    """Replace the model's ``metadata_props`` entries for ``meta``'s keys
+    (values as strings; dicts and lists as JSON)."""
+    text = {k: v if isinstance(v, str) else json.dumps(v) for k, v in meta.items() if v is not None}
+    keep = [p for p in model.metadata_props if p.key not in text]
+    del model.metadata_props[:]
+    for p in keep:
+        model.metadata_props.add(key=p.key, value=p.value)
+    for k, v in text.items():
+        model.metadata_props.add(key=k, value=v)
+
+
+def sample_frame(shape: tuple[int, int], fov: bool, seed: int = 0) -> np.ndarray:
+    """A "random-ish" camera-RGB frame, (H, W, 3) float32 in about [0, 1]:
+    smooth random shading, a few hard-edged rectangles and a little noise
+    (what a blur-correction model has to work on), plus, with ``fov``,
+    nothing else (the stage computes the field channels)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    low = cv2.resize(rng.random((max(2, h // 32), max(2, w // 32), 3), dtype=np.float32), (w, h),
+                     interpolation=cv2.INTER_CUBIC)
+    img = 0.15 + 0.6 * low
+    for _ in range(8):
+        y0, x0 = rng.integers(0, h - 8), rng.integers(0, w - 8)
+        y1, x1 = y0 + rng.integers(8, h // 3), x0 + rng.integers(8, w // 3)
+        img[y0:y1, x0:x1] = rng.random(3, dtype=np.float32) * 0.9
+    img += rng.normal(0, 0.01, img.shape).astype(np.float32)
+    return np.ascontiguousarray(img, dtype=np.float32)
+
+
+def _model_input(img: np.ndarray, fov: bool) -> np.ndarray:
+    """(1, C, H, W) float32 from (H, W, 3): RGB, then the full-frame field."""
+    from modules.correction import field_coordinates
+
+    x = img.transpose(2, 0, 1)
+    if fov:
+        x = np.concatenate([x, field_coordinates(img.shape[:2], (0, 0), img.shape[:2])])
+    return np.ascontiguousarray(x[None], dtype=np.float32)
+
+
+def _session(model_bytes_or_path, threads: int = 2):
+    import onnxruntime as ort
+
+    from modules.correction import session_options
+
+    src = model_bytes_or_path if isinstance(model_bytes_or_path, bytes) else str(model_bytes_or_path)
+    return ort.InferenceSession(src, session_options(threads), providers=["CPUExecutionProvider"])
+
+
+def onnx_parity(model, session, sizes=((64, 96), (96, 128)), seed: int = 0) -> float:
+    """Max abs difference, torch vs ONNX Runtime, over test inputs of ``sizes``
+    (dynamic H, W exercised); the torch model in float32 eval mode."""
+    import torch
+
+    fov = getattr(model, "fov_encoding", "none") == "xy"
+    name = session.get_inputs()[0].name
+    err = 0.0
+    for k, size in enumerate(sizes):
+        x = _model_input(sample_frame(size, fov, seed + k), fov)
+        with torch.no_grad():
+            ref = model(torch.from_numpy(x)).numpy()
+        got = session.run(None, {name: x})[0]
+        if got.shape != ref.shape:
+            raise ExportError(f"ONNX output shape {got.shape} differs from torch's {ref.shape} at input {size}")
+        err = max(err, float(np.abs(got - ref).max()))
+    return err
+
+
+def measure_tile_overlap(path, candidates=OVERLAP_CANDIDATES, tolerance: float = OVERLAP_TOLERANCE,
+                         shape: tuple[int, int] = (256, 320), seed: int = 0) -> dict:
+    """Smallest margin at which the correction stage's tiled output matches
+    its whole-frame output within ``tolerance`` (module Notes).
+
+    Parameters
+    ----------
+    path : path
+        The exported model (its metadata must let the stage load it).
+    candidates : ints
+        Margins tried, in px, ascending.
+    tolerance : float
+        Max abs difference allowed (linear camera RGB, white = 1).
+    shape : (H, W)
+        Test frame size.
+
+    Returns
+    -------
+    dict: ``overlap`` (px, or None when no candidate meets the tolerance),
+    ``errors`` {margin: max abs difference}, ``tolerance``, ``shape``,
+    ``tile`` {margin: tile side used}.
+    """
+    from isp import CFA, CameraMeta, Domain, Frame
+    from modules.correction import Correction
+
+    img = sample_frame(shape, True, seed)
+    meta = CameraMeta(cfa=CFA.RGGB, raw_size=shape, active_area=(0, 0, *shape))
+    frame = Frame(img, Domain.CAMERA_RGB, meta)
+    errors, tiles, found = {}, {}, None
+    for m in sorted(candidates):
+        tile = 2 * m + 128
+        # the reference is padded by reflection with the same margin (modules.tiling)
+        whole = Correction(model=Path(path), tile_size=0, overlap=m).process(frame).data
+        out = Correction(model=Path(path), tile_size=tile, overlap=m).process(frame).data
+        errors[m], tiles[m] = float(np.abs(out - whole).max()), tile
+        if errors[m] <= tolerance:
+            found = m
+            break
+    return {"overlap": found, "errors": errors, "tile": tiles, "tolerance": tolerance, "shape": list(shape)}
+
+
+def _export_bytes(model, opset: int) -> bytes:
+    import torch
+
+    fov = getattr(model, "fov_encoding", "none") == "xy"
+    x = torch.from_numpy(_model_input(sample_frame((64, 96), fov), fov))
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the legacy exporter's deprecation and constant-folding notes
+        # dynamo=False: the torch.export-based exporter needs onnxscript (not a dependency)
+        torch.onnx.export(model, (x,), buf, dynamo=False, opset_version=opset, input_names=["input"],
+                          output_names=["output"],
+                          dynamic_axes={"input": {2: "height", 3: "width"}, "output": {2: "height", 3: "width"}})
+    return buf.getvalue()
+
+
+def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int = 512,
+                measure_overlap: bool = True, overlap: int | None = None,
+                parity_tolerance: float = PARITY_TOLERANCE) -> dict:
+    """Export a checkpoint to an ONNX model for the ``correction`` stage.
+
+    Parameters
+    ----------
+    checkpoint : path
+        A restoration checkpoint (:mod:`restoration.checkpoint`).
+    out_path : path
+        The ``.onnx`` file to write (atomically; parents created).
+    opset : int
+        ONNX opset, ≥ 17.
+    tile_size : int
+        ``tile_size`` metadata (px, margins included; 0: whole frames).
+    measure_overlap : bool
+        Measure ``tile_overlap`` (:func:`measure_tile_overlap`); else the
+        ``receptive_radius`` of the checkpoint is the stage's margin.
+    overlap : int, optional
+        Write this ``tile_overlap`` instead of measuring.
+    parity_tolerance : float
+        Max abs torch ↔ ONNX difference accepted.
+
+    Returns
+    -------
+    dict: ``path``, ``metadata``, ``ops`` (nodes per op type), ``convs``,
+    ``parity_max_abs``, ``overlap`` (the measurement), ``seconds``.
+
+    Raises
+    ------
+    InputError
+        Unreadable checkpoint.
+    ConfigError
+        Bad ``opset`` / ``tile_size``, or metadata the stage would reject.
+    ExportError
+        Non-constant conv weights, or parity worse than the tolerance.
+    """
+    import onnx
+    import torch
+
+    from isp.io import atomic_path
+    from modules.correction import model_info
+    from restoration.checkpoint import load_model
+
+    t0 = time.perf_counter()
+    if opset < MIN_OPSET:
+        raise ConfigError(f"opset {opset}: the export needs opset ≥ {MIN_OPSET}")
+    if tile_size < 0:
+        raise ConfigError(f"tile_size {tile_size}: must be ≥ 0 (0: whole frames)")
+    model, info = load_model(checkpoint)
+    model = model.float().eval()
+    meta = dict(info.get("metadata") or {})
+    if "domain" not in meta:
+        raise ConfigError(f"{checkpoint}: the checkpoint's metadata has no 'domain'; the correction stage "
+                          "needs it to check the model's placement")
+    cfg = getattr(model, "config", {})
+    attention = meta.get("attention") or ("global" if cfg.get("pool") == "global" else "local")
+    if "receptive_radius" in meta:
+        radius = int(meta["receptive_radius"])
+    else:
+        from restoration.network import receptive_radius
+
+        radius = receptive_radius(model)
+    md = {
+        "domain": meta["domain"],
+        "placement": meta.get("placement", ""),
+        "lens": meta.get("lens", "?"),
+        "fov_encoding": getattr(model, "fov_encoding", meta.get("fov_encoding", "none")),
+        "tile_size": str(int(tile_size)),
+        "receptive_radius": str(radius),
+        "input_multiple": str(int(getattr(model, "input_multiple", meta.get("input_multiple", 4)))),
+        "attention": attention,
+        "training_data": str(meta.get("training_data", "")),
+        "precision": "fp32",
+        "producer": f"isp export (variant {info.get('variant')}, step {info.get('step')}, "
+                    f"torch {torch.__version__}, opset {opset})",
+        "variant": str(info.get("variant")),
+        "model_kwargs": info.get("model_kwargs") or {},
+    }
+    if "process" in meta:
+        md["process"] = meta["process"]
+    if overlap is not None:
+        md["tile_overlap"] = str(int(overlap))
+    proto = onnx.load_from_string(_export_bytes(model, opset))
+    n_conv = check_constant_weights(proto)
+    set_metadata(proto, md)
+    onnx.checker.check_model(proto)
+    data = proto.SerializeToString()
+    sess = _session(data)
+    model_info(sess, Path(out_path).name)  # the stage accepts the metadata (ConfigError otherwise)
+    err = onnx_parity(model, sess)
+    if not err <= parity_tolerance:
+        raise ExportError(f"torch vs ONNX FP32 max abs error {err:.3g} > {parity_tolerance:g}")
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    measured = None
+    if measure_overlap and overlap is None:
+        if attention == "global":
+            measured = {"overlap": None, "note": "global attention: tiles never match; stage runs whole frames"}
+        else:
+            with tempfile.TemporaryDirectory() as d:  # measured through the stage, on a file
+                tmp = Path(d) / out.name
+                tmp.write_bytes(data)
+                measured = measure_tile_overlap(tmp)
+            if measured["overlap"] is None:
+                warnings.warn(f"no margin up to {max(OVERLAP_CANDIDATES)} px keeps tiles within "
+                              f"{OVERLAP_TOLERANCE * 255:.2g}/255; tile_overlap = receptive_radius {radius}",
+                              stacklevel=2)
+            set_metadata(proto, {"tile_overlap": str(measured["overlap"] or radius)})
+            data = proto.SerializeToString()
+    with atomic_path(out) as tmp:
+        Path(tmp).write_bytes(data)
+    written = {p.key: p.value for p in proto.metadata_props}
+    return {"path": str(out), "metadata": written, "ops": op_counts(proto), "convs": n_conv,
+            "opset": opset, "parity_max_abs": err, "parity_tolerance": parity_tolerance,
+            "overlap": measured, "seconds": round(time.perf_counter() - t0, 2)}

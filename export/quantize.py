@@ -1,0 +1,259 @@
+"""Static INT8 quantisation (QDQ) of an exported correction model, and the
+checks that it paid off.
+
+:func:`quantize_int8` runs onnxruntime's ``quant_pre_process`` (ONNX shape
+inference and graph clean-up; symbolic shape inference skipped, the dynamic
+H, W need none), then ``quantize_static`` in QDQ form: per-channel int8
+weights, uint8 activations, scales fixed by a calibration pass over crops of
+synthesised training inputs (:class:`SynthCalibration`); the output residual
+``Add`` (input RGB + correction) stays float (:func:`quantize_int8`). The scales are
+static, as the tiled correction stage requires (a scale computed from the
+input would differ between tiles).
+
+Why these choices (measured, ``benchmarks/doconv_speed.py``; ORT 1.31,
+2 threads, x86): signed int8 activations left the residual blocks unfused
+(INT8 slower than FP32); uint8 activations fused every conv into
+``QLinearConv``. Only convs with constant weights can be quantised
+statically (:func:`export.onnx_export.check_constant_weights`).
+
+After quantising, :func:`count_quantized_convs` loads the model with every
+graph optimisation (what the stage does) and counts, in the optimised graph
+ORT writes out, the convs that became ``QLinearConv`` (or
+``ConvInteger``) and those left in float; any float conv is an error.
+
+:func:`mobile_usability` runs ``onnxruntime.tools.check_onnx_model_mobile_usability``
+and keeps what it prints.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from isp.errors import ConfigError, InputError
+
+from .onnx_export import ExportError, op_counts, set_metadata
+
+__all__ = ["SynthCalibration", "count_quantized_convs", "int8_psnr", "mobile_usability", "output_residual_nodes",
+           "quantize_int8", "synth_crops"]
+
+#: op types that are a quantised conv in ORT's optimised CPU graph
+QUANT_CONV_OPS = ("QLinearConv", "ConvInteger", "NhwcQLinearConv")
+#: op types that are a float conv there
+FLOAT_CONV_OPS = ("Conv", "FusedConv", "NhwcFusedConv", "NhwcConv", "ConvTranspose")
+#: INT8 vs FP32 PSNR drop accepted (dB, issue 7)
+PSNR_DROP_LIMIT = 0.2
+
+
+def _pairs(directory):
+    from restoration.dataset import SynthPairs
+
+    d = Path(directory)
+    if not (d / "manifest.json").is_file():
+        raise InputError(d, "not a synth folder (no manifest.json); make one with `isp synth`")
+    return SynthPairs(d)
+
+
+def synth_crops(directory, n: int, *, crop: int = 128, multiple: int = 4, fov: bool = True,
+                indices=None, seed: int = 0) -> Iterator[np.ndarray]:
+    """``n`` model inputs (1, C, crop, crop) float32 from a synth folder.
+
+    Pairs are taken spread over the set (``indices`` overrides), one crop
+    each at a random origin that is a multiple of ``multiple`` (the field
+    channels, from :class:`restoration.dataset.SynthPairs`, move with it).
+    """
+    pairs = _pairs(directory)
+    if n < 1:
+        raise ConfigError(f"calibration needs at least 1 crop, got {n}")
+    rng = np.random.default_rng(seed)
+    idx = list(indices) if indices is not None else np.linspace(0, len(pairs) - 1, n).round().astype(int)
+    for i in idx[:n]:
+        item = pairs[int(i)]
+        x = item["input"].transpose(2, 0, 1)
+        if fov:
+            x = np.concatenate([x, item["fov"]])
+        h, w = x.shape[1:]
+        c = min(crop, h, w) // multiple * multiple
+        y0 = int(rng.integers(0, (h - c) // multiple + 1)) * multiple
+        x0 = int(rng.integers(0, (w - c) // multiple + 1)) * multiple
+        yield np.ascontiguousarray(x[None, :, y0:y0 + c, x0:x0 + c], dtype=np.float32)
+
+
+class SynthCalibration:
+    """onnxruntime ``CalibrationDataReader`` over :func:`synth_crops`
+    (``get_next`` → ``{input_name: (1, C, crop, crop)}``, None at the end)."""
+
+    def __init__(self, directory, n: int, *, input_name: str = "input", crop: int = 128, fov: bool = True,
+                 seed: int = 0):
+        self.directory, self.n, self.input_name = directory, n, input_name
+        self.crop, self.fov, self.seed = crop, fov, seed
+        _pairs(directory)  # fail now, not inside the calibration
+        self.rewind()
+
+    def rewind(self):
+        self._it = synth_crops(self.directory, self.n, crop=self.crop, fov=self.fov, seed=self.seed)
+
+    def get_next(self):
+        x = next(self._it, None)
+        return None if x is None else {self.input_name: x}
+
+    def __len__(self):
+        return self.n
+
+
+def optimized_graph(path, threads: int = 2):
+    """The graph ORT runs after every optimisation (``ORT_ENABLE_ALL``, as the
+    stage loads it), as an ``onnx.ModelProto``."""
+    import onnx
+    import onnxruntime as ort
+
+    from modules.correction import session_options
+
+    with tempfile.TemporaryDirectory() as d:
+        opts = session_options(threads)
+        opts.optimized_model_filepath = str(Path(d) / "optimized.onnx")
+        ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        return onnx.load(opts.optimized_model_filepath)
+
+
+def count_quantized_convs(fp32_path, int8_path) -> dict:
+    """Convs of the float model vs quantised and float convs in the
+    optimised INT8 graph (module docstring). Keys ``fp32_conv``,
+    ``int8_quantized_conv``, ``int8_float_conv``, ``int8_optimized_ops``."""
+    import onnx
+
+    fp32 = op_counts(onnx.load(str(fp32_path)))
+    opt = op_counts(optimized_graph(int8_path))
+    return {"fp32_conv": fp32.get("Conv", 0),
+            "int8_quantized_conv": sum(opt.get(k, 0) for k in QUANT_CONV_OPS),
+            "int8_float_conv": sum(opt.get(k, 0) for k in FLOAT_CONV_OPS),
+            "int8_optimized_ops": opt}
+
+
+def output_residual_nodes(model) -> list[str]:
+    """Names of the ``Add`` nodes that write a graph output: the network's
+    ``input RGB + correction``, kept in float by :func:`quantize_int8`."""
+    outs = {o.name for o in model.graph.output}
+    return [n.name for n in model.graph.node if n.op_type == "Add" and set(n.output) & outs]
+
+
+def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool = True,
+                  float_output_add: bool = True, require_all_quantized: bool = True) -> dict:
+    """Static INT8 (QDQ) copy of an exported FP32 model.
+
+    Parameters
+    ----------
+    fp32_path : path
+        Written by :func:`export.onnx_export.export_onnx`.
+    out_path : path
+        The INT8 model (written atomically); its metadata is the FP32
+        model's with ``precision = "int8"`` and the calibration noted.
+    calibration_reader : onnxruntime.quantization.CalibrationDataReader
+        E.g. :class:`SynthCalibration`.
+    per_channel : bool
+        Per-output-channel weight scales.
+    float_output_add : bool
+        Keep the output residual ``Add`` (input RGB + correction) in float
+        (:func:`output_residual_nodes`). Quantised, it rounds the
+        *passed-through* input and the output to uint8 steps of ≈ 1/200 of
+        the linear range, which the sRGB gamma amplifies in the shadows:
+        measured on the e9 model (step 150), 16 synth pairs, PSNR drop
+        0.41 dB with it quantised, 0.05 dB in float; every conv stays INT8.
+    require_all_quantized : bool
+        Raise ExportError if a conv stays float after optimisation.
+
+    Returns
+    -------
+    dict: ``path``, the counts of :func:`count_quantized_convs`, ``ops``
+    (QDQ graph), ``seconds``.
+    """
+    import onnx
+    from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    from isp.io import atomic_path
+
+    t0 = time.perf_counter()
+    src = onnx.load(str(fp32_path))
+    meta = {p.key: p.value for p in src.metadata_props}
+    with tempfile.TemporaryDirectory() as d:
+        pre, q = Path(d) / "pre.onnx", Path(d) / "q.onnx"
+        quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
+        exclude = output_residual_nodes(onnx.load(str(pre))) if float_output_add else []
+        quantize_static(str(pre), str(q), calibration_reader, quant_format=QuantFormat.QDQ,
+                        per_channel=per_channel, activation_type=QuantType.QUInt8,
+                        weight_type=QuantType.QInt8, nodes_to_exclude=exclude)
+        model = onnx.load(str(q))
+    n = len(calibration_reader) if hasattr(calibration_reader, "__len__") else None
+    set_metadata(model, {**meta, "precision": "int8",
+                         "quantization": f"static QDQ, int8 weights ({'per channel' if per_channel else 'per tensor'}), "
+                                         f"uint8 activations, {n if n is not None else '?'} calibration crops",
+                         "producer": meta.get("producer", "isp export") + "; onnxruntime.quantization"})
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp:
+        onnx.save(model, str(tmp))
+    counts = count_quantized_convs(fp32_path, out)
+    if require_all_quantized and (counts["int8_float_conv"] or counts["int8_quantized_conv"] < counts["fp32_conv"]):
+        raise ExportError(f"{out}: after optimisation {counts['int8_quantized_conv']} of {counts['fp32_conv']} "
+                          f"convs are quantised and {counts['int8_float_conv']} stay float")
+    return {"path": str(out), **counts, "float_nodes": exclude, "ops": op_counts(model),
+            "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def mobile_usability(path, timeout: float = 300) -> dict:
+    """Run onnxruntime's mobile-usability checker on a model; ``returncode``
+    and ``output`` (what it logs, stdout and stderr)."""
+    cmd = [sys.executable, "-m", "onnxruntime.tools.check_onnx_model_mobile_usability", str(path)]
+    r = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=timeout)
+    return {"returncode": r.returncode, "output": (r.stdout + r.stderr).strip()}
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
+
+
+def int8_psnr(fp32_path, int8_path, directory, n: int = 16, *, indices=None, threads: int = 2) -> dict:
+    """PSNR (dB, sRGB, peak 1) of ``Process(Model(J))`` against the targets
+    for the FP32 and the INT8 model, on ``n`` pairs of a synth folder
+    (default: the last ``n``, away from the calibration crops that
+    :func:`synth_crops` spreads over the set), whole pairs in one call each.
+
+    Returns
+    -------
+    dict: ``fp32_psnr_db``, ``int8_psnr_db``, ``input_psnr_db`` (no
+    correction), ``drop_db`` (FP32 − INT8), ``pairs``.
+    """
+    import onnxruntime as ort
+
+    from modules.correction import session_options
+
+    pairs = _pairs(directory)
+    idx = list(indices) if indices is not None else list(range(max(0, len(pairs) - n), len(pairs)))
+    sess = [ort.InferenceSession(str(p), session_options(threads), providers=["CPUExecutionProvider"])
+            for p in (fp32_path, int8_path)]
+    fov = sess[0].get_inputs()[0].shape[1] == 5
+    scores = {"input": [], "fp32": [], "int8": []}
+    for i in idx:
+        item = pairs[int(i)]
+        rgb = item["input"]
+        h, w = (s // 4 * 4 for s in rgb.shape[:2])
+        x = rgb.transpose(2, 0, 1)[:, :h, :w]
+        if fov:
+            x = np.concatenate([x, item["fov"][:, :h, :w]])
+        x = np.ascontiguousarray(x[None], dtype=np.float32)
+        target = item["target"][:h, :w]
+        scores["input"].append(_psnr(pairs.process(rgb[:h, :w], item), target))
+        for key, s in zip(("fp32", "int8"), sess):
+            y = s.run(None, {s.get_inputs()[0].name: x})[0][0].transpose(1, 2, 0)
+            scores[key].append(_psnr(pairs.process(y, item), target))
+    mean = {k: float(np.mean(v)) for k, v in scores.items()}
+    return {"pairs": len(idx), "input_psnr_db": mean["input"], "fp32_psnr_db": mean["fp32"],
+            "int8_psnr_db": mean["int8"], "drop_db": mean["fp32"] - mean["int8"], "limit_db": PSNR_DROP_LIMIT}
