@@ -1,0 +1,108 @@
+"""FP32 vs INT8 correction on a 12 MP frame, 2 threads (issue 7, deliverable 4).
+
+Runs the ``correction`` stage (onnxruntime, its tiling, two intra-op
+threads, sequential) with an exported model and its INT8 copy on a
+4000 × 3000 camera-RGB frame: one cold run (memory: the process's peak
+resident set over the run, ``VmHWM`` reset through ``/proc/self/clear_refs``
+where allowed), then ``--runs`` warm runs whose median is reported. The
+peer in the same run is the FP32 model itself: ``speedup`` = FP32 / INT8.
+
+Models: ``--fp32 M.onnx --int8 M.int8.onnx`` as written by ``isp export
+CHECKPOINT -o M.onnx --int8 ...``; with ``--checkpoint CKPT --calib-data
+DIR`` they are exported first into a temporary folder.
+
+Run::
+
+    python -m benchmarks.correction --fp32 out/e9_default/e9.onnx --int8 out/e9_default/e9.int8.onnx
+
+Last line: a JSON object with ``fp32_s``, ``int8_s``, ``speedup``,
+``ms_per_mp_int8``, ``peak_rss_mb``. Targets: INT8 ≤ 2 s per 12 MP frame
+(≤ 170 ms/MP) and ≥ 2× faster than FP32.
+"""
+
+from __future__ import annotations
+
+import os
+
+for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import statistics  # noqa: E402
+import tempfile  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from benchmarks.correction_tiling import _measure  # noqa: E402
+
+
+def _export(checkpoint: str, calib_data: str, directory: Path) -> tuple[Path, Path]:
+    from export.onnx_export import export_onnx
+    from export.quantize import SynthCalibration, quantize_int8
+
+    fp32 = directory / "model.onnx"
+    int8 = directory / "model.int8.onnx"
+    export_onnx(checkpoint, fp32)
+    quantize_int8(fp32, int8, SynthCalibration(calib_data, 16))
+    return fp32, int8
+
+
+def _time(path: Path, frame, threads: int, runs: int) -> dict:
+    from modules.correction import Correction
+
+    stage = Correction(model=path, threads=threads, progress=False)
+    stage.check(frame.domain)
+    cold = _measure(stage, frame, memory=True)
+    warm = [_measure(stage, frame)["seconds"] for _ in range(runs)]
+    return {"median_s": round(statistics.median(warm), 3), "runs_s": warm, "cold_s": cold["seconds"],
+            "peak_rss_delta_mib": cold["peak_rss_delta_mib"], "tiles": stage.tiling()}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap.add_argument("--fp32", help="exported FP32 model (.onnx)")
+    ap.add_argument("--int8", help="its INT8 copy (.onnx)")
+    ap.add_argument("--checkpoint", help="or: a checkpoint to export first (needs --calib-data)")
+    ap.add_argument("--calib-data", help="synth folder for the INT8 calibration")
+    ap.add_argument("--size", default="4000x3000", help="W×H (default 4000x3000, 12 MP)")
+    ap.add_argument("--runs", type=int, default=3, help="warm runs per model (median; default 3)")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    w, h = (int(v) for v in args.size.lower().split("x"))
+
+    from isp import CFA, CameraMeta, Domain, Frame
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.checkpoint:
+            fp32, int8 = _export(args.checkpoint, args.calib_data, Path(tmp))
+        elif args.fp32 and args.int8:
+            fp32, int8 = Path(args.fp32), Path(args.int8)
+        else:
+            ap.error("give --fp32 and --int8, or --checkpoint and --calib-data")
+        meta = CameraMeta(cfa=CFA.RGGB, raw_size=(h, w), active_area=(0, 0, h, w))
+        rng = np.random.default_rng(0)
+        # a smooth scene with texture: the same work as a photograph for a conv net
+        img = np.clip(0.25 + 0.1 * rng.standard_normal((h, w, 3)).astype(np.float32), 0, 1)
+        frame = Frame(img, Domain.CAMERA_RGB, meta)
+        r32 = _time(fp32, frame, args.threads, args.runs)
+        r8 = _time(int8, frame, args.threads, args.runs)
+    mp = w * h / 1e6
+    result = {"size": f"{w}x{h}", "threads": args.threads, "runs": args.runs,
+              "fp32_s": r32["median_s"], "int8_s": r8["median_s"],
+              "speedup": round(r32["median_s"] / r8["median_s"], 3),
+              "ms_per_mp_fp32": round(1000 * r32["median_s"] / mp, 1),
+              "ms_per_mp_int8": round(1000 * r8["median_s"] / mp, 1),
+              "peak_rss_mb": round(max(r32["peak_rss_delta_mib"], r8["peak_rss_delta_mib"]) * 1.048576, 1),
+              "fp32": r32, "int8": r8, "model": str(fp32)}
+    print(f"{w}×{h}, {args.threads} threads, median of {args.runs}: FP32 {result['fp32_s']:.2f} s, "
+          f"INT8 {result['int8_s']:.2f} s ({result['ms_per_mp_int8']:.0f} ms/MP), speedup "
+          f"{result['speedup']:.2f}×, peak RSS +{result['peak_rss_mb']} MB")
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()
