@@ -44,7 +44,7 @@ FIGURE = ROOT / "docs" / "loop_real_edges.png"
 sys.path.insert(0, str(ROOT))
 
 from calibration.loop import close_loop  # noqa: E402
-from calibration.loop_cli import _Recorder, by_direction, load_measured, make_base, model_sfr  # noqa: E402
+from calibration.loop_cli import load_measured, make_base, model_sfr  # noqa: E402
 
 # file, encoding, shortest chart edge (px)
 FILES = (
@@ -71,13 +71,10 @@ def run(name: str, encoding: str, min_edge: float) -> dict:
     t0 = time.perf_counter()
     obs, notes = load_measured(str(DATA / name), encoding=encoding, min_edge=min_edge)
     regions = len({tuple(r) for r in obs.region})
-    base = _Recorder(make_base("parametric", obs))
+    base = make_base("parametric", obs)
     rep = close_loop(base, obs, folds=max(2, min(3, regions)), progress=False)
     seconds = time.perf_counter() - t0
-    xb0 = getattr(rep, "base_x_before", None)
-    if xb0 is None:
-        xb0 = base.bias_at[1]
-    resid = np.asarray(rep.sfra_measured) - np.asarray(rep.sfra_after)
+    xb0 = rep.base_x_before
     return {
         "file": name, "encoding": encoding, "observations": len(obs), "regions": regions,
         "split": any("segments" in n and "split" in n for n in notes),
@@ -86,7 +83,7 @@ def run(name: str, encoding: str, min_edge: float) -> dict:
         "effects_added": rep.effects_added, "effect_values": rep.effect_values,
         "gains": {t["effect"]: round(t["gain"], 3) for t in rep.tried if t["round"] == 1},
         "error_before": rep.error_before, "error_after": rep.error_after, "noise_floor": rep.noise_floor,
-        "by_direction_after": by_direction(obs, resid), "unexplained": rep.unexplained,
+        "by_direction_after": rep.decomposition_after.get("direction", {}), "unexplained": rep.unexplained,
         "seconds": round(seconds, 2),
         "_curves": (obs, model_sfr(base, xb0, {}), model_sfr(base, rep.base_x, rep.effect_values)),
     }

@@ -190,27 +190,9 @@ def _edge_item(roi, r, w: int, h: int) -> tuple:
 
 
 def _measure_rois(rois, measure, progress: bool) -> tuple[list, list]:
-    from .sfr import SfrError
-    from .sfr_chart import _not_a_clean_edge
+    from .sfr_chart import measure_rois
 
-    ok, skipped = [], []
-    it = rois
-    if progress and len(rois) > 8:
-        from tqdm import tqdm
-
-        it = tqdm(rois, unit="edge", desc="SFR")
-    for roi in it:
-        try:
-            r = measure((roi.x, roi.y, roi.w, roi.h))
-        except SfrError as e:
-            skipped.append((roi, str(e)))
-            continue
-        why = _not_a_clean_edge(r)
-        if why:
-            skipped.append((roi, why))
-            continue
-        ok.append((roi, r))
-    return ok, skipped
+    return measure_rois(rois, measure, progress=progress and len(rois) > 8)
 
 
 def observations_from_capture(img, kind: str, meta=None, *, path: str = "", channel: str | None = None,
@@ -581,7 +563,6 @@ def _check_args(args) -> None:
 
 
 def cmd_loop(args) -> int:
-    import inspect
     import time
 
     from .loop import close_loop, write_report
@@ -611,18 +592,14 @@ def cmd_loop(args) -> int:
     print(f"{args.measured}: {len(obs)} observations in {regions} field region(s)")
     if args.lens != "parametric":
         print("loop: tracing the lens and screening its perturbations (a few minutes on 2 cores)", flush=True)
-    base = _Recorder(make_base(args.lens, obs, f_number=args.f_number, n_params=args.n_params,
-                               pixel_um=args.pixel_um, progress=True))
+    base = make_base(args.lens, obs, f_number=args.f_number, n_params=args.n_params, pixel_um=args.pixel_um,
+                     progress=True)
     obs = base.obs
     folds = max(2, min(args.folds, regions))
     if folds != args.folds:
         print(f"note: {folds} folds (the observations cover {regions} field region(s))")
-    kw = {}
-    if "seed" in inspect.signature(close_loop).parameters:
-        kw["seed"] = args.seed
-    elif args.seed:
-        print("note: --seed ignored: this close_loop splits folds with seed 0")
-    rep = close_loop(base, obs, effects=effects, folds=folds, max_effects=args.max_effects, progress=True, **kw)
+    rep = close_loop(base, obs, effects=effects, folds=folds, max_effects=args.max_effects, progress=True,
+                     seed=args.seed)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
@@ -632,63 +609,23 @@ def cmd_loop(args) -> int:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
-    print(summary(rep, obs))
+    print(summary(rep))
     print(f"wrote {out}/report.json, report.md, residual_maps.png, sfr_curves.png "
           f"({time.perf_counter() - t0:.0f} s)")
     return 0
 
 
-class _Recorder:
-    """A base model that remembers where its measurement bias was taken.
-
-    :func:`calibration.loop.close_loop` takes it at the start point and then
-    at the fitted base, before any effect is added: the second is the
-    "before" model of the SFR figure, had for free (the report keeps only
-    the final base parameters)."""
-
-    def __init__(self, base):
-        self._base = base
-        self.bias_at = []
-
-    def __getattr__(self, name):
-        base = self.__dict__.get("_base")
-        if base is None or name.startswith("__"):    # unpickling: no _base yet
-            raise AttributeError(name)
-        return getattr(base, name)
-
-    def measurement_bias(self, xb):
-        self.bias_at.append(np.array(xb, float))
-        return self._base.measurement_bias(xb)
-
-
 def _curves(base, rep, obs, path, args) -> None:
     """The SFR figure: measured, base model before, model after."""
     try:
-        xb0 = getattr(rep, "base_x_before", None)
-        if xb0 is None and len(base.bias_at) >= 2:
-            xb0 = base.bias_at[1]
-        before = model_sfr(base, xb0, {}) if xb0 is not None else None
+        before = model_sfr(base, rep.base_x_before, {})
         after = model_sfr(base, rep.base_x, rep.effect_values)
         plot_sfr_curves(obs, before, after, path, title=Path(args.measured).name)
     except Exception as e:                     # a figure must not lose the report
         print(f"loop: SFR curve plot skipped ({e})")
 
 
-def by_direction(obs, resid) -> dict:
-    """Mean of ``resid`` (N,) over vertical edges (normal within 45° of x)
-    and horizontal ones — the anisotropy sagittal/tangential does not see
-    at the centre of the field (every edge of a centred square is
-    "tangential")."""
-    a = np.asarray(obs.normal_deg, float) % 180.0
-    vertical = (a < 45.0) | (a >= 135.0)
-    out = {}
-    for name, sel in (("vertical", vertical), ("horizontal", ~vertical)):
-        if sel.any():
-            out[name] = float(np.mean(np.asarray(resid)[sel]))
-    return out
-
-
-def summary(rep, obs=None) -> str:
+def summary(rep) -> str:
     """A few lines: effects added with values, error before/after, noise
     floor, what is left."""
     lines = []
@@ -705,12 +642,11 @@ def summary(rep, obs=None) -> str:
     base = ", ".join(f"{k} = {float(v):.4g}" for k, v in zip(rep.base_names, rep.base_x))
     lines.append(f"base: {base}")
     lines += [f"left: {u}" for u in rep.unexplained[:1]]
-    if obs is not None and rep.sfra_after is not None:
-        d = by_direction(obs, np.asarray(rep.sfra_measured) - np.asarray(rep.sfra_after))
-        if len(d) == 2 and abs(d["vertical"] - d["horizontal"]) > 2 * rep.noise_floor:
-            lines.append(f"left: vertical and horizontal edges differ: mean SFRA residual {d['vertical']:+.4f} "
-                         f"(vertical) vs {d['horizontal']:+.4f} (horizontal) cy/px — an anisotropy no "
-                         "effect tried models")
+    d = rep.decomposition_after.get("direction", {})   # measured − final model, by edge direction
+    if len(d) == 2 and abs(d["vertical"] - d["horizontal"]) > 2 * rep.noise_floor:
+        lines.append(f"left: vertical and horizontal edges differ: mean SFRA residual {d['vertical']:+.4f} "
+                     f"(vertical) vs {d['horizontal']:+.4f} (horizontal) cy/px — an anisotropy no "
+                     "effect tried models")
     return "\n".join(lines)
 
 

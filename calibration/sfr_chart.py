@@ -339,24 +339,35 @@ def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None,
     h, w = g.shape
     rois = find_edges(g, centre=centre, min_length=min_length)
     res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid)
+    res.edges, res.skipped = measure_rois(
+        rois, lambda box: measure_sfr(g, box=box, edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um,
+                                      method=method), progress=progress)
+    return res
+
+
+def measure_rois(rois, measure, *, progress: bool = False) -> tuple[list, list]:
+    """``measure(box)`` (an SfrResult for ``box = (x, y, w, h)``) on every
+    ROI: ``(edges, skipped)``, edges as (roi, result) and skipped as (roi,
+    reason) — refused measurements and results that are not a clean edge
+    are listed with the reason, never dropped."""
     it = rois
     if progress:
         from tqdm import tqdm
 
         it = tqdm(rois, unit="edge", desc="SFR")
+    edges, skipped = [], []
     for roi in it:
         try:
-            r = measure_sfr(g, box=(roi.x, roi.y, roi.w, roi.h), edge_fit_order=edge_fit_order,
-                            pixel_pitch_um=pixel_pitch_um, method=method)
+            r = measure((roi.x, roi.y, roi.w, roi.h))
         except SfrError as e:
-            res.skipped.append((roi, str(e)))
+            skipped.append((roi, str(e)))
             continue
         why = _not_a_clean_edge(r)
         if why:
-            res.skipped.append((roi, why))
+            skipped.append((roi, why))
             continue
-        res.edges.append((roi, r))
-    return res
+        edges.append((roi, r))
+    return edges, skipped
 
 
 _RESIDUAL = re.compile(r"edge-fit residual ([0-9.]+) px")
@@ -394,25 +405,11 @@ def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane",
     c = None if centre is None else (centre[0] / 2.0, centre[1] / 2.0)
     rois = find_edges(half, centre=c, min_length=min_length / 2.0)
     res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid)
-    it = rois
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(rois, unit="edge", desc="SFR")
-    for roi in it:
-        full = EdgeROI(2 * roi.x, 2 * roi.y, 2 * roi.w, 2 * roi.h, roi.angle_deg, roi.direction, roi.radius,
-                       roi.field_angle_deg, roi.orientation, roi.shape)
-        try:
-            r = measure_sfr_bayer(m, cfa, channel=channel, mode=mode, box=(full.x, full.y, full.w, full.h),
-                                  edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um, method=method)
-        except SfrError as e:
-            res.skipped.append((full, str(e)))
-            continue
-        why = _not_a_clean_edge(r)
-        if why:
-            res.skipped.append((full, why))
-            continue
-        res.edges.append((full, r))
+    full = [EdgeROI(2 * r.x, 2 * r.y, 2 * r.w, 2 * r.h, r.angle_deg, r.direction, r.radius, r.field_angle_deg,
+                    r.orientation, r.shape) for r in rois]
+    res.edges, res.skipped = measure_rois(
+        full, lambda box: measure_sfr_bayer(m, cfa, channel=channel, mode=mode, box=box, edge_fit_order=edge_fit_order,
+                                            pixel_pitch_um=pixel_pitch_um, method=method), progress=progress)
     return res
 
 

@@ -47,9 +47,13 @@ def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device
     assert fit["errors"]["after"]["sfra_rms"] < 0.5 * fit["errors"]["before"]["sfra_rms"]
     assert all(np.isfinite(p["std"]) for p in fit["parameters"])
     proxy = load_proxy(out / "proxy.json")
-    # the proxy is the nominal lens plus the fitted (non-zero) perturbation
-    assert len(proxy.surfaces) == len(lens.surfaces)
-    assert any(abs(p["value"]) > 0 for p in fit["parameters"])
+    # the proxy file reads back as the nominal lens plus exactly the fitted perturbation
+    assert len(proxy.nominal.surfaces) == len(lens.surfaces)
+    back = proxy.perturbation.as_dict()
+    fitted = {p["name"]: p["value"] for p in fit["parameters"]}
+    assert any(abs(v) > 0 for v in fitted.values())
+    for name, value in fitted.items():
+        assert back.get(name, 0.0) == pytest.approx(value, rel=1e-9, abs=1e-15)
 
 
 def test_missing_measurement_is_one_line_exit_2(capsys, tmp_path):
