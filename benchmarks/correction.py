@@ -49,10 +49,10 @@ def _export(checkpoint: str, calib_data: str, directory: Path) -> tuple[Path, Pa
     return fp32, int8
 
 
-def _time(path: Path, frame, threads: int, runs: int) -> dict:
+def _time(path: Path, frame, threads: int, runs: int, tile_size: int | None = None) -> dict:
     from modules.correction import Correction
 
-    stage = Correction(model=path, threads=threads, progress=False)
+    stage = Correction(model=path, threads=threads, progress=False, tile_size=tile_size)
     stage.check(frame.domain)
     cold = _measure(stage, frame, memory=True)
     warm = [_measure(stage, frame)["seconds"] for _ in range(runs)]
@@ -70,6 +70,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--size", default="4000x3000", help="W×H (default 4000x3000, 12 MP)")
     ap.add_argument("--runs", type=int, default=3, help="warm runs per model (median; default 3)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--tile-size", type=int, help="override the models' tile_size metadata (px)")
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.lower().split("x"))
 
@@ -87,8 +88,8 @@ def main(argv=None) -> dict:
         # a smooth scene with texture: the same work as a photograph for a conv net
         img = np.clip(0.25 + 0.1 * rng.standard_normal((h, w, 3)).astype(np.float32), 0, 1)
         frame = Frame(img, Domain.CAMERA_RGB, meta)
-        r32 = _time(fp32, frame, args.threads, args.runs)
-        r8 = _time(int8, frame, args.threads, args.runs)
+        r32 = _time(fp32, frame, args.threads, args.runs, args.tile_size)
+        r8 = _time(int8, frame, args.threads, args.runs, args.tile_size)
     mp = w * h / 1e6
     result = {"size": f"{w}x{h}", "threads": args.threads, "runs": args.runs,
               "fp32_s": r32["median_s"], "int8_s": r8["median_s"],

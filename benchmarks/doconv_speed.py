@@ -13,6 +13,7 @@ Run::
 
     python -m benchmarks.doconv_speed doconv static 'doconv:{"scale": 4, "widths": [64, 128]}'
     python -m benchmarks.doconv_speed --no-int8 doconv_spatial_tap
+    python -m benchmarks.doconv_speed --yardsticks                 # what INT8 buys per conv kind here
 
 A variant is ``name`` or ``name:{json overrides}``. This is a design aid for
 the network; the shipped model's export and benchmark belong to ``export/``.
@@ -83,9 +84,39 @@ def session(path: Path, threads: int):
     return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
 
 
+#: single-layer yardsticks of what INT8 buys on this CPU: (label, module, channels)
+def _yardsticks(c: int = 64):
+    nn = torch.nn
+    return [(f"dense 3×3 {c}→{c} ×2", nn.Sequential(nn.Conv2d(c, c, 3, padding=1), nn.ReLU(),
+                                                  nn.Conv2d(c, c, 3, padding=1), nn.ReLU()), c),
+            (f"1×1 {c}→{2 * c}→{c}", nn.Sequential(nn.Conv2d(c, 2 * c, 1), nn.ReLU(), nn.Conv2d(2 * c, c, 1)), c),
+            (f"depthwise 3×3 {c} ×2", nn.Sequential(nn.Conv2d(c, c, 3, padding=1, groups=c), nn.ReLU(),
+                                                   nn.Conv2d(c, c, 3, padding=1, groups=c)), c)]
+
+
+def yardsticks(args, tmp: Path, rng) -> list:
+    """Runs of the single-layer yardsticks, FP32 and INT8 (at ½ of SIZE)."""
+    runs = []
+    for k, (label, module, c) in enumerate(_yardsticks()):
+        f32 = tmp / f"y{k}.onnx"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(module.eval(), (torch.rand(1, c, 32, 32),), str(f32), dynamo=False, opset_version=17,
+                              input_names=["input"], dynamic_axes={"input": {2: "h", 3: "w"}})
+        q8 = tmp / f"y{k}.int8.onnx"
+        quantize(f32, q8, c)
+        x = rng.random((1, c, SIZE // 2, SIZE // 2), dtype=np.float32)
+        runs.append((f"yardstick {label} FP32", session(f32, args.threads), x, 0))
+        runs.append((f"yardstick {label} INT8", session(q8, args.threads), x, 0))
+    return runs
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("variants", nargs="+")
+    ap.add_argument("variants", nargs="*")
+    ap.add_argument("--yardsticks", action="store_true",
+                    help="also time single conv layers (dense 3×3, 1×1, depthwise) in FP32 and INT8: "
+                         "what INT8 can buy on this CPU at best")
     ap.add_argument("--no-int8", action="store_true")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--threads", type=int, default=2)
@@ -112,6 +143,8 @@ def main(argv=None):
             q8 = tmp / f"m{k}.int8.onnx"
             quantize(f32, q8, model.in_channels)
             runs.append((f"{spec} INT8", session(q8, args.threads), x, macs))
+    if args.yardsticks:
+        runs += yardsticks(args, tmp, rng)
     best = [float("inf")] * len(runs)
     for _ in range(args.rounds + 1):  # the first round warms up
         for i, (_, sess, x, _) in enumerate(runs):
@@ -121,7 +154,13 @@ def main(argv=None):
     mp = SIZE * SIZE / 1e6
     for (label, _, _, macs), t in zip(runs, best):
         per_mp = t * 1e3 / mp if "yardstick" not in label else float("nan")
-        print(f"{label:56s} {t * 1e3:7.0f} ms  {per_mp:6.0f} ms/MP  {macs / t / 1e9:6.1f} GMAC/s", flush=True)
+        print(f"{label:56s} {t * 1e3:7.1f} ms  {per_mp:6.0f} ms/MP  {macs / t / 1e9:6.1f} GMAC/s", flush=True)
+    ratios = {runs[i][0][:-5]: round(best[i] / best[i + 1], 2) for i in range(len(runs) - 1)
+              if runs[i][0].endswith(" FP32") and runs[i + 1][0].endswith(" INT8")}
+    for label, r in ratios.items():
+        print(f"INT8 speed-up, {label}: {r:.2f}×")
+    print(json.dumps({"ms": {label: round(t * 1e3, 2) for (label, *_), t in zip(runs, best)},
+                      "int8_speedup": ratios}))
 
 
 if __name__ == "__main__":

@@ -24,6 +24,8 @@ from .errors import ConfigError, IspError
 EPILOG_PROCESS = """\
 examples:
   isp process photo.dng -o photo.jpg
+  isp process photo.dng -o before.jpg --no-correction      # without the optical correction
+  isp process photo.dng -o photo.jpg --set correction.model=my_lens.int8.onnx
   isp process photo.dng -o photo.jpg --set white_balance.mode=grey_world --set jpeg.quality=90
   isp process photo.dng -o photo.png --config my_pipeline.toml --save-stages stages/
   isp process dump.RAW -o dump.jpg --width 1920 --height 1080 --bits 10 --pattern RGGB
@@ -76,9 +78,11 @@ def _parse_set(items: list[str]) -> list[tuple[str, str, object]]:
     return out
 
 
-def build_config(config_path: str | None, sets: list[str] | None) -> dict:
+def build_config(config_path: str | None, sets: list[str] | None, *, no_correction: bool = False) -> dict:
     """The pipeline config (as a TOML document dict) from ``--config`` and
-    ``--set`` options; the default pipeline when no file is given."""
+    ``--set`` options; the default pipeline when no file is given.
+    ``no_correction``: every ``correction`` stage runs without a model
+    (the identity), whatever the file or ``--set`` say."""
     from .pipeline import DEFAULT_STAGES
 
     if config_path:
@@ -99,6 +103,10 @@ def build_config(config_path: str | None, sets: list[str] | None) -> dict:
             raise ConfigError(f"--set {stage}.{param}: no stage {stage!r} in the pipeline ({names})")
         for e in hits:
             e[param] = value
+    if no_correction:
+        for e in stages:
+            if isinstance(e, dict) and e.get("name") == "correction":
+                e["model"] = "none"
     return config
 
 
@@ -118,7 +126,7 @@ def cmd_process(args) -> int:
     from .io import save_stage, write_output
     from .read import read_raw
 
-    config = build_config(args.config, args.set)
+    config = build_config(args.config, args.set, no_correction=args.no_correction)
     pipeline = build_pipeline(config, args.config)
     out = Path(args.output)
     t0 = time.perf_counter()
@@ -162,6 +170,7 @@ def cmd_info(args) -> int:
                     for p in opcode_plan(meta) if p.action == "skipped"],
     }
     info.pop("path", None)
+    info["correction"] = _correction_summary(args)
     text = json.dumps(info, indent=2, default=str)
     if args.json:
         from .io import write_bytes_atomic
@@ -169,6 +178,18 @@ def cmd_info(args) -> int:
         write_bytes_atomic(args.json, text.encode())
     print(text)
     return 0
+
+
+def _correction_summary(args) -> list[dict] | dict:
+    """The correction model(s) the pipeline of ``--config``/``--set``/
+    ``--no-correction`` would run (the default pipeline's packaged model
+    when none is given)."""
+    config = build_config(args.config, args.set, no_correction=args.no_correction)
+    stages = [s for s in build_pipeline(config, args.config).stages if s.name == "correction"]
+    if not stages:
+        return {"model": None, "note": "the pipeline has no correction stage"}
+    out = [s.summary() if hasattr(s, "summary") else {"model": "?"} for s in stages]
+    return out[0] if len(out) == 1 else out
 
 
 # -- stages ------------------------------------------------------------------
@@ -210,7 +231,7 @@ def cmd_stages(args) -> int:
 def cmd_batch(args) -> int:
     from .batch import run_batch
 
-    config = build_config(args.config, args.set)
+    config = build_config(args.config, args.set, no_correction=args.no_correction)
     build_pipeline(config, args.config)  # refuse a bad config before any work
     return run_batch(Path(args.input), Path(args.output), config, workers=args.workers,
                      headerless=_headerless(args), suffix=args.format)
@@ -265,6 +286,9 @@ def make_parser() -> argparse.ArgumentParser:
     sp.add_argument("--save-stages", metavar="DIR",
                     help="write every intermediate as NN_stage.png (viewable) and .npy (exact)")
     sp.add_argument("-v", "--verbose", action="store_true", help="print each stage's decision and time")
+    sp.add_argument("--no-correction", action="store_true",
+                    help="run the correction stage without a model (identity); by default it runs "
+                         "the packaged model of the default phone lens (see `isp info`)")
     _add_headerless(sp)
     sp.set_defaults(func=cmd_process)
 
@@ -276,6 +300,10 @@ def make_parser() -> argparse.ArgumentParser:
                         formatter_class=argparse.RawDescriptionHelpFormatter)
     sp.add_argument("input")
     sp.add_argument("--json", metavar="OUT", help="also write the JSON to a file")
+    sp.add_argument("--config", help="pipeline TOML file whose correction model to report")
+    sp.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE",
+                    help="override a stage parameter, e.g. correction.model=my.onnx")
+    sp.add_argument("--no-correction", action="store_true", help="report the pipeline without a model")
     _add_headerless(sp)
     sp.set_defaults(func=cmd_info)
 
@@ -299,6 +327,7 @@ def make_parser() -> argparse.ArgumentParser:
     sp.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     sp.add_argument("--config", help="pipeline TOML file")
     sp.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE")
+    sp.add_argument("--no-correction", action="store_true", help="correction stage without a model")
     sp.add_argument("--format", default=".jpg", help="output suffix (default .jpg)")
     _add_headerless(sp)
     sp.set_defaults(func=cmd_batch)

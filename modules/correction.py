@@ -303,15 +303,43 @@ def frame_statistics(data: np.ndarray, channels: int, origin: tuple[int, int] = 
     return np.concatenate([rgb, xy]).astype(np.float32)
 
 
+#: the packaged models (``modules/models/``, provenance in its README.md)
+MODELS_DIR = Path(__file__).parent / "models"
+#: model names the stage resolves itself: the default phone lens's INT8 model
+SHIPPED_MODELS = {"default": "e9_default.int8.onnx"}
+#: ``model`` values that mean no model (the stage is the identity)
+NO_MODEL = ("none", "")
+
+
+def resolve_model(model: str | Path | None) -> Path | None:
+    """The model file a ``model`` parameter names: ``"default"`` (or another
+    key of :data:`SHIPPED_MODELS`) the packaged file, ``"none"``, ``""`` or
+    None no model, anything else a path.
+
+    >>> resolve_model("none") is None
+    True
+    >>> resolve_model("default").name
+    'e9_default.int8.onnx'
+    """
+    if model is None or (isinstance(model, str) and model.strip().lower() in NO_MODEL):
+        return None
+    if isinstance(model, str) and model in SHIPPED_MODELS:
+        return MODELS_DIR / SHIPPED_MODELS[model]
+    return Path(model)
+
+
 @dataclass(frozen=True)
 class Correction(StageBase):
     """Optical-aberration correction by an ONNX model (identity without one).
 
     Parameters
     ----------
-    model : path, optional
+    model : path, "default" or "none"
         ONNX file exported by ``isp export``; its metadata fixes the domain
         it must stand in, the tile size and the overlap (module table).
+        ``"default"``: the packaged INT8 model of the default phone lens
+        (:data:`SHIPPED_MODELS`); ``"none"``: no model, the identity
+        (``isp process --no-correction``).
     threads : int
         onnxruntime intra-op threads (the phone budget is 2).
     tile_size : int, optional
@@ -327,7 +355,7 @@ class Correction(StageBase):
     name = "correction"
     consumes = SLOT_DOMAINS
 
-    model: Path | None = None
+    model: str | Path | None = "default"
     threads: int = 2
     tile_size: int | None = None
     overlap: int | None = None
@@ -340,8 +368,11 @@ class Correction(StageBase):
             raise ValueError(f"tile_size must be ≥ 0 (0: whole frame), got {self.tile_size}")
         if self.overlap is not None and self.overlap < 0:
             raise ValueError(f"overlap must be ≥ 0, got {self.overlap}")
-        if self.model is not None and not Path(self.model).is_file():
-            raise ValueError(f"model file {str(self.model)!r} not found")
+        path = resolve_model(self.model)
+        if path is not None and not path.is_file():
+            shipped = " (the packaged default: reinstall the package)" if path.parent == MODELS_DIR else ""
+            raise ValueError(f"model file {str(path)!r} not found{shipped}")
+        object.__setattr__(self, "model", path)  # frozen: resolved once, here
 
     @property
     def session(self):
@@ -358,6 +389,20 @@ class Correction(StageBase):
         if self.model is None:
             return {}
         return dict(self.session.get_modelmeta().custom_metadata_map)
+
+    def summary(self) -> dict:
+        """What ``isp info`` reports: the model in use, where it comes from,
+        its lens, domain and size (``{"model": None}`` without one)."""
+        if self.model is None:
+            return {"model": None, "note": "no correction model: the stage is the identity"}
+        meta = self.model_meta
+        packaged = self.model.parent == MODELS_DIR
+        return {"model": self.model.name, "path": str(self.model),
+                "source": "packaged default" if packaged else "user file",
+                "lens": meta.get("lens", "?"), "domain": meta.get("domain"),
+                "placement": meta.get("placement", ""), "precision": meta.get("precision", "?"),
+                "size_kb": round(self.model.stat().st_size / 1024, 1),
+                "training_data": meta.get("training_data", "?")}
 
     def tiling(self) -> tuple[int, int, int]:
         """(tile side, margin, multiple) in pixels, the stage's overrides

@@ -430,6 +430,7 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
         raise ConfigError(f"the plan synthesises {st.size}-px crops; these settings need {settings.work} "
                           f"(size {settings.size} + 2 × border {settings.border})")
     variants = VARIANTS if settings.baseline != "none" else VARIANTS[:2]
+    at_end = (getattr(runner, "meta", None) or {}).get("domain") == "display_rgb"
     full = plan.full_size
     m, work = plan.margin, settings.work
     inner = slice(settings.border, settings.border + settings.size)
@@ -468,7 +469,11 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
                         J, target = synth_crop(plan, k, latent, origin, colour, profile,
                                                _rng(plan.seed, KEY_NOISE, i, k, j, p))
                         t1 = time.perf_counter()
-                        corrected = np.asarray(runner(J, origin, full), dtype=np.float32)
+                        if at_end:  # an sRGB → sRGB model: fed the processed input, scored as it is
+                            corrected = np.clip(np.asarray(runner(process(J), origin, full), dtype=np.float32),
+                                                0.0, 1.0)
+                        else:
+                            corrected = np.asarray(runner(J, origin, full), dtype=np.float32)
                         if corrected.shape != J.shape:
                             raise ConfigError(f"the model returned shape {corrected.shape} for an input of {J.shape}")
                         t2 = time.perf_counter()
@@ -484,7 +489,8 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
                                     sigma2=sigma2, blend=st.blend)
                                 balance = rec.balance
                         t3 = time.perf_counter()
-                        scores = {v: _scores(process(outs[v]), target, inner, radius, settings) for v in variants}
+                        scores = {v: _scores(outs[v] if (at_end and v == "corrected") else process(outs[v]),
+                                             target, inner, radius, settings) for v in variants}
                         t4 = time.perf_counter()
                         timing["synth"] += t1 - t0
                         timing["model"] += t2 - t1

@@ -1,16 +1,30 @@
 """The restoration network: a reduced-stage UNet of ConvNeXt-style blocks
 whose spatial convolution is a DOConv (paper section 4.2, Fig. "network").
 
-Layout (``c1, c2 = widths``; resolutions relative to the input)::
+Layout (``c1, c2 = widths``, default 16, 64; ``d1, d2, d3 = depths``,
+default 0, 4, 0; resolutions relative to the input)::
 
-    RGB (3, H, W) ─ PixelUnshuffle 2 ─┐                                      ┌─ + RGB ─ out (3, H, W)
-    field (2, H, W) → φ½ (3, H/2) ────┴ stem 3×3 → c1 ─ d1 blocks ─┬─ ... ─ d3 blocks ─ head 3×3 → 12 ─ PixelShuffle 2
-                                                          (½)      │                (½)
-                                         down 2×2/2 → c2 ─ d2 blocks (¼, field φ¼) ─ up 1×1 → 4·c1 ─ PixelShuffle 2 ─ (+ skip)
+    RGB (3, H, W) ─ stem 6×6/2 ─┐                                          ┌─ + RGB ─ out (3, H, W)
+    field (2, H, W) → φ½ ─ 1×1 ─┴─ (+) c1 ─ d1 blocks ─┬─ ... ─ d3 blocks ─ head 3×3 → 12 ─ PixelShuffle 2
+                                          (½)          │               (½)
+                             down 2×2/2 → c2 ─ d2 blocks (¼, field φ¼) ─ up 1×1 → 4·c1 ─ PixelShuffle 2 ─ (+ skip)
 
-* **Space-to-depth first.** Every layer runs at ½ or ¼ resolution: the
-  2-core export budget is ≈ 20 kMAC per output pixel (:mod:`.macs`), and a
-  MAC at ½ resolution costs ¼ MAC per output pixel.
+* **Space-to-depth first.** Every layer runs at ½ or ¼ resolution. The
+  stem is a 6×6 conv of stride 2 (``3·scale`` of stride ``scale``): the same
+  function as PixelUnshuffle followed by a 3×3 conv, without the 6-D
+  transpose that cost 8 % of an INT8 run.
+* **The DOConv blocks sit at ¼ resolution** (the default ``depths`` has no
+  block at ½). Measured with ONNX Runtime on 2 threads of this project's
+  x86 machine (AVX2, no VNNI; ``benchmarks/doconv_speed.py`` and the
+  per-operator profile it was designed with): an INT8 depthwise conv runs
+  2× *slower* than in float, dense 3×3 convs 1.5–1.9× faster, and a
+  per-pixel attention product costs a memory pass at its resolution, so
+  every DOConv at ½ resolution cost as much as four at ¼. The previous
+  default (widths 32, 64, depths 2, 4, 2: 14.2 kMAC/px) ran 542 ms/MP in
+  INT8; this one (6.8 kMAC/px) ≈ 160 ms/MP, and on the toy task
+  (``benchmarks/doconv_toy.py``, 400 steps) it lost 0.4 dB of the former's
+  1.2 dB gain, where a space-to-depth factor of 4 at the same speed lost
+  0.8 dB.
 * **Blocks** (ConvNeXt [1]_): ``x + pw₂(ReLU(pw₁(DOConv_dw(x, φ))))``, the
   depthwise 7×7 replaced by a depthwise DOConv (3×3 kernels, dilations
   1–4: a 9×9 footprint). No normalisation: LayerNorm has no INT8 kernel in
@@ -43,16 +57,6 @@ prints the tile error by overlap for a trained model).
 
 Variants (``build_model(variant)``, :func:`list_models`) cover the paper's
 ablations (section 5.4) and the export choices of the spatial attention.
-
-Speed (``benchmarks/doconv_speed.py``, ONNX Runtime, 2 threads, a shared
-2-core x86 machine under load): the default's MACs fit the budget
-(14 kMAC/px) but it runs far below the MAC rate of a dense conv — depthwise
-and 32/64-channel convs, and DOConv's per-pixel products (``Mul``/``Add``
-on every branch) are memory-bound: ≈ 1.5 s/MP in FP32 and hardly less in
-INT8, against ≈ 0.75 s/MP INT8 for the static ablation of equal MACs. A
-space-to-depth factor of 4 (``scale=4``, widths 64/128) ran ≈ 1.8× faster
-in INT8 but trained clearly worse on the toy task
-(``benchmarks/doconv_toy.py``); the default stays at 2.
 
 References
 ----------
@@ -173,7 +177,7 @@ class DOConvUNet(nn.Module):
         The constructor arguments.
     """
 
-    def __init__(self, *, widths: tuple[int, int] = (32, 64), depths: tuple[int, int, int] = (2, 4, 2),
+    def __init__(self, *, widths: tuple[int, int] = (16, 64), depths: tuple[int, int, int] = (0, 4, 0),
                  expansion: int = 2, conv: str = "doconv", dilations: tuple[int, ...] = (1, 2, 3, 4),
                  spatial: str = "none", pool: str = "local", window: int = 7, field: bool = True,
                  kernel_size: int = 3, scale: int = 2):
@@ -198,8 +202,13 @@ class DOConvUNet(nn.Module):
         block = {"expansion": expansion, "conv": conv, "kernel_size": kernel_size,
                  "dilations": tuple(dilations), "spatial": spatial, "pool": pool, "window": window,
                  "field_channels": nf}
-        self.unshuffle = nn.PixelUnshuffle(scale)
-        self.stem = nn.Conv2d(3 * scale * scale + nf, c1, 3, padding=1)
+        # space-to-depth and a 3×3 conv in one: a (3·scale)² conv of stride
+        # `scale` is the same function (PixelUnshuffle + 3×3 conv, padding 1)
+        # without the 6-D transpose ONNX Runtime spent 8 % of an INT8 run on
+        self.stem = nn.Conv2d(3, c1, 3 * scale, stride=scale, padding=scale)
+        # φ is smooth (linear and quadratic in the position): a 1×1 conv of it
+        # spans what a 3×3 one would, at a ninth of the cost
+        self.stem_field = nn.Conv2d(nf, c1, 1, bias=False) if nf else None
         self.enc = nn.ModuleList(ConvNeXtBlock(c1, **block) for _ in range(depths[0]))
         self.down = nn.Conv2d(c1, c2, 2, stride=2)
         self.mid = nn.ModuleList(ConvNeXtBlock(c2, **block) for _ in range(depths[1]))
@@ -217,12 +226,11 @@ class DOConvUNet(nn.Module):
             self._check(x)
         rgb = x[:, :3]
         f1 = f2 = None
-        h = self.unshuffle(rgb)
+        h = self.stem(rgb)
         if self.field:
             fld = x[:, 3:5]
             f1, f2 = field_features(fld, self.scale), field_features(fld, 2 * self.scale)
-            h = torch.cat([h, f1], dim=1)
-        h = self.stem(h)
+            h = h + self.stem_field(f1)
         for b in self.enc:
             h = b(h, f1)
         skip = h
@@ -342,7 +350,7 @@ def build_model(variant: str = "doconv", **overrides) -> DOConvUNet:
 
 
 #: the default configuration; every variant departs from it in one respect
-DEFAULT = {"widths": (32, 64), "depths": (2, 4, 2), "expansion": 2, "conv": "doconv",
+DEFAULT = {"widths": (16, 64), "depths": (0, 4, 0), "expansion": 2, "conv": "doconv",
            "dilations": (1, 2, 3, 4), "spatial": "none", "pool": "local", "window": 7, "field": True,
            "kernel_size": 3, "scale": 2}
 

@@ -32,6 +32,10 @@ __all__ = ["OnnxRunner", "Runner", "TorchRunner", "load_runner"]
 
 #: domain every runner here is evaluated in (the synthesised slot input)
 DOMAIN = "camera_rgb"
+#: domains a runner may take: the slot's, or the end of the pipeline (a
+#: model trained sRGB → sRGB, the placement ablation; the evaluation feeds it
+#: the processed input)
+DOMAINS = (DOMAIN, "display_rgb")
 
 
 class Runner(Protocol):
@@ -71,7 +75,10 @@ class OnnxRunner:
             self.stage = Correction(model=self.path, threads=threads, progress=False)
         except ValueError as e:
             raise InputError(self.path, str(e)) from None
-        self.stage.check(Domain.CAMERA_RGB)          # PlacementError naming where it belongs
+        self.domain = Domain(self.stage.model_meta.get("domain", DOMAIN))
+        if self.domain.value not in DOMAINS:
+            self.domain = Domain.CAMERA_RGB
+        self.stage.check(self.domain)                 # PlacementError naming where it belongs
         tile, margin, mult = self.stage.tiling()
         info = self.stage.info
         self.meta = {**info.meta, "fov_encoding": info.fov_encoding, "tile_size": tile, "tile_overlap": margin,
@@ -80,7 +87,7 @@ class OnnxRunner:
     def __call__(self, rgb, origin, full_size):
         from isp.frame import Domain, Frame
 
-        frame = Frame(np.ascontiguousarray(rgb, dtype=np.float32), Domain.CAMERA_RGB, _frame_meta(origin, full_size))
+        frame = Frame(np.ascontiguousarray(rgb, dtype=np.float32), self.domain, _frame_meta(origin, full_size))
         return self.stage.process(frame).data
 
 
@@ -126,9 +133,9 @@ class TorchRunner:
         self.model = model.eval()
         self.path = Path(path) if path is not None else None
         domain = _info_get(info, "domain")
-        if domain not in (None, DOMAIN):
+        if domain not in (None, *DOMAINS):
             raise ConfigError(f"model {self.path or ''} was trained for {domain} data; the evaluation "
-                              f"synthesises the {DOMAIN} input of the correction slot")
+                              f"runs models on {' or '.join(DOMAINS)} data")
         fov = _info_get(info, "fov_encoding") or getattr(model, "fov_encoding", None)
         if fov is None:
             fov = "xy" if getattr(model, "in_channels", 3) == 5 else "none"

@@ -301,3 +301,19 @@ def process_after_slot(x, ccm, exposure_ev: float, *, luma_weights=BT709_Y, tone
     y = adjust_luminance(x, gain, luma_weights, tone, white, channel_axis=channel_axis)
     return srgb_oetf(apply_ccm(y, ccm, channel_axis=channel_axis))
 
+
+
+def unprocess_after_slot(srgb, ccm, exposure_ev: float, *, luma_weights=BT709_Y, tone: str = "none",
+                         white: float = 4.0, channel_axis: int = -1):
+    """The inverse of :func:`process_after_slot` (numpy or torch): the
+    balanced camera RGB that the stages after the slot turn into ``srgb``.
+    Exact where nothing clipped; the target of a model trained "raw → raw",
+    without the stages that follow it (the placement ablation).
+
+    >>> x = np.full((1, 1, 3), 0.1, np.float32)
+    >>> y = process_after_slot(x, np.eye(3), 1.0)
+    >>> [round(float(v), 5) for v in unprocess_after_slot(y, np.eye(3), 1.0)[0, 0]]
+    [0.1, 0.1, 0.1]
+    """
+    lin = apply_ccm(srgb_eotf(srgb), np.linalg.inv(np.asarray(ccm, dtype=np.float64)), channel_axis=channel_axis)
+    return invert_luminance(lin, float(2.0 ** exposure_ev), luma_weights, tone, white, channel_axis=channel_axis)

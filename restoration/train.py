@@ -62,6 +62,9 @@ key                            default              meaning
 ``synth.shard_size``           100                  pairs per shard
 ``model.variant``              ``"doconv"``         :func:`restoration.network.build_model` name
 ``model.kwargs``               {}                   its overrides, e.g. ``{depths = [1, 2, 1]}``
+``model.placement``            ``"pipeline"``       where the model runs and what the loss sees:
+                                                    ``"pipeline"``, ``"raw"``, ``"srgb"``
+                                                    (:data:`PLACEMENTS`; the placement ablation)
 ``optim.loss``                 ``"l2"``             ``"l2"`` (paper, eq. 24) or ``"l1"``
 ``optim.lr``                   1e-4                 initial learning rate (paper: 1e-4)
 ``optim.betas``                [0.9, 0.999]         Adam β₁, β₂ (paper)
@@ -133,6 +136,16 @@ __all__ = ["PairBank", "batch_plan", "ensure_data", "learning_rate", "process_ba
 #: placement of the correction slot the pairs are made for
 PLACEMENT = "camera_rgb after demosaic"
 DOMAIN = "camera_rgb"
+#: ``model.placement``: (domain, placement text) of where the model runs, and
+#: what its loss compares (the paper's placement ablation, section 5.4):
+#: "pipeline" (ours): after demosaic, loss on Process(Model(J)) against the
+#: sRGB target; "raw": same position, trained without the stages that
+#: follow, loss on Model(J) against the target taken back to camera RGB
+#: (:func:`restoration.synth_colour.unprocess_after_slot`); "srgb": at the
+#: end of the pipeline, Model(Process(J)) against the sRGB target.
+PLACEMENTS = {"pipeline": (DOMAIN, PLACEMENT),
+              "raw": (DOMAIN, PLACEMENT + " (trained raw to raw, without the following stages)"),
+              "srgb": ("display_rgb", "display_rgb after gamma")}
 
 
 def _rng(seed: int, *key: int) -> np.random.Generator:
@@ -414,6 +427,35 @@ def process_batch(y, meta: list[dict]):
                       for n, m in enumerate(meta)])
 
 
+def unprocess_batch(y, meta: list[dict]):
+    """The inverse of :func:`process_batch`: sRGB ``(B, 3, H, W)`` back to
+    the slot's camera RGB, per pair."""
+    import torch
+
+    from .synth_colour import unprocess_after_slot
+
+    return torch.cat([unprocess_after_slot(y[n:n + 1], m["ccm"], m["exposure_ev"], luma_weights=m["luma_weights"],
+                                           tone=m["tone"], white=m["white"], channel_axis=-3)
+                      for n, m in enumerate(meta)])
+
+
+def predict_srgb(model, x, meta: list[dict], placement: str = "pipeline"):
+    """The pipeline's sRGB output with the model at ``placement``: Process(Model(J))
+    ("pipeline", "raw") or Model(Process(J)) ("srgb"; the field channels pass through)."""
+    import torch
+
+    if placement == "srgb":
+        return model(torch.cat([process_batch(x[:, :3], meta), x[:, 3:]], dim=1))
+    return process_batch(model(x), meta)
+
+
+def placed_loss(loss_of, model, x, y, meta: list[dict], placement: str = "pipeline"):
+    """The training loss of a model at ``placement`` (:data:`PLACEMENTS`)."""
+    if placement == "raw":
+        return loss_of(model(x), unprocess_batch(y, meta))
+    return loss_of(predict_srgb(model, x, meta, placement), y)
+
+
 def loss_fn(name: str):
     import torch.nn.functional as F
 
@@ -446,7 +488,7 @@ def psnr_db(a, b) -> float:
     return float("inf") if mse == 0 else 10.0 * math.log10(1.0 / mse)
 
 
-def validate(model, bank: PairBank, device, multiple: int) -> dict:
+def validate(model, bank: PairBank, device, multiple: int, placement: str = "pipeline") -> dict:
     """Mean PSNR (dB, sRGB) of ``Process(Model(J))`` and of ``Process(J)``
     (no correction) against the targets, and the mean squared error, on the
     largest square of every validation pair whose origin on the full frame
@@ -465,7 +507,7 @@ def validate(model, bank: PairBank, device, multiple: int) -> dict:
                 side = (bank.size - max(firsts)) // multiple * multiple
                 x, y, meta = bank.batch([i], [tuple(firsts)], side)
                 x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
-                p = process_batch(model(x), meta)
+                p = predict_srgb(model, x, meta, placement)
                 out.append(psnr_db(p, y))
                 base.append(psnr_db(process_batch(x[:, :3], meta), y))
                 loss.append(float(((p - y) ** 2).mean()))
@@ -592,6 +634,9 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
     from .network import build_model, receptive_radius
 
     r, d = config.run, config.data
+    placement = config.model.placement
+    if placement not in PLACEMENTS:
+        raise ConfigError(f"model.placement must be one of {', '.join(PLACEMENTS)}; got {placement!r}")
     out = Path(r.out)
     device = _device(r.device)
     torch.set_num_threads(r.threads)
@@ -653,7 +698,8 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
     m_lens = manifests[0].get("lens") or {}
     lens = Path(m_lens["path"]).stem if m_lens.get("path") else (m_lens.get("name") or "?")
     metadata = {
-        "lens": lens, "fov_encoding": model.fov_encoding, "placement": PLACEMENT, "domain": DOMAIN,
+        "lens": lens, "fov_encoding": model.fov_encoding, "placement": PLACEMENTS[placement][1],
+        "domain": PLACEMENTS[placement][0], "training_placement": placement,
         "training_data": ",".join(m["data_sha256"] for m in manifests), "input_multiple": mult,
         "receptive_radius": radius, "attention": model.config.get("pool", "local"),
         "process": {"stages": ["luminance", "ccm", "gamma"], "tone": bank.tone[0], "white": float(bank.white[0])},
@@ -678,7 +724,7 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
     def checkpoint(at: int, final: bool = False) -> None:
         # validated as load_model gives it back: at the end temperature (the training loop resets it)
         set_temperature(model, config.temperature.end)
-        v = validate(model, vbank, device, mult) if vbank is not None else {}
+        v = validate(model, vbank, device, mult, placement) if vbank is not None else {}
         if v:
             v = {"step": at, **v}
             if not val_log or val_log[-1]["step"] != at:
@@ -718,7 +764,7 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
             idx = batch_plan(step, len(bank), d.batch, r.seed)
             x, y, meta = bank.batch(idx, crop_plan(step, bank, idx, d.crop, mult, r.seed), d.crop)
             x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
-            loss = loss_of(process_batch(model(x), meta), y)
+            loss = placed_loss(loss_of, model, x, y, meta, placement)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             if o.grad_clip:

@@ -61,10 +61,16 @@ class SynthConfig:
     shard_size: int = 100
 
 
+#: ``model.placement`` choices (restoration.train.PLACEMENTS says what each means)
+PLACEMENT_CHOICES = ("pipeline", "raw", "srgb")
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     variant: str = "doconv"
     kwargs: dict = field(default_factory=dict)
+    #: where the model stands and what its loss sees (restoration.train.PLACEMENTS)
+    placement: str = "pipeline"
 
 
 @dataclass(frozen=True)
@@ -171,6 +177,7 @@ class TrainConfig:
             for k in ("exposure_ev", "cct_k", "noise_scale", "psf_grid"):
                 if len(getattr(s, k)) != 2:
                     raise ConfigError(f"synth.{k} must be two numbers; got {getattr(s, k)!r}")
+        _choice(self.model.placement, PLACEMENT_CHOICES, "model.placement")
         _choice(o.loss, LOSSES, "optim.loss")
         _choice(o.schedule, SCHEDULES, "optim.schedule")
         if not o.lr > 0:

@@ -113,7 +113,7 @@ def test_sfr_chart_on_a_raw_capture(capsys, tmp_path):
     from isp.demo import make_capture
     from isp.dng_write import write_dng
 
-    dn, meta, _ = make_capture(600, 800, seed=1)
+    dn, meta, _ = make_capture(600, 800, seed=1, optics="gaussian")
     dng = write_dng(tmp_path / "demo.dng", dn, meta)
     out = tmp_path / "c.json"
     code, stdout, stderr = _run(capsys, "calib", "sfr", str(dng), "--chart", "--channel", "G", "--json", str(out))

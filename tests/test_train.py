@@ -319,3 +319,48 @@ def test_default_config_is_valid():
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "e9_default.toml")
     assert cfg.synth is not None and resolve_path(cfg.synth.lens).name == "US-12210142-B2-e9.zmx"
     assert cfg.model.variant == "doconv" and cfg.optim.betas == [0.9, 0.999] and cfg.optim.eps == 1e-8
+
+
+@pytest.mark.parametrize("placement", ["raw", "srgb"])
+def test_placement_ablation_losses(pairs, tmp_path, placement):
+    """The placement ablation's other two models. "raw": the loss is on
+    Model(J) against the target taken back to camera RGB (which round-trips
+    through Process where nothing clipped); "srgb": on Model(Process(J)), the
+    field channels passed through, against the sRGB target. Step 0's logged
+    loss is recomputed by hand from the seeded model and the step's batch."""
+    from restoration.doconv import set_temperature
+    from restoration.network import build_model
+    from restoration.synth_colour import process_after_slot, unprocess_after_slot
+    from restoration.train import PairBank, batch_plan, crop_plan, split_pairs
+
+    def proc(t, meta, inverse=False):
+        f = unprocess_after_slot if inverse else process_after_slot
+        return torch.cat([f(t[n:n + 1], m["ccm"], m["exposure_ev"], luma_weights=m["luma_weights"],
+                            tone=m["tone"], white=m["white"], channel_axis=-3) for n, m in enumerate(meta)])
+
+    assert unprocess_after_slot(np.full((1, 1, 3), 0.5), np.eye(3), 0.0)[0, 0, 0] == pytest.approx(0.21404, abs=1e-5)
+    d = config_dict(pairs, tmp_path / "out")
+    d["model"]["placement"] = placement
+    assert main(["train", "--config", str(write_toml(tmp_path / "cfg.toml", d)), "-q"]) == 0
+    log = json.loads((tmp_path / "out" / "train_log.json").read_text())
+
+    train_ids, _, _ = split_pairs([pairs], 1, 2, 0)
+    bank = PairBank.load([pairs], train_ids)
+    idx = batch_plan(0, len(bank), 4, 0)
+    x, y, meta = bank.batch(idx, crop_plan(0, bank, idx, 32, 4, 0), 32)
+    x, y = torch.from_numpy(x), torch.from_numpy(y)
+    torch.manual_seed(0)
+    model = build_model("doconv", **TINY)
+    set_temperature(model, 30.0)
+    with torch.no_grad():
+        if placement == "raw":
+            target = proc(y, meta, inverse=True)
+            inside = (y > 0.01) & (y < 0.99)
+            assert torch.allclose(proc(target, meta)[inside], y[inside], atol=1e-4)
+            by_hand = float(((model(x) - target) ** 2).mean())
+        else:
+            by_hand = float(((model(torch.cat([proc(x[:, :3], meta), x[:, 3:]], 1)) - y) ** 2).mean())
+    assert log["history"]["loss"][0] == pytest.approx(by_hand, rel=1e-5)
+    ck = torch.load(tmp_path / "out" / "model.pt", weights_only=False)
+    assert ck["metadata"]["domain"] == ("display_rgb" if placement == "srgb" else "camera_rgb")
+    assert ck["metadata"]["training_placement"] == placement
