@@ -146,11 +146,12 @@ def main(argv=None):
     if args.yardsticks:
         runs += yardsticks(args, tmp, rng)
     best = [float("inf")] * len(runs)
-    for _ in range(args.rounds + 1):  # the first round warms up
-        for i, (_, sess, x, _) in enumerate(runs):
+    for rnd in range(args.rounds + 1):  # round 0 warms up
+        for i, (_label, sess, x, _macs) in enumerate(runs):
             t = time.perf_counter()
             sess.run(None, {sess.get_inputs()[0].name: x})
-            best[i] = min(best[i], time.perf_counter() - t) if _ else best[i]
+            if rnd:
+                best[i] = min(best[i], time.perf_counter() - t)
     mp = SIZE * SIZE / 1e6
     for (label, _, _, macs), t in zip(runs, best):
         per_mp = t * 1e3 / mp if "yardstick" not in label else float("nan")

@@ -439,11 +439,19 @@ def unprocess_batch(y, meta: list[dict]):
                       for n, m in enumerate(meta)])
 
 
+def model_input(model, x):
+    """``x`` (B, 5, H, W: RGB and field) cut to the channels ``model`` takes
+    (3 for a model without field encoding, the ablation ``no_field``)."""
+    n = getattr(model, "in_channels", x.shape[1])
+    return x if n == x.shape[1] else x[:, :n]
+
+
 def predict_srgb(model, x, meta: list[dict], placement: str = "pipeline"):
     """The pipeline's sRGB output with the model at ``placement``: Process(Model(J))
     ("pipeline", "raw") or Model(Process(J)) ("srgb"; the field channels pass through)."""
     import torch
 
+    x = model_input(model, x)
     if placement == "srgb":
         return model(torch.cat([process_batch(x[:, :3], meta), x[:, 3:]], dim=1))
     return process_batch(model(x), meta)
@@ -452,7 +460,7 @@ def predict_srgb(model, x, meta: list[dict], placement: str = "pipeline"):
 def placed_loss(loss_of, model, x, y, meta: list[dict], placement: str = "pipeline"):
     """The training loss of a model at ``placement`` (:data:`PLACEMENTS`)."""
     if placement == "raw":
-        return loss_of(model(x), unprocess_batch(y, meta))
+        return loss_of(model(model_input(model, x)), unprocess_batch(y, meta))
     return loss_of(predict_srgb(model, x, meta, placement), y)
 
 

@@ -364,3 +364,13 @@ def test_placement_ablation_losses(pairs, tmp_path, placement):
     ck = torch.load(tmp_path / "out" / "model.pt", weights_only=False)
     assert ck["metadata"]["domain"] == ("display_rgb" if placement == "srgb" else "camera_rgb")
     assert ck["metadata"]["training_placement"] == placement
+
+
+def test_a_model_without_field_encoding_trains(pairs, tmp_path):
+    """The no-field ablation takes RGB only: training feeds it the first
+    three channels of the pairs (which carry the field too)."""
+    d = config_dict(pairs, tmp_path / "out", steps=4, checkpoint_every=4)
+    d["model"] = {"variant": "no_field", "kwargs": TINY}
+    assert main(["train", "--config", str(write_toml(tmp_path / "cfg.toml", d)), "-q"]) == 0
+    log = json.loads((tmp_path / "out" / "train_log.json").read_text())
+    assert log["model"]["variant"] == "no_field" and np.isfinite(log["val"][-1]["psnr_db"])
