@@ -59,6 +59,15 @@ RINGS = ("0.1", "0.5", "0.9")
 
 
 def _train(args) -> dict:
+    """Train one entry; a failure comes back as ``{"name", "error"}`` so the
+    other entries go on."""
+    try:
+        return _train_one(args)
+    except Exception as e:  # noqa: BLE001 — reported per entry, the run continues
+        return {"name": args[0], "error": f"{type(e).__name__}: {e}"}
+
+
+def _train_one(args) -> dict:
     name, config_path, out, steps, seed = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from restoration.train import train
@@ -101,13 +110,23 @@ def main(argv=None) -> dict:
               flush=True)
         with ProcessPoolExecutor(args.workers) as pool:
             for r in pool.map(_train, [(n, args.config, out, args.steps, args.seed) for n in todo]):
+                if "error" in r:
+                    print(f"  {r['name']}: FAILED, {r['error']}", flush=True)
+                    continue
                 trained[r["name"]] = r
                 (out / r["name"] / "ablation_train.json").write_text(json.dumps(r, indent=1))
                 print(f"  {r['name']}: {r['seconds'] / 60:.1f} min, validation {r['val_psnr_db']:.2f} dB "
                       f"(input {r['val_input_psnr_db']:.2f} dB)", flush=True)
     for n in names:
-        if n not in trained and (out / n / "ablation_train.json").is_file():
+        if n in trained:
+            continue
+        if (out / n / "ablation_train.json").is_file():
             trained[n] = json.loads((out / n / "ablation_train.json").read_text())
+        elif (out / n / "train_log.json").is_file():  # trained by a run that stopped before its summary
+            log = json.loads((out / n / "train_log.json").read_text())
+            v = log["val"][-1] if log.get("val") else {}
+            trained[n] = {"name": n, "val_psnr_db": v.get("psnr_db"), "val_input_psnr_db": v.get("input_psnr_db"),
+                          "kmac_per_pixel": log["model"]["kmac_per_pixel"], "parameters": log["model"]["parameters"]}
 
     import tempfile
 
@@ -117,6 +136,7 @@ def main(argv=None) -> dict:
     # (never trained on, by any entry: one split, one seed), linked into one place
     log = json.loads((out / names[0] / "train_log.json").read_text())
     imgs = [Path(args.latent) / h for h in log["data"]["held_out_latents"]]
+    names = [n for n in names if (out / n / "model.pt").is_file()]
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         for p in imgs:
@@ -133,15 +153,17 @@ def main(argv=None) -> dict:
                   flush=True)
 
     print()
-    print(f"| entry | kMAC/px | PSNR 0.1 | PSNR 0.5 | PSNR 0.9 | SSIM 0.9 | gain at 0.9 |")
-    print("|---|---|---|---|---|---|---|")
+    print("| entry | kMAC/px | validation | PSNR 0.1 | PSNR 0.5 | PSNR 0.9 | SSIM 0.9 | gain at 0.9 |")
+    print("|---|---|---|---|---|---|---|---|")
     for n in names:
         r = results[n]["rings"]
+        val = results[n].get("val_psnr_db")
         print(f"| {n} | {results[n].get('kmac_per_pixel', float('nan')):.1f} | "
+              + (f"{val:.2f} | " if val is not None else "– | ")
               + " | ".join(f"{r[k]['psnr_corrected']:.2f}" for k in RINGS)
               + f" | {r['0.9']['ssim_corrected']:.4f} | {r['0.9']['psnr_corrected'] - r['0.9']['psnr_uncorrected']:+.2f} dB |")
     r0 = results[names[0]]["rings"]
-    print("| uncorrected | – | " + " | ".join(f"{r0[k]['psnr_uncorrected']:.2f}" for k in RINGS)
+    print("| uncorrected | – | – | " + " | ".join(f"{r0[k]['psnr_uncorrected']:.2f}" for k in RINGS)
           + f" | {r0['0.9']['ssim_uncorrected']:.4f} | – |")
     summary = {"steps": args.steps, "images": [p.name for p in imgs], "samples": args.samples,
                "config": args.config, "entries": results}
