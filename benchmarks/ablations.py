@@ -20,6 +20,7 @@ spatial_tap         per-pixel spatial attention, exact (shifted 1×1 convs)
 spatial_frozen      spatial attention trained per pixel, frozen to its mean
 placement_raw       same position, trained raw → raw (loss in camera RGB)
 placement_srgb      at the end of the pipeline, sRGB → sRGB
+sqrt_input          ours with the slot input encoded as √x inside the network
 ==================  ==========================================================
 
 Run (about 8 minutes of training per entry at 1,500 steps, two at a time
@@ -54,6 +55,7 @@ ENTRIES = {
     "spatial_frozen": ("doconv_spatial_frozen", "pipeline"),
     "placement_raw": ("doconv", "raw"),
     "placement_srgb": ("doconv", "srgb"),
+    "sqrt_input": ("doconv:sqrt", "pipeline"),
 }
 RINGS = ("0.1", "0.5", "0.9")
 
@@ -74,8 +76,9 @@ def _train_one(args) -> dict:
     from restoration.train_config import load_config
 
     variant, placement = ENTRIES[name]
+    variant, _, enc = variant.partition(":")
     cfg = load_config(config_path)
-    cfg = cfg.replace("model", variant=variant, kwargs={}, placement=placement)
+    cfg = cfg.replace("model", variant=variant, kwargs={"encoding": enc} if enc else {}, placement=placement)
     cfg = cfg.replace("run", steps=steps, out=str(out / name), checkpoint_every=steps, threads=1, seed=seed)
     t0 = time.perf_counter()
     info = train(cfg, progress=False, log=lambda m: None)

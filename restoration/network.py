@@ -85,6 +85,11 @@ from .doconv import POOL_MODES, SPATIAL_MODES, DOConv2d, _choose
 CONV_KINDS = ("doconv", "static")
 #: field features per pixel: x, y, x² + y²
 FIELD_FEATURES = 3
+#: ``encoding`` choices: the network works on linear RGB, or on
+#: ``u = √(max(x, 0) + SQRT_OFFSET)`` with the residual added to ``u`` and
+#: the output decoded as ``u² − SQRT_OFFSET`` (negative inputs clip to 0)
+ENCODINGS = ("linear", "sqrt")
+SQRT_OFFSET = 1e-3
 
 
 def field_features(field: Tensor, factor: int) -> Tensor:
@@ -182,8 +187,9 @@ class DOConvUNet(nn.Module):
     def __init__(self, *, widths: tuple[int, int] = (16, 64), depths: tuple[int, int, int] = (0, 4, 0),
                  expansion: int = 2, conv: str = "doconv", dilations: tuple[int, ...] = (1, 2, 3, 4),
                  spatial: str = "none", pool: str = "local", window: int = 7, field: bool = True,
-                 kernel_size: int = 3, scale: int = 2):
+                 kernel_size: int = 3, scale: int = 2, encoding: str = "linear"):
         super().__init__()
+        _choose(encoding, ENCODINGS, "encoding")
         _choose(conv, CONV_KINDS, "conv")
         _choose(spatial, SPATIAL_MODES, "spatial")
         _choose(pool, POOL_MODES, "pool")
@@ -193,7 +199,9 @@ class DOConvUNet(nn.Module):
             raise ConfigError(f"scale must be 2 or 4; got {scale}")
         self.config = {"widths": tuple(widths), "depths": tuple(depths), "expansion": expansion,
                        "conv": conv, "dilations": tuple(dilations), "spatial": spatial, "pool": pool,
-                       "window": window, "field": field, "kernel_size": kernel_size, "scale": scale}
+                       "window": window, "field": field, "kernel_size": kernel_size, "scale": scale,
+                       "encoding": encoding}
+        self.encoding = encoding
         self.field = field
         self.scale = scale
         self.input_multiple = 2 * scale
@@ -227,6 +235,8 @@ class DOConvUNet(nn.Module):
         if not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
             self._check(x)
         rgb = x[:, :3]
+        if self.encoding == "sqrt":  # the network works on u = √(max(x, 0) + c), decoded at the end
+            rgb = torch.sqrt(F.relu(rgb) + SQRT_OFFSET)
         f1 = f2 = None
         h = self.stem(rgb)
         if self.field:
@@ -242,6 +252,9 @@ class DOConvUNet(nn.Module):
         h = self.up(h) + skip
         for b in self.dec:
             h = b(h, f1)
+        if self.encoding == "sqrt":
+            u = rgb + self.head(h)
+            return u * u - SQRT_OFFSET
         return rgb + self.head(h)
 
     def _check(self, x: Tensor) -> None:

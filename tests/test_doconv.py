@@ -334,3 +334,21 @@ def test_onnx_export_constant_weights_and_parity(variant, tmp_path):
             ref = model(xs).numpy()
         got = sess.run(None, {"input": xs.numpy()})[0]
         assert np.abs(got - ref).max() <= 1e-4
+
+
+def test_sqrt_encoding_is_the_identity_without_a_correction():
+    """encoding="sqrt": the network works on u = √(max(x, 0) + c) and decodes
+    u² − c, so with a zero head the output is the input wherever x ≥ 0 (and
+    0 where the input was negative noise)."""
+    model = build_model("doconv", encoding="sqrt", **SMALL).eval()
+    with torch.no_grad():
+        model.head[0].weight.zero_()
+        model.head[0].bias.zero_()
+        x = torch.rand(1, 5, 16, 24, dtype=torch.float32)
+        x[:, 3:] = x[:, 3:] * 2 - 1
+        x[0, 0, 0, 0] = -0.01
+        y = model(x)
+    want = x[:, :3].clamp(min=0)
+    assert torch.allclose(y, want, atol=1e-6)
+    with pytest.raises(ConfigError, match="encoding"):
+        build_model("doconv", encoding="gamma")
