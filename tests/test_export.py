@@ -175,3 +175,20 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys):
         from export.quantize import SynthCalibration
 
         SynthCalibration(tmp_path, 4)
+
+
+def test_int8_of_a_sqrt_encoded_model_is_refused(tmp_path):
+    """A model with encoding="sqrt" exports in FP32, but its INT8 copy is
+    refused with the reason (its input encoding would be rounded before the
+    square root)."""
+    from export.onnx_export import ExportError, export_onnx
+    from export.quantize import quantize_int8
+
+    torch.manual_seed(0)
+    kw = {**KW, "encoding": "sqrt"}
+    ckpt = save_checkpoint(tmp_path / "sq.pt", build_model("doconv", **kw), variant="doconv", model_kwargs=kw,
+                           step=1, metadata=META)
+    export_onnx(ckpt, tmp_path / "sq.onnx", tile_size=256)
+    with pytest.raises(ExportError, match="encoding='sqrt'"):
+        quantize_int8(tmp_path / "sq.onnx", tmp_path / "sq.int8.onnx", _reader())
+    assert not (tmp_path / "sq.int8.onnx").exists()
