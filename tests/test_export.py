@@ -177,11 +177,15 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys):
         SynthCalibration(tmp_path, 4)
 
 
-def test_int8_of_a_sqrt_encoded_model_is_refused(tmp_path):
-    """A model with encoding="sqrt" exports in FP32, but its INT8 copy is
-    refused with the reason (its input encoding would be rounded before the
-    square root)."""
-    from export.onnx_export import ExportError, export_onnx
+def test_int8_keeps_the_input_encoding_and_output_decoding_in_float(tmp_path):
+    """A model with encoding="sqrt": every conv is quantised, while the nodes
+    outside the conv network stay float (the square root's input is never
+    rounded, nor the decoded output), and the INT8 output follows the FP32
+    one closely."""
+    import onnx
+    import onnxruntime as ort
+
+    from export.onnx_export import export_onnx
     from export.quantize import quantize_int8
 
     torch.manual_seed(0)
@@ -189,6 +193,16 @@ def test_int8_of_a_sqrt_encoded_model_is_refused(tmp_path):
     ckpt = save_checkpoint(tmp_path / "sq.pt", build_model("doconv", **kw), variant="doconv", model_kwargs=kw,
                            step=1, metadata=META)
     export_onnx(ckpt, tmp_path / "sq.onnx", tile_size=256)
-    with pytest.raises(ExportError, match="encoding='sqrt'"):
-        quantize_int8(tmp_path / "sq.onnx", tmp_path / "sq.int8.onnx", _reader())
-    assert not (tmp_path / "sq.int8.onnx").exists()
+    rep = quantize_int8(tmp_path / "sq.onnx", tmp_path / "sq.int8.onnx", _reader())
+    assert rep["int8_quantized_conv"] == rep["fp32_conv"] and rep["int8_float_conv"] == 0
+    m = onnx.load(str(tmp_path / "sq.int8.onnx"))
+    prod = {o: n for n in m.graph.node for o in n.output}
+    sqrt = next(n for n in m.graph.node if n.op_type == "Sqrt")
+    assert prod[sqrt.input[0]].op_type != "DequantizeLinear"          # encoded from unrounded RGB
+    out = m.graph.output[0].name
+    assert prod[out].op_type == "Sub" and all(prod[i].op_type != "DequantizeLinear"
+                                              for i in prod[out].input if i in prod)
+    x = next(iter(_reader(1, 64, 7).it))["input"]
+    a = ort.InferenceSession(str(tmp_path / "sq.onnx")).run(None, {"input": x})[0]
+    b = ort.InferenceSession(str(tmp_path / "sq.int8.onnx")).run(None, {"input": x})[0]
+    assert np.abs(a - b).mean() < 0.01
