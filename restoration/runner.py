@@ -85,7 +85,7 @@ class OnnxRunner:
                      "input_multiple": mult}
 
     def __call__(self, rgb, origin, full_size):
-        from isp.frame import Domain, Frame
+        from isp.frame import Frame
 
         frame = Frame(np.ascontiguousarray(rgb, dtype=np.float32), self.domain, _frame_meta(origin, full_size))
         return self.stage.process(frame).data
