@@ -8,7 +8,7 @@ weights (7-bit range on x86, see :func:`quantize_int8`), uint8 activations
 (99.99th-percentile ranges), scales fixed by a calibration pass over crops of
 synthesised training inputs (:class:`SynthCalibration`); the nodes outside
 the conv network (input split and encoding, field features, the output
-residual and decoding) stay float (:func:`output_residual_nodes`). The scales are
+residual and decoding) stay float (:func:`float_io_nodes`). The scales are
 static, as the tiled correction stage requires (a scale computed from the
 input would differ between tiles).
 
@@ -42,7 +42,7 @@ from isp.errors import ConfigError, InputError
 
 from .onnx_export import ExportError, op_counts, set_metadata
 
-__all__ = ["SynthCalibration", "count_quantized_convs", "int8_psnr", "mobile_usability", "output_residual_nodes",
+__all__ = ["SynthCalibration", "count_quantized_convs", "int8_psnr", "mobile_usability", "float_io_nodes",
            "quantize_int8", "synth_crops"]
 
 #: op types that are a quantised conv in ORT's optimised CPU graph
@@ -138,7 +138,7 @@ def count_quantized_convs(fp32_path, int8_path) -> dict:
             "int8_optimized_ops": opt}
 
 
-def output_residual_nodes(model) -> list[str]:
+def float_io_nodes(model) -> list[str]:
     """Names of the nodes outside the conv network, kept in float by
     :func:`quantize_int8`: those no conv feeds (the input's split and
     encoding, the field features) and those that feed no conv (the output
@@ -222,7 +222,7 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
         Per-output-channel weight scales.
     float_output_add : bool
         Keep the nodes outside the conv network in float
-        (:func:`output_residual_nodes`: the output residual ``Add``, input
+        (:func:`float_io_nodes`: the output residual ``Add``, input
         RGB + correction, and any input encoding or output decoding), reading
         their inputs unrounded (:func:`bypass_input_qdq`). With
         ``encoding="sqrt"`` (1,500 steps) the drop is then 0.04 dB, against
@@ -264,7 +264,7 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
     with tempfile.TemporaryDirectory() as d:
         pre, q = Path(d) / "pre.onnx", Path(d) / "q.onnx"
         quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
-        exclude = output_residual_nodes(onnx.load(str(pre))) if float_output_add else []
+        exclude = float_io_nodes(onnx.load(str(pre))) if float_output_add else []
         quantize_static(str(pre), str(q), calibration_reader, quant_format=QuantFormat.QDQ,
                         per_channel=per_channel, activation_type=QuantType.QUInt8,
                         weight_type=QuantType.QInt8, nodes_to_exclude=exclude, reduce_range=reduce_range,

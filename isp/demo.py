@@ -221,8 +221,8 @@ def psnr(a: np.ndarray, b: np.ndarray, peak: float = 1.0) -> float:
     return float("inf") if mse == 0 else 10.0 * np.log10(peak * peak / mse)
 
 
-def _process(dng: Path, *, correction: bool, keep_linear: bool = False):
-    """(display-referred RGB before JPEG, linear RGB or None, the pipeline, the
+def _process(dng: Path, *, correction: bool):
+    """(display-referred RGB before JPEG, linear RGB, the pipeline, the
     encoded output frame) of the default pipeline, with or without the
     correction model."""
     from .frame import Domain
@@ -232,14 +232,14 @@ def _process(dng: Path, *, correction: bool, keep_linear: bool = False):
     keep = {}
 
     def on_step(i, stage, fr, dt):
-        if fr.domain is Domain.LINEAR_RGB and keep_linear:
+        if fr.domain is Domain.LINEAR_RGB:
             keep["linear"] = fr.data
         if fr.domain is Domain.DISPLAY_RGB:
             keep["display"] = fr.data
 
     pipeline = Pipeline.default() if correction else Pipeline.default(correction={"model": "none"})
     out = pipeline.run(read_raw(dng), on_step=on_step)
-    return keep["display"], keep.get("linear"), pipeline, out
+    return keep["display"], keep["linear"], pipeline, out
 
 
 def before_after_figure(path: Path, crops: list[np.ndarray], labels: list[str], zoom: int = 3) -> Path:
@@ -280,10 +280,10 @@ def run_demo(outdir: Path, size=(1500, 2000), seed: int = 0) -> int:
     dn, meta, scene = make_capture(h, w, seed)
     dng = write_dng(outdir / "demo.dng", dn, meta)
     t1 = time.perf_counter()
-    after, lin, pipeline, out = _process(dng, correction=True, keep_linear=True)
+    after, lin, pipeline, out = _process(dng, correction=True)
     jpg = write_output(out, outdir / "demo.jpg")
     t2 = time.perf_counter()
-    before, lin_nc, _, out_nc = _process(dng, correction=False, keep_linear=True)
+    before, lin_nc, _, out_nc = _process(dng, correction=False)
     jpg_nc = write_output(out_nc, outdir / "demo_no_correction.jpg")
     with tempfile.TemporaryDirectory() as tmp:
         dn_ref, _, _ = make_capture(h, w, seed, optics="none", noise=False)

@@ -22,8 +22,9 @@ default 0, 4, 0; resolutions relative to the input)::
   every DOConv at ½ resolution cost as much as four at ¼. The previous
   default (widths 32, 64, depths 2, 4, 2: 14.2 kMAC/px) ran 542 ms/MP in
   INT8 on 512² tiles, 647 ms/MP through the correction stage on 12 MP;
-  this one (6.7 kMAC/px) ≈ 170 ms/MP on a 1,024² tile and 193–230 ms/MP through
-  the stage (``benchmarks/correction.py``), and on the toy task
+  this one (6.7 kMAC/px) ≈ 157 ms per computed MP inside the model and
+  193–222 ms/MP through the stage (``benchmarks/correction.py``, which
+  prints both), and on the toy task
   (``benchmarks/doconv_toy.py``, 400 steps) it lost 0.4 dB of the former's
   1.2 dB gain, where a space-to-depth factor of 4 at the same speed lost
   0.8 dB.

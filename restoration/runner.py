@@ -75,9 +75,8 @@ class OnnxRunner:
             self.stage = Correction(model=self.path, threads=threads, progress=False)
         except ValueError as e:
             raise InputError(self.path, str(e)) from None
-        self.domain = Domain(self.stage.model_meta.get("domain", DOMAIN))
-        if self.domain.value not in DOMAINS:
-            self.domain = Domain.CAMERA_RGB
+        domain = self.stage.model_meta.get("domain", DOMAIN)
+        self.domain = Domain(domain if domain in DOMAINS else DOMAIN)
         self.stage.check(self.domain)                 # PlacementError naming where it belongs
         tile, margin, mult = self.stage.tiling()
         info = self.stage.info

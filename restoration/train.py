@@ -128,24 +128,13 @@ import numpy as np
 
 from isp.errors import ConfigError, InputError
 
-from .train_config import TrainConfig, resolve_path
+from .train_config import PLACEMENTS, TrainConfig, resolve_path
 
 __all__ = ["PairBank", "batch_plan", "ensure_data", "learning_rate", "process_batch", "split_pairs",
            "synth_argv", "train"]
 
-#: placement of the correction slot the pairs are made for
-PLACEMENT = "camera_rgb after demosaic"
-DOMAIN = "camera_rgb"
-#: ``model.placement``: (domain, placement text) of where the model runs, and
-#: what its loss compares (the paper's placement ablation, section 5.4):
-#: "pipeline" (ours): after demosaic, loss on Process(Model(J)) against the
-#: sRGB target; "raw": same position, trained without the stages that
-#: follow, loss on Model(J) against the target taken back to camera RGB
-#: (:func:`restoration.synth_colour.unprocess_after_slot`); "srgb": at the
-#: end of the pipeline, Model(Process(J)) against the sRGB target.
-PLACEMENTS = {"pipeline": (DOMAIN, PLACEMENT),
-              "raw": (DOMAIN, PLACEMENT + " (trained raw to raw, without the following stages)"),
-              "srgb": ("display_rgb", "display_rgb after gamma")}
+#: domain and placement of the correction slot the pairs are made for
+DOMAIN, PLACEMENT = PLACEMENTS["pipeline"]
 
 
 def _rng(seed: int, *key: int) -> np.random.Generator:
@@ -413,30 +402,33 @@ def crop_plan(step: int, bank: PairBank, idx, crop: int, multiple: int, seed: in
 
 # -- loss ---------------------------------------------------------------------------------
 
+def _per_pair(fn, y, meta: list[dict]):
+    """``fn`` (:func:`~restoration.synth_colour.process_after_slot` or its
+    inverse) on each pair of a batch ``(B, 3, H, W)`` with its own colour
+    matrix, exposure and tone settings."""
+    import torch
+
+    return torch.cat([fn(y[n:n + 1], m["ccm"], m["exposure_ev"], luma_weights=m["luma_weights"],
+                         tone=m["tone"], white=m["white"], channel_axis=-3)
+                      for n, m in enumerate(meta)])
+
+
 def process_batch(y, meta: list[dict]):
     """``Process`` of the loss on a batch ``(B, 3, H, W)``: the pipeline's
     stages after the slot (:func:`restoration.synth_colour.process_after_slot`,
     i.e. the luminance, ccm and gamma stages' own functions), one call per
     pair with its colour matrix and exposure. Returns sRGB ``(B, 3, H, W)``."""
-    import torch
-
     from .synth_colour import process_after_slot
 
-    return torch.cat([process_after_slot(y[n:n + 1], m["ccm"], m["exposure_ev"], luma_weights=m["luma_weights"],
-                                         tone=m["tone"], white=m["white"], channel_axis=-3)
-                      for n, m in enumerate(meta)])
+    return _per_pair(process_after_slot, y, meta)
 
 
 def unprocess_batch(y, meta: list[dict]):
     """The inverse of :func:`process_batch`: sRGB ``(B, 3, H, W)`` back to
     the slot's camera RGB, per pair."""
-    import torch
-
     from .synth_colour import unprocess_after_slot
 
-    return torch.cat([unprocess_after_slot(y[n:n + 1], m["ccm"], m["exposure_ev"], luma_weights=m["luma_weights"],
-                                           tone=m["tone"], white=m["white"], channel_axis=-3)
-                      for n, m in enumerate(meta)])
+    return _per_pair(unprocess_after_slot, y, meta)
 
 
 def model_input(model, x):
@@ -642,9 +634,7 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
     from .network import build_model, receptive_radius
 
     r, d = config.run, config.data
-    placement = config.model.placement
-    if placement not in PLACEMENTS:
-        raise ConfigError(f"model.placement must be one of {', '.join(PLACEMENTS)}; got {placement!r}")
+    placement = config.model.placement  # checked by TrainConfig
     out = Path(r.out)
     device = _device(r.device)
     torch.set_num_threads(r.threads)

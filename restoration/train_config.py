@@ -61,15 +61,23 @@ class SynthConfig:
     shard_size: int = 100
 
 
-#: ``model.placement`` choices (restoration.train.PLACEMENTS says what each means)
-PLACEMENT_CHOICES = ("pipeline", "raw", "srgb")
+#: ``model.placement``: (domain, placement text) of where the model runs, and
+#: what its loss compares (the paper's placement ablation, section 5.4):
+#: "pipeline" (ours): after demosaic, loss on Process(Model(J)) against the
+#: sRGB target; "raw": same position, trained without the stages that
+#: follow, loss on Model(J) against the target taken back to camera RGB
+#: (:func:`restoration.synth_colour.unprocess_after_slot`); "srgb": at the
+#: end of the pipeline, Model(Process(J)) against the sRGB target.
+PLACEMENTS = {"pipeline": ("camera_rgb", "camera_rgb after demosaic"),
+              "raw": ("camera_rgb", "camera_rgb after demosaic (trained raw to raw, without the following stages)"),
+              "srgb": ("display_rgb", "display_rgb after gamma")}
 
 
 @dataclass(frozen=True)
 class ModelConfig:
     variant: str = "doconv"
     kwargs: dict = field(default_factory=dict)
-    #: where the model stands and what its loss sees (restoration.train.PLACEMENTS)
+    #: where the model stands and what its loss sees (PLACEMENTS)
     placement: str = "pipeline"
 
 
@@ -177,7 +185,7 @@ class TrainConfig:
             for k in ("exposure_ev", "cct_k", "noise_scale", "psf_grid"):
                 if len(getattr(s, k)) != 2:
                     raise ConfigError(f"synth.{k} must be two numbers; got {getattr(s, k)!r}")
-        _choice(self.model.placement, PLACEMENT_CHOICES, "model.placement")
+        _choice(self.model.placement, tuple(PLACEMENTS), "model.placement")
         _choice(o.loss, LOSSES, "optim.loss")
         _choice(o.schedule, SCHEDULES, "optim.schedule")
         if not o.lr > 0:
