@@ -13,7 +13,7 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
   exactly through the truth PSFs, noise σ = ``noise``·(1 + r²) (r the
   normalised field radius), measured with ISO 12233;
 * **fits**, all from the nominal lens over the same parameters (the
-  ``--n-params`` to which SFRA is most sensitive,
+  ``--n-params`` to which SFRA and the LSF asymmetry are most sensitive,
   :func:`calibration.proxy.screen_parameters`, screened once per
   measurement; its time is reported apart):
 
@@ -28,7 +28,10 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
     squares with dynamic damping (paper Algorithm 1); ``--fast-jacobian``
     takes its Jacobian from a cheaper model (pupil 32 samples);
   - ``ours_bands``: the same with ``residuals="bands"`` (SFRA plus the mean
-    SFR in four frequency bands).
+    SFR in four frequency bands);
+  - ``ours_odd``: the same with ``residuals="odd"`` (SFRA plus the LSF's
+    asymmetry in four bands, :mod:`calibration.sfr_asym`);
+  - ``ours_shape``: SFRA, the four SFR bands and the four asymmetry bands.
 
 Per method, at FoV 0.1 / 0.5 / 0.9 (the observations whose normalised
 radius is within ±0.1 of it; the nearest radius where none is):
@@ -77,7 +80,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration.lens_io import read_lens  # noqa: E402
-from calibration.proxy import default_names, fit_proxy, parameter_space, screen_parameters  # noqa: E402
+from calibration.proxy import (default_names, fit_proxy, parameter_space, residual_bias,  # noqa: E402
+                               screen_parameters)
 from calibration.proxy_pixel import fit_pixel_mse, render_edges  # noqa: E402
 from calibration.proxy_synth import synthetic_observations  # noqa: E402
 from calibration.psf_map import psf_map  # noqa: E402
@@ -87,7 +91,7 @@ LENS_DIR = ROOT.parent / "shared" / "data" / "lenses" / "phone"
 GRID = (5, 7)
 FOVS = (0.1, 0.5, 0.9)
 FOV_WINDOW = 0.1
-METHODS = ("nominal", "pixel", "scipy", "ours", "ours_bands")
+METHODS = ("nominal", "pixel", "scipy", "ours", "ours_bands", "ours_odd", "ours_shape")
 NYQUIST = 0.5
 
 
@@ -173,7 +177,8 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
     sets = fov_sets(np.asarray(obs.radius))
     truth_sfr = model.predict(truth_lens).sfr
     t0 = time.perf_counter()
-    bias = np.asarray(model.noise_bias(lens, obs), float)
+    # screened once for every method, on all the measurement holds (SFRA and the LSF's asymmetry)
+    bias = residual_bias(model, lens, "odd")
     names = screen(model, default_names(lens), args.n_params, bias, args.workers)
     t_screen = time.perf_counter() - t0
     case = {"observations": len(obs), "noise": noise, "names": names, "seconds_observe": round(t_obs, 2),
@@ -192,7 +197,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                                 workers=args.pixel_workers)
             fitted, evals, secs, u, stop = fit.lens, fit.evaluations, fit.seconds, fit.u, fit.message
             extra = {"pixel_mse_before": fit.mse_before, "pixel_mse_after": fit.mse_after}
-        elif m in ("scipy", "ours", "ours_bands"):
+        elif m in ("scipy", "ours", "ours_bands", "ours_odd", "ours_shape"):
             iters = args.max_iter
             if m == "scipy":
                 # fit_proxy's scipy max_iter is scipy's max_nfev, which TRF counts without its
@@ -203,7 +208,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
             fast = ModelSettings(pupil_samples=32) if (ours and args.fast_jacobian) else None
             fit = fit_proxy(lens, obs, names=names, settings=settings, method="dls" if ours else "scipy",
                             workers=args.workers if ours else 1, max_iter=iters, progress=False,
-                            jacobian_settings=fast, residuals="bands" if m == "ours_bands" else "sfra")
+                            jacobian_settings=fast, residuals=m[5:] if m.startswith("ours_") else "sfra")
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
             stop = fit.result.reason if fit.result is not None else ""
             if fit.result is not None and fit.result.history:

@@ -84,8 +84,11 @@ def add_parser(sub) -> None:
     sp.add_argument("-o", "--output", default="proxy_fit", metavar="DIR", help="output folder (default proxy_fit/)")
     sp.add_argument("--method", choices=("dls", "scipy"), default="dls",
                     help="dls: damped least squares, dynamic damping (default); scipy: least_squares TRF")
-    sp.add_argument("--residuals", choices=("sfra", "bands"), default="sfra",
-                    help="sfra: SFRA per edge (the paper); bands: plus the mean SFR in four frequency bands")
+    sp.add_argument("--residuals", choices=("auto", "sfra", "bands", "odd", "shape"), default="auto",
+                    help="auto (default): odd where the measurement has the LSF asymmetry, else sfra; "
+                         "sfra: SFRA per edge (the paper); bands: plus the mean SFR in four frequency bands; "
+                         "odd: plus the LSF's asymmetry in four bands (coma's direction, which SFR drops); "
+                         "shape: SFRA, bands and asymmetry")
     sp.add_argument("--n-params", type=int, default=16, help="perturbations fitted, the most sensitive (default 16)")
     sp.add_argument("--max-iter", type=int, default=15, help="iterations (Jacobians) at most (default 15)")
     sp.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")

@@ -115,8 +115,11 @@ def _concat(parts: list, source: str, meta: dict):
     kw = {k: np.concatenate([np.asarray(getattr(o, k)) for o in parts]) for k in keys}
     rois = [o.roi for o in parts]
     roi = np.concatenate(rois) if all(r is not None for r in rois) else None
+    odd = all(o.odd is not None for o in parts)
     return Observations(**kw, freq=parts[0].freq, sfr=np.concatenate([o.sfr for o in parts]),
-                        sensor=parts[0].sensor, roi=roi, grid=parts[0].grid, source=source, meta=meta)
+                        sensor=parts[0].sensor, roi=roi, grid=parts[0].grid, source=source, meta=meta,
+                        odd=np.concatenate([o.odd for o in parts]) if odd else None,
+                        odd_std=np.concatenate([o.odd_std for o in parts]) if odd else None)
 
 
 def _segments(roi, n: int) -> list:
@@ -297,12 +300,7 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
 
 
 def _with_rois(obs, rois):
-    from .proxy_data import Observations
-
-    keys = ("x_px", "y_px", "normal_deg", "channel", "orientation", "sfra", "sfra_std", "noise", "step", "freq",
-            "sfr", "sensor")
-    return Observations(**{k: getattr(obs, k) for k in keys}, roi=np.array(rois, int), grid=obs.grid,
-                        source=obs.source)
+    return obs.with_fields(roi=np.array(rois, int))
 
 
 def _find(finder, img, min_length):

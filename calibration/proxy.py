@@ -49,6 +49,9 @@ FOCUS_TOLERANCE_MM = 0.010
 #: steps matched the linear model to ρ = 1.000)
 DLS_STEP = 0.03
 
+#: what :func:`fit_proxy` can fit to
+RESIDUALS = ("sfra", "bands", "odd", "shape")
+
 _WORKER = {}
 
 
@@ -65,8 +68,9 @@ def default_names(lens: Lens, kinds=("decenter", "tilt", "thickness", "focus")) 
 
 
 def screen_parameters(model, names, n_keep: int, *, bias=None, fun_many=None, h: float = 0.5) -> list[str]:
-    """The ``n_keep`` parameters to which the observations' SFRA is most
-    sensitive (norm of the Jacobian column in tolerance units, one forward
+    """The ``n_keep`` parameters to which the fit's residuals (``bias``'s
+    kind: SFRA, or with the bands or the asymmetry) are most sensitive
+    (norm of the Jacobian column in tolerance units, one forward
     difference of ``h`` tolerances each, at the nominal lens); focus is
     always kept. With more parameters than the data constrain (e9 has 48
     decenters, tilts and gaps), DLS wanders along weak directions; the most
@@ -199,36 +203,81 @@ def _cheap_residual_task(u: np.ndarray) -> np.ndarray:
     return _residuals(_WORKER["cheap"], _WORKER["space"], _WORKER["bias"], u)
 
 
-class BandBias(NamedTuple):
-    """Measurement bias for SFRA + band residuals: SFRA bias (N,), band
-    bias (N, 4) and the measured band means (N, 4)."""
+class ResidualBias(NamedTuple):
+    """What the measurement adds to the model's noise-free prediction, in
+    the parts a kind of residuals uses: SFRA bias (N,); for band residuals
+    the band bias (N, 4) and the measured band means (N, 4); for asymmetry
+    residuals the asymmetry-band bias (N, K)."""
 
     sfra: np.ndarray
-    bands: np.ndarray
-    measured_bands: np.ndarray
+    bands: np.ndarray | None = None
+    measured_bands: np.ndarray | None = None
+    odd: np.ndarray | None = None
+
+
+#: the forward model's own error in the asymmetry bands (ISO's record and
+#: binning against the model's continuous projection: ≈ 1 % of A ≈ 0.1 on a
+#: coma-like PSF), added in quadrature to the measurement's σ so that
+#: low-noise observations do not fit the model's approximation
+ODD_MODEL_SD = 1e-3
 
 
 def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
-    """SFRA residuals (N,) over their σ; with a :class:`BandBias`, also the
-    mean SFR in four bands, each over 4σ (a band mean of a quarter of the
-    range: about four SFRA's worth of noise), flattened (N·5,)."""
+    """Residuals over their σ, (N, parts) flattened: SFRA; with band parts
+    in ``bias`` (a :class:`ResidualBias`), the mean SFR in four bands, each
+    over 4σ (a band mean of a quarter of the range: about four SFRA's worth
+    of noise); with asymmetry parts, the LSF asymmetry bands over their σ
+    (:mod:`calibration.sfr_asym`). ``bias`` may be a plain (N,) SFRA bias."""
     lens = space.apply(np.asarray(u) * space.tolerance)
     pred = model.predict(lens)
     obs = model.obs
-    bands = isinstance(bias, BandBias)
-    r = (obs.sfra - pred.sfra - (bias.sfra if bands else bias)) / obs.sfra_std
-    if bands:
+    if not isinstance(bias, ResidualBias):
+        bias = ResidualBias(np.asarray(bias, float))
+    parts = [((obs.sfra - pred.sfra - bias.sfra) / obs.sfra_std)[:, None]]
+    if bias.bands is not None:
         from .sfr_model import band_means
 
-        rb = (bias.measured_bands - band_means(obs.freq, pred.sfr) - bias.bands) / (4.0 * obs.sfra_std[:, None])
-        r = np.concatenate([r[:, None], rb], axis=1).ravel()
+        parts.append((bias.measured_bands - band_means(obs.freq, pred.sfr) - bias.bands)
+                     / (4.0 * obs.sfra_std[:, None]))
+    if bias.odd is not None:
+        sd = np.hypot(obs.odd_std, ODD_MODEL_SD)
+        parts.append((obs.odd - model.predict_odd(lens) - bias.odd) / sd)
+    r = np.concatenate(parts, axis=1).ravel()
     return np.where(np.isfinite(r), r, 0.0)
+
+
+def resolve_residuals(residuals: str, obs: Observations) -> str:
+    """``residuals`` checked; "auto" is "odd" where the observations carry
+    the LSF asymmetry, else "sfra"."""
+    if residuals == "auto":
+        return "odd" if obs.odd is not None else "sfra"
+    if residuals not in RESIDUALS:
+        raise ValueError(f"unknown residuals {residuals!r}; valid: 'auto', {', '.join(map(repr, RESIDUALS))}")
+    if residuals in ("odd", "shape") and obs.odd is None:
+        raise ValueError(f"residuals {residuals!r} need the observations' LSF asymmetry (obs.odd): measure the "
+                         "edges again with this version, or use residuals='sfra'")
+    return residuals
+
+
+def residual_bias(model, lens, residuals: str) -> ResidualBias:
+    """The measurement's bias at ``lens`` with the parts ``residuals``
+    uses (:class:`ResidualBias`)."""
+    mb = model.measurement_biases(lens)
+    obs = model.obs
+    out = ResidualBias(np.asarray(mb.sfra, float))
+    if residuals in ("bands", "shape"):
+        from .sfr_model import band_means
+
+        out = out._replace(bands=band_means(obs.freq, mb.sfr), measured_bands=band_means(obs.freq, obs.sfr))
+    if residuals in ("odd", "shape"):
+        out = out._replace(odd=mb.odd)
+    return out
 
 
 def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
               workers: int | None = None, max_iter: int = 15, bound_factor: float = 2.0,
               progress: bool = True, x0=None, n_params: int | None = 16,
-              jacobian_settings=None, residuals: str = "sfra") -> ProxyFit:
+              jacobian_settings=None, residuals: str = "auto") -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
 
     Parameters
@@ -254,10 +303,15 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     n_params : int, optional
         Without ``names``: fit the ``n_params`` most sensitive of
         :func:`default_names` (:func:`screen_parameters`); None: all.
-    residuals : {"sfra", "bands"}
-        "sfra": the paper's SFRA per observation; "bands": SFRA plus the
+    residuals : {"auto", "sfra", "bands", "odd"}
+        "auto" (default): "odd" where ``obs`` has the asymmetry, else
+        "sfra". "sfra": the paper's SFRA per observation; "bands": SFRA plus the
         mean SFR in four frequency bands (:data:`calibration.sfr_model.BANDS`),
-        which pins the curve's shape (see ``benchmarks/proxy.py``).
+        which pins the curve's shape; "odd": SFRA plus the LSF's asymmetry
+        in four bands (:mod:`calibration.sfr_asym`; needs ``obs.odd``),
+        which the SFR's modulus drops: the direction of coma from a
+        decentered element; "shape": SFRA, bands and asymmetry (see
+        ``benchmarks/proxy.py``).
     jacobian_settings : calibration.sfr_model.ModelSettings, optional
         A cheaper forward model for the Jacobian only (DLS), e.g. one
         wavelength and fewer pupil samples; steps are still accepted on the
@@ -269,10 +323,8 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     settings = settings or ModelSettings()
     t0 = time.perf_counter()
     model = SfrModel(nominal, obs, settings)
-    if residuals not in ("sfra", "bands"):
-        raise ValueError(f"unknown residuals {residuals!r}; valid: 'sfra', 'bands'")
-    bias_a, bias_c = model.measurement_bias(nominal, obs)
-    bias = np.asarray(bias_a, float)
+    residuals = resolve_residuals(residuals, obs)
+    bias = residual_bias(model, nominal, residuals)
     screen = names is None and n_params is not None
     names = list(names) if names is not None else default_names(nominal)
     workers = max(1, min(2, os.cpu_count() or 1)) if workers is None else int(workers)
@@ -286,6 +338,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
                                    initargs=((nominal, obs, settings, names, bias, jacobian_settings),))
 
     if screen and len(names) > n_params:
+        # screened on the residuals the fit will use: the asymmetry makes decenters visible that SFRA hides
         if workers > 1:
             pool = start_pool()
         names = screen_parameters(model, names, n_params, bias=bias,
@@ -293,10 +346,6 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         if pool is not None:
             pool.shutdown()
             pool = None
-    if residuals == "bands":
-        from .sfr_model import band_means
-
-        bias = BandBias(bias, band_means(obs.freq, bias_c), band_means(obs.freq, obs.sfr))
     space = parameter_space(nominal, names)
     n = len(space.names)
     lower = np.full(n, -bound_factor)
@@ -333,7 +382,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
             bar.update(1)
             bar.set_postfix(merit=f"{rec['merit']:.4g}", evals=rec["evaluations"])
 
-    bias_sfra = bias.sfra if isinstance(bias, BandBias) else bias
+    bias_sfra = bias.sfra
     before = model.predict(nominal).sfra + bias_sfra
     try:
         if method == "dls":

@@ -27,6 +27,10 @@ Conventions
   noise raises SFRA, so a noise-free simulation is biased).
 * ``region``: (row, col) of the ROI centre in the field grid (default the
   paper's 15 × 20).
+* ``odd``, ``odd_std`` (optional, (N, K)): the LSF's asymmetry, the odd part
+  of the edge's transfer that the SFR drops, as band means
+  (:mod:`calibration.sfr_asym`), and its standard deviation from the
+  measured noise.
 """
 
 from __future__ import annotations
@@ -67,6 +71,8 @@ class Observations:
     grid: tuple[int, int] = GRID
     source: str = ""
     meta: dict = field(default_factory=dict)
+    odd: np.ndarray | None = None             # (N, K) LSF asymmetry bands
+    odd_std: np.ndarray | None = None         # (N, K)
 
     def __post_init__(self):
         n = len(np.asarray(self.x_px))
@@ -75,6 +81,17 @@ class Observations:
                 raise ValueError(f"observations: {name} has {len(getattr(self, name))} entries, expected {n}")
         if np.asarray(self.sfr).shape != (n, len(self.freq)):
             raise ValueError(f"observations: sfr must be ({n}, {len(self.freq)}), got {np.shape(self.sfr)}")
+        if (self.odd is None) != (self.odd_std is None):
+            raise ValueError("observations: odd and odd_std come together")
+        if self.odd is not None and (np.shape(self.odd)[0] != n or np.shape(self.odd) != np.shape(self.odd_std)):
+            raise ValueError(f"observations: odd and odd_std must be ({n}, K), got {np.shape(self.odd)} "
+                             f"and {np.shape(self.odd_std)}")
+
+    def with_fields(self, **changes) -> "Observations":
+        """A copy with some fields replaced (``dataclasses.replace``)."""
+        import dataclasses
+
+        return dataclasses.replace(self, **changes)
 
     def __len__(self) -> int:
         return len(self.x_px)
@@ -107,7 +124,9 @@ class Observations:
               ("x_px", "y_px", "normal_deg", "channel", "orientation", "sfra", "sfra_std", "noise", "step")}
         return Observations(**kw, freq=self.freq, sfr=np.asarray(self.sfr)[m], sensor=self.sensor,
                             roi=None if self.roi is None else np.asarray(self.roi)[m], grid=self.grid,
-                            source=self.source, meta=dict(self.meta))
+                            source=self.source, meta=dict(self.meta),
+                            odd=None if self.odd is None else np.asarray(self.odd)[m],
+                            odd_std=None if self.odd_std is None else np.asarray(self.odd_std)[m])
 
     def region_map(self, values=None, orientation: str | None = None, channel: str | None = None) -> np.ndarray:
         """(rows, cols) mean of ``values`` (default SFRA) per field region;
@@ -134,20 +153,27 @@ class Observations:
                          default_std: float = 2e-3) -> "Observations":
         """Observations from ``(x_px, y_px, normal_deg, orientation, SfrResult)`` tuples
         (an SfrResult's SFR is resampled onto :data:`FREQ`; its bootstrap
-        ``sfra_std`` is used where present, else ``default_std``)."""
-        rows = []
+        ``sfra_std`` is used where present, else ``default_std``; its LSF
+        gives the asymmetry ``odd`` and, with its noise, ``odd_std``)."""
+        from .sfr_asym import esf_bin_noise, odd_bands, odd_bands_std
+
+        rows, odd, odd_sd = [], [], []
         for x, y, a, orient, r in items:
             sfr = np.interp(FREQ, r.freq, r.sfr, right=np.nan)
             std = r.sfra_std if getattr(r, "sfra_std", None) else default_std
             lo_hi = _step(r)
             rows.append((x, y, a % 180.0, channel, orient, r.sfra, std, r.noise, lo_hi, sfr))
+            odd.append(odd_bands(r.lsf, r.esf_step_px))
+            noise = r.noise if np.isfinite(r.noise) and r.noise > 0 else 0.01 * lo_hi
+            over = int(r.settings.get("oversampling", 4)) if getattr(r, "settings", None) else 4
+            odd_sd.append(odd_bands_std(r.lsf, r.esf_step_px, esf_bin_noise(noise, r.rows_used, over)))
         if not rows:
             raise ValueError("no SFR observations to fit to")
         cols = list(zip(*rows))
         return cls(np.array(cols[0], float), np.array(cols[1], float), np.array(cols[2], float),
                    np.array(cols[3]), np.array(cols[4]), np.array(cols[5], float), np.array(cols[6], float),
                    np.array(cols[7], float), np.array(cols[8], float), FREQ.copy(), np.array(cols[9], float),
-                   sensor, grid=grid, source=source)
+                   sensor, grid=grid, source=source, odd=np.array(odd), odd_std=np.array(odd_sd))
 
     @classmethod
     def from_chart(cls, chart, sensor: Sensor, *, channel: str = "G", grid=GRID, source: str = "") -> "Observations":
@@ -162,10 +188,7 @@ class Observations:
             normal = -r.angle_deg if r.orientation == "vertical" else 90.0 + r.angle_deg
             items.append((x - 0.5, y - 0.5, normal, roi.orientation, r))
         obs = cls.from_sfr_results(items, sensor, channel=channel, grid=grid, source=source)
-        rois = np.array([[roi.x, roi.y, roi.w, roi.h] for roi, _ in chart.edges])
-        return Observations(**{k: getattr(obs, k) for k in (
-            "x_px", "y_px", "normal_deg", "channel", "orientation", "sfra", "sfra_std", "noise", "step",
-            "freq", "sfr", "sensor")}, roi=rois, grid=grid, source=source)
+        return obs.with_fields(roi=np.array([[roi.x, roi.y, roi.w, roi.h] for roi, _ in chart.edges]))
 
     # -- files ------------------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -183,7 +206,8 @@ class Observations:
                      "orientation": str(self.orientation[i]), "sfra": float(self.sfra[i]),
                      "sfra_std": float(self.sfra_std[i]), "noise": float(self.noise[i]),
                      "step": float(self.step[i]), "sfr": lst(self.sfr[i]),
-                     **({"roi": [int(v) for v in self.roi[i]]} if self.roi is not None else {})}
+                     **({"roi": [int(v) for v in self.roi[i]]} if self.roi is not None else {}),
+                     **({"odd": lst(self.odd[i]), "odd_std": lst(self.odd_std[i])} if self.odd is not None else {})}
                     for i in range(len(self))],
                 "meta": self.meta}
 
@@ -202,10 +226,16 @@ class Observations:
 
         sfr = np.array([[np.nan if v is None else v for v in o["sfr"]] for o in obs], float)
         roi = np.array([o["roi"] for o in obs], int) if all("roi" in o for o in obs) else None
+        has_odd = all("odd" in o and "odd_std" in o for o in obs)
+
+        def grid_of(k):
+            return np.array([[np.nan if v is None else v for v in o[k]] for o in obs], float)
+
         return cls(col("x_px"), col("y_px"), col("normal_deg"), col("channel", object).astype(str),
                    col("orientation", object).astype(str), col("sfra"), col("sfra_std"), col("noise"),
                    col("step"), f, sfr, Sensor(**s), roi=roi, grid=tuple(d.get("grid", GRID)),
-                   source=source or d.get("source", ""), meta=d.get("meta", {}))
+                   source=source or d.get("source", ""), meta=d.get("meta", {}),
+                   odd=grid_of("odd") if has_odd else None, odd_std=grid_of("odd_std") if has_odd else None)
 
     def save(self, path) -> Path:
         from isp.io import write_bytes_atomic

@@ -193,8 +193,5 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
                                                float(high), float(sensor.pixel_pitch_um), tuple(ren.box), float(sigma),
                                                str(ch)))
     obs = Observations.from_sfr_results(items, sensor, grid=grid, source="synthetic")
-    fields = {k: getattr(obs, k) for k in ("x_px", "y_px", "normal_deg", "orientation", "sfra", "sfra_std",
-                                           "noise", "step", "freq", "sfr", "sensor")}
-    obs = Observations(**fields, channel=np.array(chans), roi=np.array(rois), grid=grid, source="synthetic",
-                       meta={"measure": "image"})
+    obs = obs.with_fields(channel=np.array(chans), roi=np.array(rois), meta={"measure": "image"})
     return (obs, edges) if return_edges else obs

@@ -34,6 +34,13 @@ affine.
 response (eq. 14), :func:`strehl_ratio` compares the peak with the
 aberration-free pupil's.
 
+The SFR model (:mod:`calibration.sfr_model`) needs the Debye PSFs of a few
+hundred fields per lens evaluation; it traces them in one batch
+(:class:`_TracedNodes`) and fits their pupils and sums their wavelets all
+at once (:func:`_node_jacobians`, :func:`_debye_nodes`), with the
+per-field functions here as the oracle (equal to ~1e-10 of the peak in
+complex128; :data:`DEBYE_SUM_DTYPE`).
+
 Conventions
 -----------
 Units: mm for geometry (image-plane positions ``center_mm``), µm for the PSF
@@ -735,14 +742,53 @@ def _huygens_intensity(sp: _Sphere, ox: np.ndarray, oy: np.ndarray, *, zero_opd:
     return (e.real ** 2 + e.imag ** 2).reshape(len(oy), len(ox))
 
 
-def _phasors(kvec: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """exp(i·kvec[i]·offsets[a]) (M, n) for uniformly spaced offsets, by a
-    cumulative product of the per-step phasor (relative error ≲ n·1e-16)."""
-    out = np.empty((len(kvec), len(offsets)), dtype=np.complex128)
-    out[:, 0] = np.exp(1j * kvec * offsets[0])
-    if len(offsets) > 1:
-        out[:, 1:] = np.exp(1j * kvec * (offsets[1] - offsets[0]))[:, None]
-        np.cumprod(out, axis=1, out=out)
+def _phasors(kvec: np.ndarray, offsets: np.ndarray, scale: np.ndarray | None = None,
+             dtype=np.complex128) -> np.ndarray:
+    """``scale[..., i]·exp(i·kvec[..., i]·offsets[a])`` for uniformly spaced
+    ``offsets`` (n,), shape (..., n, M) for ``kvec`` (..., M) (``scale``
+    default 1), as ``dtype``.
+
+    By doubling along the offsets: rows a..2a−1 are rows 0..a−1 times the
+    phasor of a steps, so each entry is a product of ≤ log2(n) + 1 phasors
+    (relative error ≲ (log2(n) + 1)·ε plus the rounding of the phases:
+    1e-13 at 100 rad in complex128, 4e-7 in complex64) and each product is
+    one vectorised call over whole rows. The first row and the step are
+    evaluated in float64 (phases of ~100 rad need it); on a grid centred on
+    row n//2 (the PSF windows) the first row is the inverse of the step's
+    n//2-th power, which saves one of the two complex exponentials."""
+    kvec = np.asarray(kvec, dtype=np.float64)
+    offsets = np.asarray(offsets, dtype=np.float64)
+    n = len(offsets)
+    out = np.empty(kvec.shape[:-1] + (n, kvec.shape[-1]), dtype=dtype)
+    d = offsets[1] - offsets[0] if n > 1 else 0.0
+    step = np.exp(1j * kvec * d) if n > 1 else None
+    if n > 2 and abs(offsets[0] + (n // 2) * d) <= 1e-12 * n * abs(d):
+        first = np.conj(_power(step, n // 2))          # centred grid: e^{ik·o0} = 1/step^(n//2), no exp
+    else:
+        first = np.exp(1j * kvec * offsets[0])
+    out[..., 0, :] = first if scale is None else scale * first
+    if n > 1:
+        step = step.astype(dtype)[..., None, :]
+        done = 1
+        while done < n:
+            w = min(done, n - done)
+            np.multiply(out[..., :w, :], step, out=out[..., done:done + w, :])
+            done += w
+            if done < n:
+                step = step * step
+    return out
+
+
+def _power(z: np.ndarray, k: int) -> np.ndarray:
+    """``z**k`` for an integer k ≥ 1 by repeated squaring (relative error ≲
+    2·log2(k)·ε; 5× faster than ``z ** k`` on a complex array)."""
+    out = None
+    while k:
+        if k & 1:
+            out = z if out is None else out * z
+        k >>= 1
+        if k:
+            z = z * z
     return out
 
 
@@ -756,9 +802,9 @@ def _debye_intensity(sp: _Sphere, ox: np.ndarray, oy: np.ndarray, zero_opd: bool
     k_m = 2.0 * math.pi / lam_m
     s = -sp.q / np.linalg.norm(sp.q, axis=1, keepdims=True)
     c = sp.amp * np.exp(1j * sp.k * sp.opd) if not zero_opd else sp.amp.astype(np.complex128)
-    x = _phasors(k_m * s[:, 0], ox)                     # (M, nx)
-    y = _phasors(k_m * s[:, 1], oy)                     # (M, ny)
-    e = _at_b(y * c[:, None], x) / lam_m               # (ny, nx)
+    x = _phasors(k_m * s[:, 0], ox)                     # (nx, M)
+    y = _phasors(k_m * s[:, 1], oy, scale=c)            # (ny, M), times c
+    e = _at_b(y.T, x.T) / lam_m                         # (ny, nx)
     return e.real ** 2 + e.imag ** 2
 
 
@@ -810,6 +856,269 @@ def _fft_intensity(sp: _Sphere, ox: np.ndarray, oy: np.ndarray, pad: int = 4,
 
 def _span_um(ox, oy) -> float:
     return float(max(np.ptp(ox), np.ptp(oy)) * 1e3)
+
+
+# -- many fields at once (the SFR model's path) --------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class _TracedNodes:
+    """The pupil grids of K fields at one wavelength after the last surface.
+
+    :class:`_Traced` of every field stacked on the common pupil grid: ray
+    ``m`` of each field comes from pupil point ``p[m]``; ``valid`` marks the
+    rays that reach the image (the others hold finite placeholders: position
+    0, direction +z, OPL 0). ``jac`` is the solid-angle Jacobian J_Ω of the
+    valid rays (:func:`_node_jacobians`; 0 elsewhere): it depends on the
+    trace alone, so a change of the image plane (defocus) reuses it.
+    """
+
+    wavelength_nm: float
+    n_img: float
+    samples: int
+    p: np.ndarray           # (M, 2) normalised pupil coordinates, shared
+    valid: np.ndarray       # (K, M) bool
+    pos: np.ndarray         # (K, M, 3) on the last surface, global mm
+    dirn: np.ndarray        # (K, M, 3) unit directions in image space
+    opl: np.ndarray         # (K, M) optical path to the last surface, mm
+    chief_pos: np.ndarray   # (K, 3)
+    chief_dir: np.ndarray   # (K, 3)
+    chief_opl: np.ndarray   # (K,)
+    z_image: float
+    z_pupil: float
+    jac: np.ndarray         # (K, M)
+
+    def __len__(self) -> int:
+        return self.valid.shape[0]
+
+    def chief_image_points(self, z_image=None) -> np.ndarray:
+        """(K, 2) where the chief rays cross ``z = z_image`` (scalar or (K,);
+        default the image plane), mm — :meth:`_Traced.chief_image_point`."""
+        z = self.z_image if z_image is None else np.asarray(z_image, dtype=np.float64)
+        t = (z - self.chief_pos[:, 2]) / self.chief_dir[:, 2]
+        return self.chief_pos[:, :2] + t[:, None] * self.chief_dir[:, :2]
+
+    def node(self, k: int, z_image: float | None = None) -> _Traced:
+        """Field ``k`` as a :class:`_Traced` (the per-field path: the
+        reference of the batched one, and its fallback)."""
+        ok = self.valid[k]
+        pc = self.p[ok]
+        ix = np.rint((pc[:, 0] + 1.0) * 0.5 * self.samples - 0.5).astype(np.intp)
+        iy = np.rint((pc[:, 1] + 1.0) * 0.5 * self.samples - 0.5).astype(np.intp)
+        return _Traced(self.wavelength_nm, self.n_img, self.samples, ix, iy, pc, self.pos[k, ok], self.dirn[k, ok],
+                       self.opl[k, ok], self.chief_pos[k], self.chief_dir[k], float(self.chief_opl[k]),
+                       self.z_image if z_image is None else float(z_image), self.z_pupil)
+
+
+def _finish_nodes(pl: PerturbedLens, rays: Rays, res, fields, pupil: np.ndarray, samples: int,
+                  z_pupil: float) -> _TracedNodes:
+    """:func:`_finish` of K fields traced in one call: ``rays`` holds each
+    field's ``pupil`` grid (M, 2) followed by its chief ray, field after
+    field (K·(M + 1) rays)."""
+    lam = rays.wavelength_nm
+    k = len(fields)
+    m1 = len(rays) // k
+    ok = (res.valid & (res.direction[:, 2] > 0)).reshape(k, m1)
+    pos = res.position.reshape(k, m1, 3)
+    dirn = res.direction.reshape(k, m1, 3)
+    opl = res.opl.reshape(k, m1)
+    valid = ok[:, :-1]
+    count = np.count_nonzero(valid, axis=1)
+    if np.any(count < 8):
+        i = int(np.argmax(count < 8))
+        raise PSFError(f"field {tuple(float(v) for v in fields[i])} at {lam:g} nm: only {int(count[i])} "
+                       f"of {m1 - 1} pupil rays reach the image (vignetted or failed)")
+    c_pos, c_dir, c_opl = pos[:, -1].copy(), dirn[:, -1].copy(), opl[:, -1].copy()
+    for i in np.flatnonzero(~ok[:, -1]):   # a vignetted chief ray: traced again without clipping
+        j = slice(i * m1 + m1 - 1, (i + 1) * m1)
+        ch = trace_to_exit(pl, Rays(rays.origin[j], rays.direction[j], lam, rays.opl[j], rays.status[j]), clip=False)
+        if not ch.valid[0] or ch.direction[0, 2] <= 0:
+            raise PSFError(f"field {tuple(float(v) for v in fields[i])} at {lam:g} nm: the chief ray does not "
+                           "reach the image")
+        c_pos[i], c_dir[i], c_opl[i] = ch.position[0], ch.direction[0], ch.opl[0]
+    pos, dirn, opl = pos[:, :-1], dirn[:, :-1], opl[:, :-1]
+    odd = ~valid & res.valid.reshape(k, m1)[:, :-1]     # traced, but not toward the image
+    if np.any(odd):   # the tracer's placeholders for them too
+        pos, dirn, opl = pos.copy(), dirn.copy(), opl.copy()
+        pos[odd], dirn[odd], opl[odd] = 0.0, (0.0, 0.0, 1.0), 0.0
+    p = np.asarray(pupil, dtype=np.float64)
+    n_img = float(pl.lens.surfaces[-1].material.index(lam))
+    return _TracedNodes(float(lam), n_img, samples, p, valid, pos, dirn, opl, c_pos, c_dir, c_opl,
+                        float(pl.image_pose.vertex[2]), float(z_pupil), _node_jacobians(p, dirn, valid))
+
+
+def _node_jacobians(p: np.ndarray, dirn: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """:func:`_solid_angle_jacobian` of K fields on one pupil grid, (K, M),
+    0 for invalid rays.
+
+    The degree-4 fit of every field at once: the monomials of the grid are
+    built once, each field's normal equations are the Gram matrix of its
+    valid rows (one product for all fields: ``valid @ (v_i v_j)``), the
+    systems are solved together with the same column scaling as
+    :func:`_lstsq`. Fields with fewer than 60 valid rays (a lower degree)
+    or whose fit falls back to the affine J take the per-field function.
+    """
+    k, m = valid.shape
+    degree = 4
+    v, vx, vy = _poly_terms(p, degree)
+    nt = v.shape[1]
+    w = valid.astype(np.float64)
+    gram = (w @ (v[:, :, None] * v[:, None, :]).reshape(m, nt * nt)).reshape(k, nt, nt)
+    rhs = np.stack([(w * dirn[..., 0]) @ v, (w * dirn[..., 1]) @ v], axis=2)  # (K, nt, 2)
+    scale = np.sqrt(np.einsum("kii->ki", gram))
+    scale[scale == 0] = 1.0
+    gram = gram / (scale[:, :, None] * scale[:, None, :])
+    rhs = rhs / scale[:, :, None]
+    many = np.count_nonzero(valid, axis=1) >= 4 * nt
+    if not np.all(many):   # the singular systems of the per-field fits are not solved here
+        gram[~many] = np.eye(nt)
+    coef = (np.linalg.solve(gram, rhs) / scale[:, :, None]).transpose(1, 0, 2).reshape(nt, 2 * k)
+    dx = (vx @ coef).reshape(m, k, 2)
+    dy = (vy @ coef).reshape(m, k, 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        j = (np.abs(dx[..., 0] * dy[..., 1] - dy[..., 0] * dx[..., 1]).T / dirn[..., 2])
+        j[~valid] = 0.0
+        med = _row_medians(j, valid)
+        off = valid & ~(np.isfinite(j) & (j > 0.05 * med[:, None]))
+    for i in np.flatnonzero(~many | off.any(axis=1)):
+        ok = valid[i]
+        j[i] = 0.0
+        j[i, ok] = _solid_angle_jacobian(p[ok], dirn[i, ok])
+    return j
+
+
+def _row_medians(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``np.median(a[k][mask[k]])`` of every row (NaN for an empty row),
+    by one sort (a per-row ``np.nanmedian`` loops in Python)."""
+    n = np.count_nonzero(mask, axis=1)
+    srt = np.sort(np.where(mask, a, np.inf), axis=1)
+    lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(srt, np.maximum(n // 2, 0)[:, None], axis=1)[:, 0]
+    with np.errstate(invalid="ignore"):
+        return np.where(n > 0, (lo + hi) / 2.0, np.nan)
+
+
+def _node_spheres(tn: _TracedNodes, centers: np.ndarray, z_image: np.ndarray):
+    """:func:`_sphere` of every field of ``tn``, about the image-plane
+    points ``(centers[k], z_image[k])`` (mm).
+
+    Returns ``q`` (K, M, 3) sources relative to P0, ``opd`` (K, M) and
+    ``amp`` (K, M), rays that do not reach the sphere with ``amp = 0``,
+    ``opd = 0`` and ``q = (0, 0, −1)`` (finite, so that they add exactly
+    nothing to a sum over rays)."""
+    k = len(tn)
+    p0 = np.column_stack([centers[:, 0], centers[:, 1], np.broadcast_to(z_image, (k,))])
+    t = (tn.z_pupil - tn.chief_pos[:, 2]) / tn.chief_dir[:, 2]
+    e = tn.chief_pos + t[:, None] * tn.chief_dir
+    radius = np.linalg.norm(p0 - e, axis=1)
+
+    def to_sphere(pos, d):
+        w = pos - p0[:, None]
+        b = np.einsum("kmi,kmi->km", w, d)
+        c = np.einsum("kmi,kmi->km", w, w) - (radius * radius)[:, None]
+        disc = b * b - c
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = c / (-b + np.sqrt(disc))
+        return s, disc
+
+    s, disc = to_sphere(tn.pos, tn.dirn)
+    sc, _ = to_sphere(tn.chief_pos[:, None], tn.chief_dir[:, None])
+    sc = sc[:, 0]
+    ok = tn.valid & (disc > 0) & np.isfinite(s)
+    bad = (np.count_nonzero(ok, axis=1) < 8) | ~np.isfinite(sc)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise PSFError(f"the rays at {tn.wavelength_nm:g} nm do not cross the reference sphere "
+                       f"(R = {radius[i]:g} mm about {p0[i, :2]} mm)")
+    s = np.where(ok, s, 0.0)
+    q = tn.pos + s[..., None] * tn.dirn - p0[:, None]
+    q[~ok] = (0.0, 0.0, -1.0)
+    n_img = tn.n_img
+    opd = np.where(ok, (tn.opl + n_img * s) - (tn.chief_opl + n_img * sc)[:, None], 0.0)
+    jac = tn.jac
+    for i in np.flatnonzero(np.any(ok != tn.valid, axis=1)):   # the fit is over the rays on the sphere
+        jac = jac.copy() if jac is tn.jac else jac
+        jac[i] = 0.0
+        jac[i, ok[i]] = _solid_angle_jacobian(tn.p[ok[i]], tn.dirn[i, ok[i]])
+    dp = 2.0 / tn.samples
+    amp = np.where(ok, np.sqrt(jac) * dp * dp, 0.0)
+    return q, opd, amp
+
+
+def _blas_on_one_thread() -> bool:
+    """Whether BLAS was told to use one thread (``OPENBLAS_NUM_THREADS`` or,
+    which OpenBLAS also reads, ``OMP_NUM_THREADS`` = 1, as the benchmarks
+    set them before importing numpy) or there is one core: then any GEMM
+    may be one call (see :data:`_BLAS_ONE_THREAD`)."""
+    env = os.environ.get("OPENBLAS_NUM_THREADS") or os.environ.get("OMP_NUM_THREADS")
+    return env == "1" or (os.cpu_count() or 1) == 1
+
+
+def _a_bt(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a[k] @ b[k].T`` for complex (B, na, M), (B, nb, M): (B, na, nb).
+
+    One complex GEMM per k where BLAS runs on one thread; else real GEMMs
+    of the float views (re, im interleaved along M): ``Re = a·conj(b)`` and
+    ``Im = a·(i conj(b))`` summed over the 2M floats, the sum cut into
+    blocks that OpenBLAS keeps on one thread (:data:`_BLAS_ONE_THREAD`;
+    it threads a complex GEMM of almost any size)."""
+    if _blas_on_one_thread():
+        return np.matmul(a, b.transpose(0, 2, 1))
+    nbatch, na, m = a.shape
+    nb = b.shape[1]
+    real = np.float32 if a.dtype == np.complex64 else np.float64
+    s = np.empty((nbatch, 2 * nb, m), dtype=a.dtype)
+    np.conjugate(b, out=s[:, :nb])
+    np.multiply(s[:, :nb], 1j, out=s[:, nb:])
+    av = np.ascontiguousarray(a).view(real)                       # (B, na, 2M)
+    sv = s.view(real)                                             # (B, 2nb, 2M)
+    step = max(2, _BLAS_ONE_THREAD // (na * 2 * nb) - 1)
+    r = np.zeros((nbatch, na, 2 * nb), dtype=real)
+    for j in range(0, 2 * m, step):
+        r += np.matmul(av[:, :, j:j + step], sv[:, :, j:j + step].transpose(0, 2, 1))
+    return r[:, :, :nb] + 1j * r[:, :, nb:]
+
+
+DEBYE_SUM_DTYPE = np.complex64
+"""Precision of the phasor tables and their product in the batched Debye
+sums of the SFR model (:func:`_debye_nodes`); the rays' phases, the
+tables' first rows and steps and the intensities stay float64. Measured
+on e9 (15 × 20 nodes, 48 pupil samples, 600 edges, 3 perturbed lenses):
+SFRA within 5e-9 cycles/pixel RMS (2e-8 max) of complex128, PSFs within
+3.4e-7 of their peak, for a fifth less PSF time (half the GEMM's). The
+per-field PSFs (:func:`debye_psf`, PSF maps) stay complex128."""
+
+
+def _debye_nodes(tn: _TracedNodes, centers: np.ndarray, z_image, ox: np.ndarray, oy: np.ndarray,
+                 chunk: int = 2, dtype=None) -> np.ndarray:
+    """Normalised Debye PSFs of every field of ``tn``, (K, len(oy), len(ox)):
+    ``_mono(_sphere(tn.node(k), centers[k]), "debye", ox, oy)[0]`` with the
+    image plane at ``z_image`` (scalar or (K,), mm), ``chunk`` fields per
+    vectorised step. Rays off the sphere enter with zero amplitude.
+    ``dtype``: of the phasor tables and their product, default
+    :data:`DEBYE_SUM_DTYPE` (complex128 reproduces the per-field path to
+    ~1e-12)."""
+    dtype = DEBYE_SUM_DTYPE if dtype is None else dtype
+    k = len(tn)
+    z = np.broadcast_to(np.asarray(tn.z_image if z_image is None else z_image, dtype=np.float64), (k,))
+    q, opd, amp = _node_spheres(tn, np.asarray(centers, dtype=np.float64), z)
+    lam_m = tn.wavelength_nm * 1e-6 / tn.n_img
+    k_m = 2.0 * math.pi / lam_m
+    s = -q / np.linalg.norm(q, axis=2, keepdims=True)
+    c = amp * np.exp(1j * (2.0 * math.pi / (tn.wavelength_nm * 1e-6)) * opd)
+    out = np.empty((k, len(oy), len(ox)))
+    for a in range(0, k, chunk):
+        b = slice(a, min(a + chunk, k))
+        y = _phasors(k_m * s[b, :, 1], oy, scale=c[b], dtype=dtype)      # (B, ny, M), times c
+        x = _phasors(k_m * s[b, :, 0], ox, dtype=dtype)                  # (B, nx, M)
+        e = _a_bt(y, x)
+        out[b] = (e.real.astype(np.float64) ** 2 + e.imag.astype(np.float64) ** 2) / (lam_m * lam_m)
+    total = out.sum(axis=(1, 2))
+    bad = ~(np.isfinite(total) & (total > 0))
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise PSFError(f"the PSF at {tn.wavelength_nm:g} nm has no energy in the window (centre "
+                       f"{np.asarray(centers)[i]} mm); check center, n and pitch_um")
+    return out / total[:, None, None]
 
 
 # -- public PSFs ---------------------------------------------------------------------

@@ -43,9 +43,9 @@ observation's own noise and measuring it as it was measured.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -54,6 +54,7 @@ from .perturb import PerturbedLens, nominal
 from .proxy_data import Observations
 from .psf import (
     DEFAULT_CAMERA,
+    _debye_nodes,
     _exit_pupil_z,
     _grid_offsets_mm,
     _mono,
@@ -63,7 +64,8 @@ from .psf_map import _wavelength_plan, chief_ray_fields, sensor_to_image
 from .sfr import LUMINANCE_WEIGHTS
 from .sfr_edge import area_to
 
-__all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "sfra_of"]
+__all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "project_masses",
+           "sfra_of"]
 
 BIN_STEP_PX = 1.0 / 64.0
 CHANNELS = ("R", "G", "B")
@@ -126,7 +128,7 @@ def mtf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
 
 
 def otf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
-    """|OTF| of sampled PSFs along edge normals (projection-slice theorem).
+    """OTF of sampled PSFs along edge normals (projection-slice theorem).
 
     Parameters
     ----------
@@ -144,26 +146,46 @@ def otf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
     (N, F) complex ndarray
         Phase relative to the PSF's centre sample.
     """
+    hist, x = project_masses(psf, pitch_px, normal_deg)
+    ph = 2.0 * np.pi * x[:, None] * np.asarray(freq, dtype=np.float64)[None, :]
+    return hist @ np.cos(ph) - 1j * (hist @ np.sin(ph))
+
+
+def project_masses(psf: np.ndarray, pitch_px: float, normal_deg, step_px: float = BIN_STEP_PX):
+    """Line spread of sampled PSFs along directions: each mass binned on
+    the direction at ``step_px`` with linear weights (moves a mass by less
+    than ``step_px``).
+
+    Returns
+    -------
+    hist : (N, nb) ndarray
+        Mass per bin (each row sums to the PSF's mass).
+    x : (nb,) ndarray
+        Bin positions, pixels from the PSF's centre sample along the direction.
+
+    Examples
+    --------
+    >>> p = np.zeros((5, 5)); p[2, 3] = 1.0            # one sample right of centre
+    >>> h, x = project_masses(p, 1.0, [0.0], step_px=0.5)
+    >>> float(x[np.argmax(h[0])])
+    1.0
+    """
     p = np.asarray(psf, dtype=np.float64)
     if p.ndim == 2:
         p = p[None]
     n_obs, m, _ = p.shape
     a = np.radians(np.broadcast_to(np.asarray(normal_deg, dtype=np.float64), (n_obs,)))
-    f = np.asarray(freq, dtype=np.float64)
     o = (np.arange(m) - m // 2) * float(pitch_px)
     t = np.cos(a)[:, None, None] * o[None, None, :] + np.sin(a)[:, None, None] * o[None, :, None]
-    half = math.ceil(abs(o).max() * math.sqrt(2.0) / BIN_STEP_PX) + 2
-    pos = t / BIN_STEP_PX + half
+    half = math.ceil(abs(o).max() * math.sqrt(2.0) / step_px) + 2
+    pos = t / step_px + half
     i0 = np.floor(pos).astype(np.int64)
     frac = pos - i0
     nb = 2 * half + 2
     base = (np.arange(n_obs) * nb)[:, None, None]
     hist = (np.bincount((i0 + base).ravel(), (p * (1.0 - frac)).ravel(), minlength=n_obs * nb)
             + np.bincount((i0 + 1 + base).ravel(), (p * frac).ravel(), minlength=n_obs * nb))
-    hist = hist.reshape(n_obs, nb)
-    x = (np.arange(nb) - half) * BIN_STEP_PX
-    ph = 2.0 * np.pi * x[:, None] * f[None, :]
-    return hist @ np.cos(ph) - 1j * (hist @ np.sin(ph))
+    return hist.reshape(n_obs, nb), (np.arange(nb) - half) * step_px
 
 
 def aperture_mtf(freq, normal_deg, a: float = 1.0) -> np.ndarray:
@@ -232,8 +254,9 @@ class SfrModel:
         pl = nominal(lens)
         return repr(pl.perturbation.as_dict()), id(pl.nominal)
 
-    def _trace(self, lens: PerturbedLens):
-        """Traced rays per node and wavelength, cached for the last lens."""
+    def _trace(self, lens: PerturbedLens) -> list:
+        """Traced rays of every node, one :class:`calibration.psf._TracedNodes`
+        per wavelength, cached for the last lens."""
         key = self._trace_key_of(lens)
         if self._traced_key == key:
             return self._traced
@@ -246,30 +269,54 @@ class SfrModel:
     def node_psfs(self, lens, defocus_mm=None) -> np.ndarray:
         """(nodes, channels, m, m) PSFs, each node's centred on its chief
         ray at the primary wavelength; ``defocus_mm`` (scalar or per node)
-        moves the image plane along the axis (+: away from the lens)."""
+        moves the image plane along the axis (+: away from the lens).
+
+        The traced rays (and their pupil fit,
+        :attr:`calibration.psf._TracedNodes.jac`) are reused; a new plane
+        recomputes the reference spheres and the
+        diffraction sums, all nodes at once for the "debye" method
+        (:func:`calibration.psf._debye_nodes`; the others node by node)."""
         pl = nominal(lens)
         s = self.settings
         traced = self._trace(pl)
-        dz = np.broadcast_to(np.asarray(0.0 if defocus_mm is None else defocus_mm, float), (len(traced),))
+        k = len(self.regions)
+        dz = np.broadcast_to(np.asarray(0.0 if defocus_mm is None else defocus_mm, float), (k,))
         o = _grid_offsets_mm(s.psf_n, self.pitch_um)
         ref = int(np.argmin(np.abs(self.wavelengths - pl.nominal.primary_nm)))
-        out = np.zeros((len(traced), len(self.channels), s.psf_n, s.psf_n))
-        for k, trs in enumerate(traced):
-            if dz[k] != 0.0:
-                trs = [dataclasses.replace(t, z_image=t.z_image + dz[k]) for t in trs]
-            centre = trs[ref].chief_image_point()
-            for j, tr in enumerate(trs):
-                if not np.any(self.wl_weights[:, j]):
-                    continue
-                data, _ = _mono(_sphere(tr, centre), s.method, o, o, workers=1)
-                out[k] += self.wl_weights[:, j, None, None] * data[None]
+        z = traced[ref].z_image + dz
+        centre = traced[ref].chief_image_points(z)
+        out = np.zeros((k, len(self.channels), s.psf_n, s.psf_n))
+        for j, tn in enumerate(traced):
+            if not np.any(self.wl_weights[:, j]):
+                continue
+            if s.method == "debye":
+                data = _debye_nodes(tn, centre, z, o, o)
+            else:
+                data = np.stack([_mono(_sphere(tn.node(i, z[i]), centre[i]), s.method, o, o, workers=1)[0]
+                                 for i in range(k)])
+            out += self.wl_weights[None, :, j, None, None] * data[:, None]
         return out
 
     # -- prediction ----------------------------------------------------------------------
     def observation_psfs(self, lens, defocus_mm=None) -> np.ndarray:
-        """(N, m, m): each observation's PSF in its colour (its region's)."""
-        p = self.node_psfs(lens, defocus_mm)
-        return np.einsum("nc,ncij->nij", self.mix, p[self.obs_node])
+        """(N, m, m): each observation's PSF in its colour (its region's),
+        cached for the last lens and defocus (the SFR and the asymmetry of
+        one evaluation share them)."""
+        key = (self._trace_key_of(lens), None if defocus_mm is None else np.asarray(defocus_mm, float).tobytes())
+        cached = getattr(self, "_psf_cache", (None, None))
+        if cached[0] != key:
+            p = self.node_psfs(lens, defocus_mm)
+            self._psf_cache = (key, np.einsum("nc,ncij->nij", self.mix, p[self.obs_node]))
+        return self._psf_cache[1]
+
+    def predict_odd(self, lens, defocus_mm=None) -> np.ndarray:
+        """(N, K) noise-free LSF asymmetry of every observation: the band
+        means of :func:`calibration.sfr_asym.model_odd_bands` (the odd part
+        of the transfer that SFR drops)."""
+        from .sfr_asym import model_odd_bands
+
+        return model_odd_bands(self.observation_psfs(lens, defocus_mm), self.pitch_px, self.obs.normal_deg,
+                               aperture_px=self.settings.aperture_px)
 
     def optical_mtf(self, lens, defocus_mm=None, shifts_px=None) -> np.ndarray:
         """(N, F) |OTF| of the optics along each observation's normal.
@@ -327,77 +374,87 @@ class SfrModel:
         eq. 14) and the ISO method's own small bias (its binning and
         derivative: +0.001 cycles/pixel on e9 noise-free). Returns
         ``(sfra_bias (N,), sfr_bias (N, F))``, the second the same for the
-        SFR curves on ``obs.freq``."""
+        SFR curves on ``obs.freq``; :meth:`measurement_biases` adds the
+        asymmetry's."""
+        b = self.measurement_biases(lens, obs, psfs=psfs)
+        return b.sfra, b.sfr
+
+    def measurement_biases(self, lens, obs: Observations | None = None, *, psfs=None) -> "MeasurementBias":
+        """:meth:`measurement_bias` and the same for the LSF asymmetry
+        (:mod:`calibration.sfr_asym`; the model already carries ISO's
+        binning and derivative, so this is the noise's and the record's
+        small part), from the same renders."""
+        from .sfr_asym import model_odd_bands
+
         obs = self.obs if obs is None else obs
         s = self.settings
         psfs = self.observation_psfs(lens) if psfs is None else psfs
         exact = (mtf_along(psfs, self.pitch_px, obs.normal_deg, obs.freq)
                  * aperture_mtf(obs.freq, obs.normal_deg, s.aperture_px))
         exact_a = sfra_of(obs.freq, exact)
+        exact_odd = model_odd_bands(psfs, self.pitch_px, obs.normal_deg, aperture_px=s.aperture_px)
         rng = np.random.default_rng(s.seed)
         out = np.zeros(len(obs))
         spread = np.zeros(len(obs))
         curves = np.zeros_like(exact)
+        odd = np.zeros_like(exact_odd)
         for i in range(len(obs)):
-            m, c, sd = _measured_sfra(psfs[i], self.pitch_um, self.sensor.pixel_pitch_um, obs, i,
-                                      s.noise_realisations, rng, s.aperture_px)
+            m, c, sd, q = _measured_sfra(psfs[i], self.pitch_um, self.sensor.pixel_pitch_um, obs, i,
+                                         s.noise_realisations, rng, s.aperture_px)
             out[i] = m - exact_a[i] if np.isfinite(m) else 0.0
             curves[i] = np.where(np.isfinite(c), c - exact[i], 0.0)
+            odd[i] = np.where(np.isfinite(q), q - exact_odd[i], 0.0)
             spread[i] = sd
         self.last_sfra_noise = spread
-        return out, curves
+        return MeasurementBias(out, curves, odd)
 
 
-def _real_aim(pl: PerturbedLens, fields, samples: int) -> list[tuple[np.ndarray, np.ndarray]]:
+class MeasurementBias(NamedTuple):
+    """What the measurement adds to the model's noise-free prediction:
+    SFRA (N,), SFR curves (N, F) and LSF asymmetry bands (N, K)."""
+
+    sfra: np.ndarray
+    sfr: np.ndarray
+    odd: np.ndarray
+
+
+def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.ndarray]:
     """Per field: the paraxial entrance-pupil coordinates at which real
-    aiming (primary wavelength, nominal lens) puts the pupil grid on the
-    stop, and the aiming status — as ``_trace_set(aim_each=False)`` does,
-    computed once: a perturbation within tolerance moves these by far less
-    than a pupil sample."""
+    aiming (primary wavelength, nominal lens) puts the pupil grid and the
+    chief ray on the stop, (K, M + 1, 2), and the aiming status (K, M + 1)
+    — as ``_trace_set(aim_each=False)`` does, computed once: a perturbation
+    within tolerance moves these by far less than a pupil sample. All
+    fields are aimed together (:func:`calibration.trace.field_pupil_rays`)."""
     from .psf import _pupil_points
-    from .trace import pupil_rays, stop_and_pupil
+    from .trace import field_pupil_rays, stop_and_pupil
 
     pc = _pupil_points(samples)
     pp = stop_and_pupil(pl)
-    out = []
-    for f in fields:
-        r0 = pupil_rays(pl, (float(f[0]), float(f[1])), samples, float(pl.nominal.primary_nm), aiming="real",
-                        pupil=pc)
-        t = (pp.z - r0.origin[:, 2]) / r0.direction[:, 2]
-        out.append(((r0.origin[:, :2] + t[:, None] * r0.direction[:, :2]) / pp.radius, r0.status))
-    return out
+    f = np.asarray(fields, dtype=np.float64).reshape(-1, 2)
+    r0 = field_pupil_rays(pl, f, pc, float(pl.nominal.primary_nm), aiming="real")
+    t = (pp.z - r0.origin[:, 2]) / r0.direction[:, 2]
+    ep = (r0.origin[:, :2] + t[:, None] * r0.direction[:, :2]) / pp.radius
+    return ep.reshape(len(f), len(pc), 2), r0.status.reshape(len(f), len(pc))
 
 
-def _trace_nodes(pl: PerturbedLens, fields, wavelengths, samples: int, z_pupil: float, aim=None) -> list[list]:
-    """:func:`calibration.psf._trace` for many fields at once: one trace per
-    wavelength of every field's pupil grid (the tracer's cost is mostly per
-    call at a few hundred rays). ``aim``: per-field entrance-pupil points
-    from :func:`_real_aim` (else paraxial aiming of the plain grid)."""
-    from types import SimpleNamespace
-
-    from .psf import _finish, _pupil_points
-    from .trace import Rays, pupil_rays, trace_to_exit
+def _trace_nodes(pl: PerturbedLens, fields, wavelengths, samples: int, z_pupil: float, aim=None) -> list:
+    """:func:`calibration.psf._trace` for many fields at once: every
+    field's pupil grid and chief ray generated and traced in one call per
+    wavelength (per call, the tracer's and the ray set-up's overhead would
+    dominate at a few thousand rays). ``aim``: the per-field entrance-pupil
+    points and statuses of :func:`_real_aim` (else paraxial aiming of the
+    plain grid). Returns one :class:`calibration.psf._TracedNodes` per
+    wavelength."""
+    from .psf import _finish_nodes, _pupil_points
+    from .trace import field_pupil_rays, trace_to_exit
 
     pupil = _pupil_points(samples)
-    out = [[None] * len(wavelengths) for _ in fields]
-    for j, lam in enumerate(wavelengths):
-        batch = []
-        for k, f in enumerate(fields):
-            fd = (float(f[0]), float(f[1]))
-            if aim is None:
-                batch.append(pupil_rays(pl, fd, samples, float(lam), aiming="paraxial", pupil=pupil))
-            else:
-                r = pupil_rays(pl, fd, samples, float(lam), aiming="paraxial", pupil=aim[k][0])
-                batch.append(Rays(r.origin, r.direction, float(lam), r.opl, aim[k][1], pupil, r.field_deg))
-        allr = Rays(np.concatenate([r.origin for r in batch]), np.concatenate([r.direction for r in batch]),
-                    float(lam), np.concatenate([r.opl for r in batch]), np.concatenate([r.status for r in batch]))
-        res = trace_to_exit(pl, allr)
-        n = len(pupil)
-        for k, (f, r) in enumerate(zip(fields, batch)):
-            sl = slice(k * n, (k + 1) * n)
-            part = SimpleNamespace(valid=res.valid[sl].copy(), direction=res.direction[sl], position=res.position[sl],
-                                   opl=res.opl[sl])
-            out[k][j] = _finish(pl, r, part, (float(f[0]), float(f[1])), samples, z_pupil)
+    ep, status = (pupil, None) if aim is None else aim
+    f = np.asarray(fields, dtype=np.float64).reshape(-1, 2)
+    out = []
+    for lam in wavelengths:
+        rays = field_pupil_rays(pl, f, ep, float(lam), status=status)
+        out.append(_finish_nodes(pl, rays, trace_to_exit(pl, rays), f, pupil[:-1], samples, z_pupil))
     return out
 
 
@@ -408,13 +465,15 @@ def _roi_shape(obs: Observations, i: int) -> tuple[int, int]:
     return (96, 64) if obs.orientation[i] != "horizontal" else (64, 96)
 
 
-def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_px) -> float:
-    """Mean measured SFRA of observation ``i``'s edge rendered through
-    ``psf`` with its noise (noise-free once if it has none)."""
+def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_px) -> tuple:
+    """Mean measured SFRA, SFR curve, SFRA spread and LSF asymmetry bands
+    of observation ``i``'s edge rendered through ``psf`` with its noise
+    (noise-free once if it has none)."""
     from types import SimpleNamespace
 
     from .imaging import render_slanted_edge
     from .sfr import SfrError, measure_sfr, measure_sfr_bayer
+    from .sfr_asym import BANDS as ODD_BANDS, odd_bands
 
     noise, step = float(obs.noise[i]), float(obs.step[i]) or 1.0
     a = float(obs.normal_deg[i]) % 180.0
@@ -433,6 +492,8 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
 
     f = np.asarray(obs.freq)
 
+    n_odd = len(ODD_BANDS)
+
     def sfra(img):
         try:
             if how.startswith("bayer:"):
@@ -440,22 +501,23 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
             else:
                 r = measure_sfr(img)
         except SfrError:
-            return np.nan, np.full(f.shape, np.nan)
-        return r.sfra, np.interp(f, r.freq, r.sfr, right=np.nan)
+            return np.nan, np.full(f.shape, np.nan), np.full(n_odd, np.nan)
+        return r.sfra, np.interp(f, r.freq, r.sfr, right=np.nan), odd_bands(r.lsf, r.esf_step_px)
 
     imgs = [clean] if not noise > 0 else [clean + rng.normal(0.0, noise, clean.shape) for _ in range(max(1, n_real))]
     vals = [sfra(img) for img in imgs]
     a = np.array([v[0] for v in vals])
     c = np.array([v[1] for v in vals])
+    q = np.array([v[2] for v in vals])
     if not np.isfinite(a).any():
-        return float("nan"), np.full(f.shape, np.nan), float("nan")
+        return float("nan"), np.full(f.shape, np.nan), float("nan"), np.full(n_odd, np.nan)
     with np.errstate(invalid="ignore"):
         import warnings
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             sd = float(np.nanstd(a, ddof=1)) if np.isfinite(a).sum() > 1 else float("nan")
-            return float(np.nanmean(a)), np.nanmean(c, axis=0), sd
+            return float(np.nanmean(a)), np.nanmean(c, axis=0), sd, np.nanmean(q, axis=0)
 
 
 #: frequency bands (cycles/pixel) whose mean SFR joins SFRA as a residual: SFRA

@@ -18,6 +18,7 @@ stated with the values measured when they were written.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -366,3 +367,149 @@ def test_property_full_map_of_a_perturbed_e9(e9):
     assert np.allclose(m.psfs.sum(axis=(3, 4)), 1, atol=1e-5)
     assert 0.6 < m.window_energy.min() < 0.9 and m.window_energy.max() <= 1.0
     assert not np.allclose(m.psfs[7, 10], m.psfs[7, 10, :, ::-1, :], atol=1e-3)
+
+
+# -- property: the SFR model's batched path = the per-field path ------------------------------
+#
+# calibration.sfr_model traces and diffracts every field node at once (one
+# trace per wavelength, batched pupil fits and Debye sums); the per-field
+# functions are its oracle. Exact refactors agree to the tracer's Newton
+# tolerance (1e-12 mm), i.e. ~1e-10 of the PSF peak.
+
+BATCH_PERTURBATION = {"e1.decenter_x": 0.003, "e3.tilt_yz": 0.03, "s4.thickness": 0.004}
+BATCH_POINTS_MM = [[0.0, 0.0], [1.0, 0.5], [-2.6, 1.9], [2.7, -2.0]]   # the last two vignetted
+
+
+@pytest.fixture(scope="module")
+def batch(e9):
+    """A perturbed e9, four fields (centre to corner) traced both ways with
+    real aiming at 24 pupil samples."""
+    pl = apply(e9, BATCH_PERTURBATION)
+    fields = M.chief_ray_fields(pl, np.array(BATCH_POINTS_MM))
+    samples, lam = 24, 520.0
+    pupil = P._pupil_points(samples)
+    z_pupil = P._exit_pupil_z(pl)
+    rays = tr.field_pupil_rays(pl, fields, pupil, lam, aiming="real")
+    tn = P._finish_nodes(pl, rays, tr.trace_to_exit(pl, rays), fields, pupil[:-1], samples, z_pupil)
+    singles = []
+    for f in fields:
+        r = tr.pupil_rays(pl, tuple(f), samples, lam, aiming="real", pupil=pupil)
+        singles.append(P._finish(pl, r, tr.trace_to_exit(pl, r), tuple(f), samples, z_pupil))
+    return pl, fields, tn, singles
+
+
+def test_property_batched_rays_match_per_field_rays(batch):
+    """property: field_pupil_rays (paraxial and real aiming) and the batched
+    trace give every field the rays pupil_rays and _finish give it alone."""
+    pl, fields, tn, singles = batch
+    assert tn.valid.sum(axis=1).min() < 0.75 * tn.valid.shape[1]          # vignetting is exercised
+    for k, one in enumerate(singles):
+        node = tn.node(k)
+        assert np.array_equal(node.ix, one.ix) and np.array_equal(node.iy, one.iy)
+        for name in ("pos", "dirn", "opl", "chief_pos", "chief_dir"):
+            np.testing.assert_allclose(getattr(node, name), getattr(one, name), rtol=0, atol=1e-11)
+    pupil = P._pupil_points(8)
+    both = tr.field_pupil_rays(pl, fields, pupil, 600.0)
+    for k, f in enumerate(fields):
+        one = tr.pupil_rays(pl, tuple(f), 8, 600.0, aiming="paraxial", pupil=pupil)
+        sl = slice(k * len(pupil), (k + 1) * len(pupil))
+        np.testing.assert_allclose(both.origin[sl], one.origin, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(both.direction[sl], one.direction, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(both.opl[sl], one.opl, rtol=0, atol=1e-12)
+    with pytest.raises(tr.TraceError, match="aiming"):
+        tr.field_pupil_rays(pl, fields, pupil, 600.0, aiming="nope")
+
+
+def test_property_batched_pupil_fit_matches_per_field_fit(batch):
+    """property: the pupil fits of all fields at once (_node_jacobians) equal
+    the per-field fit; a field with too few rays for degree 4 takes the
+    per-field path."""
+    _, _, tn, singles = batch
+    for k, one in enumerate(singles):
+        np.testing.assert_allclose(tn.jac[k, tn.valid[k]], P._solid_angle_jacobian(one.p, one.dirn), rtol=1e-10)
+        assert np.all(tn.jac[k, ~tn.valid[k]] == 0)
+    few = tn.valid.copy()
+    keep = np.flatnonzero(few[0])[:40]
+    few[0] = False
+    few[0, keep] = True
+    j = P._node_jacobians(tn.p, tn.dirn, few)
+    np.testing.assert_allclose(j[0, keep], P._solid_angle_jacobian(tn.p[keep], tn.dirn[0, keep]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("dz_um", [0.0, 4.0])
+def test_property_batched_debye_psfs_match_per_field_psfs(batch, dz_um):
+    """property: _debye_nodes in complex128 gives the per-field Debye PSFs
+    (_mono of _sphere) to 1e-9 of the peak, in focus and with a per-field
+    image-plane shift; its complex64 default stays within 1e-6."""
+    _, _, tn, singles = batch
+    o = P._grid_offsets_mm(24, 0.5)
+    z = tn.z_image + dz_um * 1e-3 * np.array([1.0, -1.0, 0.5, 0.0])
+    centre = tn.chief_image_points(z)
+    ref = np.stack([P._mono(P._sphere(tn.node(k, z[k]), centre[k]), "debye", o, o)[0] for k in range(len(tn))])
+    single = np.stack([P._mono(P._sphere(dataclasses.replace(one, z_image=z[k]), centre[k]), "debye", o, o)[0]
+                       for k, one in enumerate(singles)])
+    np.testing.assert_allclose(single, ref, rtol=0, atol=1e-9 * ref.max())
+    exact = P._debye_nodes(tn, centre, z, o, o, dtype=np.complex128)
+    np.testing.assert_allclose(exact, ref, rtol=0, atol=1e-9 * ref.max())
+    np.testing.assert_allclose(P._debye_nodes(tn, centre, z, o, o), ref, rtol=0, atol=1e-6 * ref.max())
+
+
+@pytest.mark.parametrize("one_thread", [True, False])
+@pytest.mark.parametrize("dtype", [np.complex128, np.complex64])
+def test_property_gemm_paths_agree(monkeypatch, one_thread, dtype):
+    """property: _a_bt (one complex GEMM, or real GEMMs in blocks that
+    OpenBLAS keeps on one thread) is a @ bᵀ."""
+    monkeypatch.setattr(P, "_blas_on_one_thread", lambda: one_thread)
+    rng = np.random.default_rng(1)
+    a, b = ((rng.standard_normal((3, n, 301)) + 1j * rng.standard_normal((3, n, 301))).astype(dtype) for n in (5, 7))
+    ref = np.einsum("kim,kjm->kij", a.astype(complex), b.astype(complex))
+    tol = 1e-12 if dtype == np.complex128 else 2e-5
+    np.testing.assert_allclose(P._a_bt(a, b), ref, rtol=0, atol=tol * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 32])
+def test_property_phasor_doubling_is_the_exponential(n):
+    """property: the phasor tables by doubling equal exp(i k o)·scale."""
+    rng = np.random.default_rng(2)
+    k = rng.uniform(-2e4, 2e4, (2, 50))
+    o = (np.arange(n) - n // 2) * 4e-4
+    scale = rng.standard_normal((2, 50)) + 1j * rng.standard_normal((2, 50))
+    ref = scale[..., None, :] * np.exp(1j * k[..., None, :] * o[:, None])
+    np.testing.assert_allclose(P._phasors(k, o, scale=scale), ref, rtol=1e-12)   # phases up to 130 rad
+    np.testing.assert_allclose(P._phasors(k, o, scale=scale, dtype=np.complex64), ref, rtol=2e-6)
+
+
+def test_property_row_medians():
+    """property: the masked row medians equal np.median of each row's kept
+    values (odd, even and empty rows)."""
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((5, 9))
+    mask = rng.random((5, 9)) < 0.6
+    mask[0] = True
+    mask[1] = False
+    mask[2, :] = False
+    mask[2, [1, 4]] = True
+    got = P._row_medians(a, mask)
+    assert np.isnan(got[1])
+    for i in (0, 2, 3, 4):
+        assert got[i] == np.median(a[i][mask[i]])
+
+
+def test_property_dropping_failed_rays_and_fitted_start_change_nothing(batch, monkeypatch):
+    """property: dropping failed rays from a chunk (done without ``record``)
+    and starting Newton from the fitted conic (trace._start_conic) leave
+    the traced rays as the plain loop has them, to the Newton tolerance."""
+    pl, fields, _, _ = batch
+    rays = tr.field_pupil_rays(pl, fields, P._pupil_points(24), 520.0, aiming="real")
+    fast = tr.trace_to_exit(pl, rays)
+    kept = tr.trace_to_exit(pl, rays, record=True)            # carries failed rays as placeholders
+    geo = tr._compile(pl, 520.0)
+    assert any(s.start != (s.c, s.kc2) for s in geo if s.kind == tr._ASPHERE)
+    monkeypatch.setattr(tr, "_start_conic", lambda c, kc2, *_: (c, kc2))
+    base = tr.trace_to_exit(pl, rays)                         # Newton from the base conics
+    assert not fast.valid.all()
+    for other in (kept, base):
+        assert np.array_equal(fast.status, other.status) and np.array_equal(fast.surface, other.surface)
+        np.testing.assert_allclose(fast.position, other.position, rtol=0, atol=1e-11)
+        np.testing.assert_allclose(fast.direction, other.direction, rtol=0, atol=1e-11)
+        np.testing.assert_allclose(fast.opl, other.opl, rtol=0, atol=1e-11)

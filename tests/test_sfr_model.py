@@ -49,3 +49,67 @@ def test_model_matches_render_and_measure(device):
     # and the perturbation matters far more than that: the nominal lens is off
     d0 = obs.sfra - m.predict(lens).sfra
     assert np.sqrt(np.mean(d0 ** 2)) > 5 * np.sqrt(np.mean(d ** 2))
+
+
+def _node_psfs_per_field(model, lens, defocus_mm=None, method="debye"):
+    """The oracle of SfrModel.node_psfs: every node traced alone (its real
+    aim, pupil_rays, _finish) and diffracted alone (_sphere, _mono)."""
+    import dataclasses
+
+    from calibration.perturb import nominal
+    from calibration.psf import (
+        _exit_pupil_z,
+        _finish,
+        _grid_offsets_mm,
+        _mono,
+        _pupil_points,
+        _sphere,
+    )
+    from calibration.trace import Rays, pupil_rays, trace_to_exit
+
+    pl, s = nominal(lens), model.settings
+    pupil, z_pupil = _pupil_points(s.pupil_samples), _exit_pupil_z(pl)
+    k = len(model.fields)
+    dz = np.zeros(k) if defocus_mm is None else np.broadcast_to(defocus_mm, (k,))
+    o = _grid_offsets_mm(s.psf_n, model.pitch_um)
+    ref = int(np.argmin(np.abs(model.wavelengths - pl.nominal.primary_nm)))
+    ep, status = model._aim
+    out = np.zeros((k, len(model.channels), s.psf_n, s.psf_n))
+    for i, f in enumerate(model.fields):
+        fd = (float(f[0]), float(f[1]))
+        trs = []
+        for lam in model.wavelengths:
+            r = pupil_rays(pl, fd, s.pupil_samples, float(lam), aiming="paraxial", pupil=ep[i])
+            r = Rays(r.origin, r.direction, float(lam), r.opl, status[i], pupil, r.field_deg)
+            t = _finish(pl, r, trace_to_exit(pl, r), fd, s.pupil_samples, z_pupil)
+            trs.append(dataclasses.replace(t, z_image=t.z_image + dz[i]))
+        centre = trs[ref].chief_image_point()
+        for j, t in enumerate(trs):
+            out[i] += model.wl_weights[:, j, None, None] * _mono(_sphere(t, centre), method, o, o, workers=1)[0][None]
+    return out
+
+
+@pytest.mark.parametrize("defocus_um", [None, 3.0])
+def test_node_psfs_all_nodes_at_once_match_each_node_alone(device, monkeypatch, defocus_um):
+    """property: the batched node PSFs (one trace per wavelength for all
+    nodes, batched pupil fits and Debye sums) equal the per-node path, to
+    1e-9 of the peak with complex128 sums and 1e-6 with the default
+    complex64 ones; in focus and with a per-node defocus (the trace reused)."""
+    from calibration import psf
+
+    lens, pl, obs = device
+    m = SfrModel(lens, obs, ModelSettings(pupil_samples=32))
+    dz = None if defocus_um is None else np.linspace(-1.0, 1.0, len(m.regions)) * defocus_um * 1e-3
+    ref = _node_psfs_per_field(m, pl, dz)
+    np.testing.assert_allclose(m.node_psfs(pl, dz), ref, rtol=0, atol=1e-6 * ref.max())
+    monkeypatch.setattr(psf, "DEBYE_SUM_DTYPE", np.complex128)
+    np.testing.assert_allclose(m.node_psfs(pl, dz), ref, rtol=0, atol=1e-9 * ref.max())
+
+
+def test_node_psfs_other_methods_go_node_by_node(device):
+    """property: a method other than "debye" takes the per-node PSFs on the
+    batched trace."""
+    lens, pl, obs = device
+    m = SfrModel(lens, obs, ModelSettings(pupil_samples=32, method="fft"))
+    ref = _node_psfs_per_field(m, pl, method="fft")
+    np.testing.assert_allclose(m.node_psfs(pl), ref, rtol=0, atol=1e-9 * ref.max())
