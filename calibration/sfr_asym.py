@@ -97,7 +97,7 @@ def _centroid(lsf: np.ndarray, s: np.ndarray, half: float) -> np.ndarray:
         w, _ = _hann(s[None, :] - c[:, None], half)
         d = np.sum(w * lsf, axis=1)
         c_new = np.where(d > 0, np.sum(w * lsf * s[None, :], axis=1) / np.where(d > 0, d, 1.0), c)
-        if np.all(np.abs(c_new - c) < 1e-9):
+        if np.all(np.abs(c_new - c) < 1e-6):     # px: A moves by 2πf·1e-6 at most
             c = c_new
             break
         c = c_new
@@ -113,15 +113,18 @@ def _odd(lsf: np.ndarray, s: np.ndarray, half: float, bands=BANDS, gradient: boo
     c = _centroid(lsf, s, half)
     d = s[None, :] - c[:, None]                                     # (N, n)
     w, dw = _hann(d, half)
+    if not gradient:
+        # exp(−2πif(s − c)) = exp(−2πifs)·exp(2πifc): one GEMM on the common grid
+        # instead of a sine per row, frequency and sample (20× faster on 600 rows)
+        wl = w * lsf
+        t = (wl @ np.exp(-2j * np.pi * np.outer(s, freq))) * np.exp(2j * np.pi * c[:, None] * freq[None, :])
+        return (t.imag / wl.sum(axis=1)[:, None]) @ avg.T
     ph = 2.0 * np.pi * freq[None, :, None] * d[:, None, :]          # (N, F, n)
     sn, cs = np.sin(ph), np.cos(ph)
     wl = w * lsf
     den = wl.sum(axis=1)                                            # (N,)
     num = np.einsum("nfs,ns->nf", sn, wl)                           # (N, F)
-    a = -num / den[:, None]
-    out = a @ avg.T
-    if not gradient:
-        return out
+    out = (-num / den[:, None]) @ avg.T
     # direct part: A = −N/D with c held
     g = -(w[:, None, :] * sn * den[:, None, None] - num[:, :, None] * w[:, None, :]) / den[:, None, None] ** 2
     # the centroid moves with l: M(c) = Σ w(s−c) l (s−c) = 0
@@ -208,7 +211,10 @@ def model_odd_bands(psf, pitch_px: float, normal_deg, *, aperture_px: float = 1.
     direction (:func:`lsf_direction` of ``normal_deg``), as ISO 12233 sees
     them: binned at ``1/oversampling`` px and differentiated by
     ``[0.5, 0, −0.5]`` (two boxes, 1 and 2 bins wide; 3–8 % of A in the top
-    band on a coma-like PSF).
+    band on a coma-like PSF). The projection's grid ``step_px``: on a
+    perturbed e9 (600 observations) 1/16 px is 2e-4–5e-4 RMS per band from
+    1/32 px, 1/8 px 8e-4–1.8e-3 (the model's own error allowance is 1e-3);
+    0.3 s for 600 observations.
 
     Parameters
     ----------
