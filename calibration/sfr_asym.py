@@ -34,9 +34,12 @@ through A's full linearisation (the window and the centroid included):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["BANDS", "HALF_WIDTH_PX", "esf_bin_noise", "lsf_direction", "model_odd_bands", "odd_bands", "odd_bands_std"]
+__all__ = ["BANDS", "HALF_WIDTH_PX", "esf_bin_noise", "lsf_direction", "model_odd_bands", "odd_bands", "odd_bands_std",
+           "project_masses"]
 
 #: frequency bands (cycles/pixel) over which A(f) is averaged; A grows as f³
 #: at first, so the lowest band carries little and starts at 0.05
@@ -228,8 +231,6 @@ def model_odd_bands(psf, pitch_px: float, normal_deg, *, aperture_px: float = 1.
     -------
     (N, K) ndarray
     """
-    from .sfr_model import project_masses
-
     direction = lsf_direction(normal_deg)
     hist, x = project_masses(psf, pitch_px, direction, step_px)
     # the pixel aperture, projected on the direction: two boxes of widths a|cos|, a|sin|
@@ -265,3 +266,39 @@ def esf_bin_noise(noise, rows, oversampling) -> np.ndarray:
     per_bin = np.maximum(np.asarray(rows, float) / float(oversampling), 1.0)
     return np.asarray(noise, float) / np.sqrt(per_bin)
 
+
+def project_masses(psf: np.ndarray, pitch_px: float, normal_deg, step_px: float):
+    """Line spread of sampled PSFs along directions: each mass binned on
+    the direction at ``step_px`` with linear weights (moves a mass by less
+    than ``step_px``).
+
+    Returns
+    -------
+    hist : (N, nb) ndarray
+        Mass per bin (each row sums to the PSF's mass).
+    x : (nb,) ndarray
+        Bin positions, pixels from the PSF's centre sample along the direction.
+
+    Examples
+    --------
+    >>> p = np.zeros((5, 5)); p[2, 3] = 1.0            # one sample right of centre
+    >>> h, x = project_masses(p, 1.0, [0.0], step_px=0.5)
+    >>> float(x[np.argmax(h[0])])
+    1.0
+    """
+    p = np.asarray(psf, dtype=np.float64)
+    if p.ndim == 2:
+        p = p[None]
+    n_obs, m, _ = p.shape
+    a = np.radians(np.broadcast_to(np.asarray(normal_deg, dtype=np.float64), (n_obs,)))
+    o = (np.arange(m) - m // 2) * float(pitch_px)
+    t = np.cos(a)[:, None, None] * o[None, None, :] + np.sin(a)[:, None, None] * o[None, :, None]
+    half = math.ceil(abs(o).max() * math.sqrt(2.0) / step_px) + 2
+    pos = t / step_px + half
+    i0 = np.floor(pos).astype(np.int64)
+    frac = pos - i0
+    nb = 2 * half + 2
+    base = (np.arange(n_obs) * nb)[:, None, None]
+    hist = (np.bincount((i0 + base).ravel(), (p * (1.0 - frac)).ravel(), minlength=n_obs * nb)
+            + np.bincount((i0 + 1 + base).ravel(), (p * frac).ravel(), minlength=n_obs * nb))
+    return hist.reshape(n_obs, nb), (np.arange(nb) - half) * step_px

@@ -62,10 +62,10 @@ from .psf import (
 )
 from .psf_map import _wavelength_plan, chief_ray_fields, sensor_to_image
 from .sfr import LUMINANCE_WEIGHTS
+from .sfr_asym import project_masses
 from .sfr_edge import area_to
 
-__all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "project_masses",
-           "sfra_of"]
+__all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "sfra_of"]
 
 BIN_STEP_PX = 1.0 / 64.0
 CHANNELS = ("R", "G", "B")
@@ -146,46 +146,9 @@ def otf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
     (N, F) complex ndarray
         Phase relative to the PSF's centre sample.
     """
-    hist, x = project_masses(psf, pitch_px, normal_deg)
+    hist, x = project_masses(psf, pitch_px, normal_deg, BIN_STEP_PX)
     ph = 2.0 * np.pi * x[:, None] * np.asarray(freq, dtype=np.float64)[None, :]
     return hist @ np.cos(ph) - 1j * (hist @ np.sin(ph))
-
-
-def project_masses(psf: np.ndarray, pitch_px: float, normal_deg, step_px: float = BIN_STEP_PX):
-    """Line spread of sampled PSFs along directions: each mass binned on
-    the direction at ``step_px`` with linear weights (moves a mass by less
-    than ``step_px``).
-
-    Returns
-    -------
-    hist : (N, nb) ndarray
-        Mass per bin (each row sums to the PSF's mass).
-    x : (nb,) ndarray
-        Bin positions, pixels from the PSF's centre sample along the direction.
-
-    Examples
-    --------
-    >>> p = np.zeros((5, 5)); p[2, 3] = 1.0            # one sample right of centre
-    >>> h, x = project_masses(p, 1.0, [0.0], step_px=0.5)
-    >>> float(x[np.argmax(h[0])])
-    1.0
-    """
-    p = np.asarray(psf, dtype=np.float64)
-    if p.ndim == 2:
-        p = p[None]
-    n_obs, m, _ = p.shape
-    a = np.radians(np.broadcast_to(np.asarray(normal_deg, dtype=np.float64), (n_obs,)))
-    o = (np.arange(m) - m // 2) * float(pitch_px)
-    t = np.cos(a)[:, None, None] * o[None, None, :] + np.sin(a)[:, None, None] * o[None, :, None]
-    half = math.ceil(abs(o).max() * math.sqrt(2.0) / step_px) + 2
-    pos = t / step_px + half
-    i0 = np.floor(pos).astype(np.int64)
-    frac = pos - i0
-    nb = 2 * half + 2
-    base = (np.arange(n_obs) * nb)[:, None, None]
-    hist = (np.bincount((i0 + base).ravel(), (p * (1.0 - frac)).ravel(), minlength=n_obs * nb)
-            + np.bincount((i0 + 1 + base).ravel(), (p * frac).ravel(), minlength=n_obs * nb))
-    return hist.reshape(n_obs, nb), (np.arange(nb) - half) * step_px
 
 
 def aperture_mtf(freq, normal_deg, a: float = 1.0) -> np.ndarray:
