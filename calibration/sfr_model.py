@@ -62,7 +62,8 @@ from .psf import (
 )
 from .psf_map import _wavelength_plan, chief_ray_fields, sensor_to_image
 from .sfr import LUMINANCE_WEIGHTS
-from .sfr_asym import project_masses
+from .sfr_asym import BANDS as ODD_BANDS
+from .sfr_asym import model_odd_bands, odd_bands, project_masses
 from .sfr_edge import area_to
 
 __all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "sfra_of"]
@@ -276,8 +277,6 @@ class SfrModel:
         """(N, K) noise-free LSF asymmetry of every observation: the band
         means of :func:`calibration.sfr_asym.model_odd_bands` (the odd part
         of the transfer that SFR drops)."""
-        from .sfr_asym import model_odd_bands
-
         return model_odd_bands(self.observation_psfs(lens, defocus_mm), self.pitch_px, self.obs.normal_deg,
                                aperture_px=self.settings.aperture_px)
 
@@ -347,8 +346,6 @@ class SfrModel:
         (:mod:`calibration.sfr_asym`; the model already carries ISO's
         binning and derivative, so this is the noise's and the record's
         small part), from the same renders."""
-        from .sfr_asym import model_odd_bands
-
         obs = self.obs if obs is None else obs
         s = self.settings
         psfs = self.observation_psfs(lens) if psfs is None else psfs
@@ -436,7 +433,6 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
 
     from .imaging import render_slanted_edge
     from .sfr import SfrError, measure_sfr, measure_sfr_bayer
-    from .sfr_asym import BANDS as ODD_BANDS, odd_bands
 
     noise, step = float(obs.noise[i]), float(obs.step[i]) or 1.0
     a = float(obs.normal_deg[i]) % 180.0
