@@ -79,13 +79,15 @@ def _band_kernel(bands=BANDS) -> tuple[np.ndarray, np.ndarray]:
     return freq, avg
 
 
-def _hann(d: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray]:
-    """Hann window cos²(πd/2h) on |d| < h and its derivative in d."""
+def _hann(d: np.ndarray, half: float, derivative: bool = True):
+    """Hann window cos²(πd/2h) on |d| < h and (``derivative``) its
+    derivative in d."""
     inside = np.abs(d) < half
     arg = np.pi * d / (2.0 * half)
-    w = np.where(inside, np.cos(arg) ** 2, 0.0)
-    dw = np.where(inside, -np.sin(2.0 * arg) * np.pi / (2.0 * half), 0.0)
-    return w, dw
+    w = np.where(inside, 0.5 + 0.5 * np.cos(2.0 * arg), 0.0)
+    if not derivative:
+        return w
+    return w, np.where(inside, -np.sin(2.0 * arg) * np.pi / (2.0 * half), 0.0)
 
 
 def _centroid(lsf: np.ndarray, s: np.ndarray, half: float) -> np.ndarray:
@@ -97,7 +99,7 @@ def _centroid(lsf: np.ndarray, s: np.ndarray, half: float) -> np.ndarray:
     sm = np.apply_along_axis(lambda r: np.convolve(r, np.ones(k) / k, mode="same"), 1, lsf)
     c = s[np.argmax(sm, axis=1)]
     for _ in range(_ITERATIONS):
-        w, _ = _hann(s[None, :] - c[:, None], half)
+        w = _hann(s[None, :] - c[:, None], half, derivative=False)
         d = np.sum(w * lsf, axis=1)
         c_new = np.where(d > 0, np.sum(w * lsf * s[None, :], axis=1) / np.where(d > 0, d, 1.0), c)
         if np.all(np.abs(c_new - c) < 1e-6):     # px: A moves by 2πf·1e-6 at most
@@ -115,13 +117,13 @@ def _odd(lsf: np.ndarray, s: np.ndarray, half: float, bands=BANDS, gradient: boo
     freq, avg = _band_kernel(bands)
     c = _centroid(lsf, s, half)
     d = s[None, :] - c[:, None]                                     # (N, n)
-    w, dw = _hann(d, half)
     if not gradient:
         # exp(−2πif(s − c)) = exp(−2πifs)·exp(2πifc): one GEMM on the common grid
         # instead of a sine per row, frequency and sample (20× faster on 600 rows)
-        wl = w * lsf
+        wl = _hann(d, half, derivative=False) * lsf
         t = (wl @ np.exp(-2j * np.pi * np.outer(s, freq))) * np.exp(2j * np.pi * c[:, None] * freq[None, :])
         return (t.imag / wl.sum(axis=1)[:, None]) @ avg.T
+    w, dw = _hann(d, half)
     ph = 2.0 * np.pi * freq[None, :, None] * d[:, None, :]          # (N, F, n)
     sn, cs = np.sin(ph), np.cos(ph)
     wl = w * lsf
@@ -244,20 +246,30 @@ def model_odd_bands(psf, pitch_px: float, normal_deg, *, aperture_px: float = 1.
 
 def _box(rows: np.ndarray, width_bins: np.ndarray) -> np.ndarray:
     """Each row convolved with a unit-area box ``width_bins`` wide (per row,
-    fractional: exact for the piecewise-linear cumulative sum)."""
+    fractional: exact for the piecewise-linear cumulative sum). Rows of one
+    width are done together: their box is one shift of the cumulative sum."""
     n = rows.shape[1]
     cum = np.concatenate([np.zeros((rows.shape[0], 1)), np.cumsum(rows, axis=1)], axis=1)   # at edges j − ½
-    edges = np.arange(n + 1) - 0.5
-    out = np.empty_like(rows)
-    centres = np.arange(n, dtype=np.float64)
-    for i, wb in enumerate(np.asarray(width_bins, float)):
+    width_bins = np.broadcast_to(np.asarray(width_bins, float), (rows.shape[0],))
+    out = rows.copy()
+    for wb in np.unique(width_bins):
         if wb < 1e-6:
-            out[i] = rows[i]
             continue
-        hi = np.interp(centres + 0.5 * wb, edges, cum[i])
-        lo = np.interp(centres - 0.5 * wb, edges, cum[i])
-        out[i] = (hi - lo) / wb
+        sel = width_bins == wb
+        c = cum[sel]
+        out[sel] = (_cum_at(c, 0.5 * wb) - _cum_at(c, -0.5 * wb)) / wb
     return out
+
+
+def _cum_at(cum: np.ndarray, t: float) -> np.ndarray:
+    """Rows of a cumulative sum sampled at edges ``m − ½`` (m = 0..n), read
+    at positions ``j + t`` (j = 0..n−1) by linear interpolation, clamped at
+    the ends (as ``np.interp``)."""
+    n = cum.shape[1] - 1
+    k0 = int(np.floor(t + 0.5))
+    frac = t + 0.5 - k0
+    j = np.arange(n) + k0
+    return cum[:, np.clip(j, 0, n)] * (1.0 - frac) + cum[:, np.clip(j + 1, 0, n)] * frac
 
 
 def esf_bin_noise(noise, rows, oversampling) -> np.ndarray:
