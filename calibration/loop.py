@@ -36,7 +36,10 @@ effects of the registry (:mod:`calibration.effects`):
    within ``stop_ratio`` of the noise floor or nothing helps.
 5. What is left is described: remaining χ² per field ring, orientation and
    band; where it exceeds the floor, the report says so ("unexplained
-   residual") rather than attributing it.
+   residual") rather than attributing it. The LSF's asymmetry, which the
+   SFR drops and the loop does not fit, is checked against the final
+   model (:func:`asymmetry_check`): edges asymmetric beyond their noise in
+   a way the model cannot make are named too.
 
 The error metric reported before/after is the SFRA RMS error
 (cycles/pixel) on all observations, plus the SFR MSE (0–0.5 cycles/pixel)
@@ -81,6 +84,7 @@ class LoopReport:
     sfra_before: np.ndarray = field(repr=False, default=None)
     sfra_after: np.ndarray = field(repr=False, default=None)
     base_x_before: np.ndarray = field(repr=False, default=None)    # the base fit before any effect
+    asymmetry: dict | None = None                                   # :func:`asymmetry_check`
 
     def to_dict(self) -> dict:
         return {"schema": "loop-report/v1", "base": self.base,
@@ -89,7 +93,8 @@ class LoopReport:
                 "tried": self.tried, "error_before": self.error_before, "error_after": self.error_after,
                 "noise_floor": self.noise_floor, "unexplained": self.unexplained,
                 "decomposition_before": self.decomposition_before,
-                "decomposition_after": self.decomposition_after, "seconds": round(self.seconds, 1)}
+                "decomposition_after": self.decomposition_after, "asymmetry": self.asymmetry,
+                "seconds": round(self.seconds, 1)}
 
 
 class _Problem:
@@ -284,16 +289,23 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     d_after = obs.sfra - pred1.sfra - prob.bias_a
     xb, xe = prob.split(p)
     values = {e.name: dict(zip(e.names, map(float, x))) for e, x in zip(prob.effects, xe)}
+    unexplained = _unexplained(prob, pred1, obs, d_after, noise_floor, stop_ratio)
+    asym = asymmetry_check(base, prob, p, stop_ratio)
+    if asym is not None and not asym["explained"]:
+        unexplained.append(
+            f"LSF asymmetry the model does not make: χ² {asym['chi2_per_term']:.1f} per term (noise: 1); measured A "
+            "RMS per band " + ", ".join(f"{v:.4f}" for v in asym["measured_rms_per_band"]) + ", model "
+            + ", ".join(f"{v:.4f}" for v in asym["model_rms_per_band"]))
     return LoopReport(base.description, tuple(base.names), xb, kept, values, tried, before, after, noise_floor,
-                      _unexplained(prob, pred1, obs, d_after, noise_floor, stop_ratio), dec_before,
-                      _decompose(obs, d_after), time.perf_counter() - t0, np.asarray(obs.sfra),
-                      pred0.sfra + prob.bias_a, pred1.sfra + prob.bias_a, x_before)
+                      unexplained, dec_before, _decompose(obs, d_after), time.perf_counter() - t0,
+                      np.asarray(obs.sfra), pred0.sfra + prob.bias_a, pred1.sfra + prob.bias_a, x_before,
+                      asymmetry=asym)
 
 
-def predict_with_effects(base, xb, effects):
-    """The base model's prediction at parameters ``xb`` with ``effects``
-    ((Effect, parameters) pairs) applied: defocus and shifts add, transfer
-    functions multiply."""
+def effect_terms(base, effects) -> tuple:
+    """(defocus_mm, shifts_px, transfer) of ``effects`` ((Effect,
+    parameters) pairs): defocus and shifts add, transfer functions
+    multiply; None where no effect has the term."""
     g = base.geometry
     dz = shifts = transfer = None
     for e, x in effects:
@@ -306,7 +318,53 @@ def predict_with_effects(base, xb, effects):
         t = e.transfer(x, g)
         if t is not None:
             transfer = t if transfer is None else transfer * t
+    return dz, shifts, transfer
+
+
+def predict_with_effects(base, xb, effects):
+    """The base model's prediction at parameters ``xb`` with ``effects``
+    ((Effect, parameters) pairs) applied (:func:`effect_terms`)."""
+    dz, shifts, transfer = effect_terms(base, effects)
     return base.predict(np.asarray(xb, float), defocus_mm=dz, shifts_px=shifts, transfer=transfer)
+
+
+def asymmetry_check(base, prob, p, ratio: float) -> dict | None:
+    """The final model against the measured LSF asymmetry
+    (:mod:`calibration.sfr_asym`), which the loop does not fit: χ² per
+    term of ``(A_measured − A_model − bias) / σ``, σ the measurement's in
+    quadrature with the model's own 1e-3. The model's A has its defocus
+    effects; a transfer effect (crosstalk, sharpening, glare: real and
+    even) scales A by its band mean; with lateral shifts in the model the
+    mixed-colour ("L") observations, whose A the shifts change, are left
+    out. None when the observations have no asymmetry (or none is left).
+    A χ² above ``ratio²`` means the edges are asymmetric in a way the model
+    cannot make (coma of a decentred lens the base lacks, asymmetric
+    processing)."""
+    from .proxy import ODD_MODEL_SD
+    from .sfr_asym import BANDS as ODD_BANDS
+
+    obs = prob.obs
+    if obs.odd is None:
+        return None
+    xb, xe = prob.split(p)
+    dz, shifts, transfer = effect_terms(base, zip(prob.effects, xe))
+    keep = np.ones(len(obs), bool) if shifts is None else np.asarray(obs.channel) != "L"
+    if not keep.any():
+        return None
+    a = np.asarray(base.odd(xb, dz), float)
+    if transfer is not None:
+        f = np.asarray(obs.freq)
+        for k, (lo, hi) in enumerate(ODD_BANDS):
+            m = (f >= lo) & (f <= hi)
+            a[:, k] *= np.nanmean(np.asarray(transfer)[:, m], axis=1)
+    r = (np.asarray(obs.odd) - a - np.asarray(base.odd_bias)) / np.hypot(obs.odd_std, ODD_MODEL_SD)
+    r = np.where(np.isfinite(r), r, 0.0)[keep]
+    a = a[keep]
+    chi2 = float(np.mean(r ** 2))
+    return {"chi2_per_term": chi2, "explained": chi2 <= ratio ** 2, "observations": int(keep.sum()),
+            "measured_rms_per_band": [float(v) for v in np.sqrt(np.nanmean(np.asarray(obs.odd)[keep] ** 2, axis=0))],
+            "model_rms_per_band": [float(v) for v in np.sqrt(np.mean(a ** 2, axis=0))],
+            "normalised_residual_rms_per_band": [float(v) for v in np.sqrt(np.mean(r ** 2, axis=0))]}
 
 
 def _sigma_law(obs, sd) -> np.ndarray:
@@ -402,6 +460,13 @@ def write_report(report: LoopReport, obs, directory) -> dict:
     lines += ["", "## Effects kept", ""]
     lines += [f"- **{n}**: " + ", ".join(f"{k} = {v:.4g}" for k, v in report.effect_values[n].items())
               for n in report.effects_added] or ["- none"]
+    if report.asymmetry is not None:
+        a = report.asymmetry
+        lines += ["", "## LSF asymmetry (not fitted; checked against the final model)", "",
+                  f"χ² {a['chi2_per_term']:.2f} per term: "
+                  + ("within the noise." if a["explained"] else "**beyond the noise**.") + " Measured A RMS per band "
+                  + ", ".join(f"{v:.4f}" for v in a["measured_rms_per_band"]) + "; model "
+                  + ", ".join(f"{v:.4f}" for v in a["model_rms_per_band"]) + "."]
     lines += ["", "## Left unexplained", ""] + ([f"- {u}" for u in report.unexplained] or
                                                  ["- nothing beyond the noise floor"])
     paths["md"] = write_bytes_atomic(d / "report.md", "\n".join(lines).encode())

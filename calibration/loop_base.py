@@ -196,6 +196,15 @@ class ParametricBase:
         tails. Returns (sfra bias (N,), sfr bias (N, F), sfra noise std (N,))."""
         return _edge_bias(self.obs, lambda nu, normal: self.otf_along(xb, nu, normal))
 
+    #: a diffraction × Gaussian × pixel-aperture LSF is symmetric: no asymmetry, none added by ISO
+    odd_bias = 0.0
+
+    def odd(self, xb, defocus_mm=None) -> np.ndarray:
+        """(N, K) zeros: the parametric MTF's LSF is symmetric."""
+        from .sfr_asym import BANDS as ODD_BANDS
+
+        return np.zeros((len(self.obs), len(ODD_BANDS)))
+
 
 class LensBase:
     """A lens prescription and its perturbations (module docstring)."""
@@ -230,8 +239,13 @@ class LensBase:
         return self.model.predict(self.lens(xb), defocus_mm=defocus_mm, shifts_px=shifts_px, transfer=transfer)
 
     def measurement_bias(self, xb):
-        a, c = self.model.measurement_bias(self.lens(xb))
-        return a, c, self.model.last_sfra_noise
+        b = self.model.measurement_biases(self.lens(xb))
+        self.odd_bias = b.odd
+        return b.sfra, b.sfr, self.model.last_sfra_noise
+
+    def odd(self, xb, defocus_mm=None) -> np.ndarray:
+        """(N, K) noise-free LSF asymmetry (:mod:`calibration.sfr_asym`)."""
+        return self.model.predict_odd(self.lens(xb), defocus_mm)
 
 
 def area_weights(freq, fmax: float = 0.5) -> np.ndarray:
