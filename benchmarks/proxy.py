@@ -178,7 +178,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
     truth_sfr = model.predict(truth_lens).sfr
     t0 = time.perf_counter()
     # screened once for every method, on all the measurement holds (SFRA and the LSF's asymmetry)
-    bias = residual_bias(model, lens, "odd")
+    bias = residual_bias(model, lens, "odd", args.workers)
     names = screen(model, default_names(lens), args.n_params, bias, args.workers)
     t_screen = time.perf_counter() - t0
     case = {"observations": len(obs), "noise": noise, "names": names, "seconds_observe": round(t_obs, 2),

@@ -259,10 +259,10 @@ def resolve_residuals(residuals: str, obs: Observations) -> str:
     return residuals
 
 
-def residual_bias(model, lens, residuals: str) -> ResidualBias:
+def residual_bias(model, lens, residuals: str, workers: int = 1) -> ResidualBias:
     """The measurement's bias at ``lens`` with the parts ``residuals``
-    uses (:class:`ResidualBias`)."""
-    mb = model.measurement_biases(lens)
+    uses (:class:`ResidualBias`), measured on ``workers`` processes."""
+    mb = model.measurement_biases(lens, workers=workers)
     obs = model.obs
     out = ResidualBias(np.asarray(mb.sfra, float))
     if residuals in ("bands", "shape"):
@@ -324,10 +324,10 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     t0 = time.perf_counter()
     model = SfrModel(nominal, obs, settings)
     residuals = resolve_residuals(residuals, obs)
-    bias = residual_bias(model, nominal, residuals)
+    workers = max(1, min(2, os.cpu_count() or 1)) if workers is None else int(workers)
+    bias = residual_bias(model, nominal, residuals, workers)
     screen = names is None and n_params is not None
     names = list(names) if names is not None else default_names(nominal)
-    workers = max(1, min(2, os.cpu_count() or 1)) if workers is None else int(workers)
     pool = None
 
     def start_pool():
