@@ -30,6 +30,13 @@ A is reported as its mean over the frequency bands :data:`BANDS`
 (cycles/pixel), with a standard deviation propagated from the ESF's noise
 through A's full linearisation (the window and the centroid included):
 :func:`odd_bands_std`.
+
+References
+----------
+ISO 12233:2023, Annex D (the e-SFR's ESF, LSF and its derivative filter).
+ISO 9334:2012, *Optical transfer function — definitions*: the OTF's phase
+(PTF) is what the MTF leaves out; A is the imaginary part of the OTF
+re-centred on the LSF's centroid, i.e. |OTF| sin(PTF − linear phase).
 """
 
 from __future__ import annotations
