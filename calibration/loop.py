@@ -332,7 +332,7 @@ def asymmetry_check(base, prob, p, ratio: float) -> dict | None:
     """The final model against the measured LSF asymmetry
     (:mod:`calibration.sfr_asym`), which the loop does not fit: χ² per
     term of ``(A_measured − A_model − bias) / σ``, σ the measurement's in
-    quadrature with the model's own 1e-3. The model's A has its defocus
+    quadrature with the model's own (:func:`calibration.sfr_asym.odd_sigma`). The model's A has its defocus
     effects; a transfer effect (crosstalk, sharpening, glare: real and
     even) scales A by its band mean; with lateral shifts in the model the
     mixed-colour ("L") observations, whose A the shifts change, are left
@@ -340,8 +340,8 @@ def asymmetry_check(base, prob, p, ratio: float) -> dict | None:
     A χ² above ``ratio²`` means the edges are asymmetric in a way the model
     cannot make (coma of a decentred lens the base lacks, asymmetric
     processing)."""
-    from .proxy import ODD_MODEL_SD
     from .sfr_asym import BANDS as ODD_BANDS
+    from .sfr_asym import odd_sigma
 
     obs = prob.obs
     if obs.odd is None:
@@ -353,11 +353,8 @@ def asymmetry_check(base, prob, p, ratio: float) -> dict | None:
         return None
     a = np.asarray(base.odd(xb, dz), float)
     if transfer is not None:
-        f = np.asarray(obs.freq)
-        for k, (lo, hi) in enumerate(ODD_BANDS):
-            m = (f >= lo) & (f <= hi)
-            a[:, k] *= np.nanmean(np.asarray(transfer)[:, m], axis=1)
-    r = (np.asarray(obs.odd) - a - np.asarray(base.odd_bias)) / np.hypot(obs.odd_std, ODD_MODEL_SD)
+        a *= band_means(obs.freq, transfer, ODD_BANDS)
+    r = (np.asarray(obs.odd) - a - np.asarray(base.odd_bias)) / odd_sigma(obs.odd_std)
     r = np.where(np.isfinite(r), r, 0.0)[keep]
     a = a[keep]
     chi2 = float(np.mean(r ** 2))

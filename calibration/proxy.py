@@ -215,13 +215,6 @@ class ResidualBias(NamedTuple):
     odd: np.ndarray | None = None
 
 
-#: the forward model's own error in the asymmetry bands (ISO's record and
-#: binning against the model's continuous projection: ≈ 1 % of A ≈ 0.1 on a
-#: coma-like PSF), added in quadrature to the measurement's σ so that
-#: low-noise observations do not fit the model's approximation
-ODD_MODEL_SD = 1e-3
-
-
 def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
     """Residuals over their σ, (N, parts) flattened: SFRA; with band parts
     in ``bias`` (a :class:`ResidualBias`), the mean SFR in four bands, each
@@ -240,8 +233,9 @@ def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
         parts.append((bias.measured_bands - band_means(obs.freq, pred.sfr) - bias.bands)
                      / (4.0 * obs.sfra_std[:, None]))
     if bias.odd is not None:
-        sd = np.hypot(obs.odd_std, ODD_MODEL_SD)
-        parts.append((obs.odd - model.predict_odd(lens) - bias.odd) / sd)
+        from .sfr_asym import odd_sigma
+
+        parts.append((obs.odd - model.predict_odd(lens) - bias.odd) / odd_sigma(obs.odd_std))
     r = np.concatenate(parts, axis=1).ravel()
     return np.where(np.isfinite(r), r, 0.0)
 

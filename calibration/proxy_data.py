@@ -120,13 +120,10 @@ class Observations:
     def subset(self, mask) -> "Observations":
         """The observations where ``mask`` (bool or index array) holds."""
         m = np.asarray(mask)
-        kw = {name: np.asarray(getattr(self, name))[m] for name in
-              ("x_px", "y_px", "normal_deg", "channel", "orientation", "sfra", "sfra_std", "noise", "step")}
-        return Observations(**kw, freq=self.freq, sfr=np.asarray(self.sfr)[m], sensor=self.sensor,
-                            roi=None if self.roi is None else np.asarray(self.roi)[m], grid=self.grid,
-                            source=self.source, meta=dict(self.meta),
-                            odd=None if self.odd is None else np.asarray(self.odd)[m],
-                            odd_std=None if self.odd_std is None else np.asarray(self.odd_std)[m])
+        rows = ("x_px", "y_px", "normal_deg", "channel", "orientation", "sfra", "sfra_std", "noise", "step", "sfr",
+                "roi", "odd", "odd_std")     # the per-observation fields; the rest is shared
+        return self.with_fields(meta=dict(self.meta), **{k: None if getattr(self, k) is None
+                                                         else np.asarray(getattr(self, k))[m] for k in rows})
 
     def region_map(self, values=None, orientation: str | None = None, channel: str | None = None) -> np.ndarray:
         """(rows, cols) mean of ``values`` (default SFRA) per field region;
@@ -224,18 +221,18 @@ class Observations:
         def col(k, dtype=float):
             return np.array([o[k] for o in obs], dtype=dtype)
 
-        sfr = np.array([[np.nan if v is None else v for v in o["sfr"]] for o in obs], float)
+        def rows_of(k):
+            return np.array([[np.nan if v is None else v for v in o[k]] for o in obs], float)
+
+        sfr = rows_of("sfr")
         roi = np.array([o["roi"] for o in obs], int) if all("roi" in o for o in obs) else None
         has_odd = all("odd" in o and "odd_std" in o for o in obs)
-
-        def grid_of(k):
-            return np.array([[np.nan if v is None else v for v in o[k]] for o in obs], float)
 
         return cls(col("x_px"), col("y_px"), col("normal_deg"), col("channel", object).astype(str),
                    col("orientation", object).astype(str), col("sfra"), col("sfra_std"), col("noise"),
                    col("step"), f, sfr, Sensor(**s), roi=roi, grid=tuple(d.get("grid", GRID)),
                    source=source or d.get("source", ""), meta=d.get("meta", {}),
-                   odd=grid_of("odd") if has_odd else None, odd_std=grid_of("odd_std") if has_odd else None)
+                   odd=rows_of("odd") if has_odd else None, odd_std=rows_of("odd_std") if has_odd else None)
 
     def save(self, path) -> Path:
         from isp.io import write_bytes_atomic
