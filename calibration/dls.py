@@ -65,6 +65,20 @@ wrong). ``jacobian="auto"`` therefore switches to central differences (2N
 evaluations, O(h²)) once the merit stalls or two steps in a row have
 ρ < 0.25, and only stops on a stall after that.
 
+Jacobian reuse (``refresh`` > 1): a finite-difference Jacobian costs N
+lens evaluations, a step ``trials`` (one round on the workers), so on a
+phone lens the Jacobians are ~90 % of a fit. Between finite-difference
+Jacobians the matrix is updated from the residuals the steps evaluated
+anyway — Broyden's rank-one secant update [Broyden 1965], ``A ← A + (Δf −
+A Δx) Δxᵀ / ‖Δx‖²``, from every trial of the round (each is a secant from
+the same point), the accepted one last so that it holds exactly — for up to
+``refresh − 1`` accepted steps in a row. A fresh finite-difference Jacobian
+is taken instead after a step whose gain ratio fell below 0.25, before a
+rejection is answered with more damping, and before the fit may stop on a
+stalled merit: a secant Jacobian is only trusted while its steps keep
+their promise. The non-linearity factors ``s_j`` compare finite-difference
+Jacobians only.
+
 Stopping (Algorithm 1's ``‖Aᵀf + εΔP‖ ≫ 0`` made concrete): the projected
 gradient's largest component below ``gtol``, or φ falling by less than
 ``ftol`` relatively over two accepted steps, or φ/M below ``target_chi2``
@@ -153,6 +167,21 @@ def forward_jacobian(fun_many: Callable[[Sequence[np.ndarray]], list], x: np.nda
     return np.stack([(cols[i] - (f0 if k is None else cols[k])) / w for i, k, w in pairs], axis=1)
 
 
+def broyden_update(A: np.ndarray, dx: np.ndarray, df: np.ndarray) -> np.ndarray:
+    """Broyden's rank-one secant update: the Jacobian closest to ``A``
+    (Frobenius) with ``A' Δx = Δf`` (C. G. Broyden, "A class of methods for
+    solving nonlinear simultaneous equations", Math. Comp. 19, 1965).
+
+    >>> A = broyden_update(np.zeros((2, 2)), np.array([1.0, 0.0]), np.array([2.0, 3.0]))
+    >>> A @ np.array([1.0, 0.0])
+    array([2., 3.])
+    """
+    nn = float(dx @ dx)
+    if nn <= 0.0:
+        return A
+    return A + np.outer(df - A @ dx, dx) / nn
+
+
 def _damped_step(jtj: np.ndarray, g: np.ndarray, idx: np.ndarray, eps: np.ndarray,
                  delta: float | None) -> np.ndarray:
     """Eq. 21 on the free parameters ``idx``; with a radius ``delta`` the
@@ -175,7 +204,7 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
                          gtol: float = 1e-6, ftol: float = 1e-4, target_chi2: float | None = None,
                          radius: float | None = 1.0, trials: int = 1, jacobian: str = "auto", scaling: str = "levenberg",
                          jac_many: Callable[[Sequence[np.ndarray]], list] | None = None,
-                         progress: Callable[[dict], None] | None = None) -> DlsResult:
+                         refresh: int = 1, progress: Callable[[dict], None] | None = None) -> DlsResult:
     """Minimise ``‖fun(x)‖²`` within ``[lower, upper]`` (module docstring).
 
     Parameters
@@ -194,6 +223,7 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
         Jacobians at most.
     gtol, ftol : float
         Stopping tolerances (projected gradient ∞-norm; relative fall of φ).
+        With ``refresh`` > 1 the gradient test uses a fresh Jacobian.
     target_chi2 : float, optional
         Stop once φ/M ≤ this (the noise floor).
     radius : float or None
@@ -210,6 +240,10 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
         (fewer wavelengths, pupil samples): the step is then damped
         Gauss–Newton on an approximate Jacobian, still accepted only on the
         exact merit.
+    refresh : int
+        A finite-difference Jacobian every ``refresh`` accepted steps at
+        most, Broyden updates in between (module docstring); 1 (default):
+        every step.
     progress : callable, optional
         Called with each iteration's record.
 
@@ -253,6 +287,8 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
     s = np.ones(n)
     if scaling not in ("marquardt", "levenberg"):
         raise ValueError(f"scaling must be 'marquardt' or 'levenberg', not {scaling!r}")
+    refresh = max(1, int(refresh))
+    fresh, since_fd, A_fd = True, 0, A   # A is a finite-difference Jacobian at x; accepted steps on secants
     history = [{"iteration": 0, "merit": phi, "lambda": lam, "accepted": True, "step": 0.0, "evaluations": evals}]
     if progress:
         progress(history[-1])
@@ -262,8 +298,12 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
         g = A.T @ f
         free = ~(((x <= lower) & (g > 0)) | ((x >= upper) & (g < 0)))
         if np.max(np.abs(g[free]), initial=0.0) < gtol:
-            reason = "gradient"
-            break
+            if fresh:
+                reason = "gradient"
+                break
+            A = A_fd = jacobian_at(x, f)   # a secant Jacobian's gradient is not proof of a minimum
+            fresh, since_fd = True, 0
+            continue
         if target_chi2 is not None and phi / m <= target_chi2:
             reason = "noise floor"
             break
@@ -273,6 +313,7 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
             d = np.full(n, np.mean(d))
         accepted = False
         idx = np.flatnonzero(free)
+        secants = []   # (Δx, f(x + Δx)) of every trial: Broyden's data when A is not refreshed
         for _ in range(12):  # rounds of retries with more damping
             steps = []
             for k in range(max(1, trials)):
@@ -280,6 +321,7 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
                 steps.append(np.clip(x + dx, lower, upper) - x)
             f_trials = many([x + dx for dx in steps])
             phis = [float(v @ v) for v in f_trials]
+            secants += list(zip(steps, f_trials))
             best = int(np.argmin(phis))
             dx, f_new, phi_new = steps[best], f_trials[best], phis[best]
             lam *= 4.0 ** best
@@ -301,12 +343,18 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
             if delta is not None:
                 delta = max(delta / 2.0 ** max(1, trials - best), 1e-6 * (radius or 1.0))
         history.append({"iteration": it, "merit": phi_new if accepted else phi, "lambda": lam, "radius": delta,
-                        "central": central, "s_max": float(np.max(s)),
+                        "central": central, "secant": not fresh, "s_max": float(np.max(s)),
                         "accepted": accepted, "step": float(np.linalg.norm(dx)), "evaluations": evals,
                         "rho": float(rho)})
         if progress:
             progress(history[-1])
         if not accepted:
+            if not fresh:   # the secant Jacobian, not the damping, failed: re-linearise first
+                A = A_fd = jacobian_at(x, f)
+                fresh, since_fd = True, 0
+                lam = float(lam0)
+                delta = None if radius is None else float(radius)
+                continue
             if jacobian == "auto" and not central:
                 central = True   # a biased gradient can point uphill: retry with central differences
                 A = jacobian_at(x, f)
@@ -315,6 +363,7 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
                 continue
             reason = "no descent (damping exhausted)"
             break
+        f_old = f
         x, f = np.clip(x + dx, lower, upper), f_new
         last_phis.append(phi_new)
         phi = phi_new
@@ -326,12 +375,23 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
             central = True
             last_phis = [phi]
             stalled = False
-        A_new = jacobian_at(x, f)
-        if not switch:   # a change of difference scheme is not the problem's non-linearity
-            col = np.linalg.norm(A, axis=0)
-            nu = np.linalg.norm(A_new - A, axis=0) / np.maximum(col, 1e-12)
-            s = np.maximum(np.maximum(1.0, s / 2.0), (nu / NONLINEARITY_TAU) ** 2)
-        A = A_new
+        secant = refresh > 1 and since_fd + 1 < refresh and rho >= 0.25 and not switch
+        if stalled and not fresh:   # judge convergence on a finite-difference Jacobian
+            stalled, secant, last_phis = False, False, [phi]
+        if secant:
+            # the accepted trial last, so that its secant holds exactly
+            order = sorted(range(len(secants)), key=lambda k: secants[k][0] is dx)
+            for k in order:
+                A = broyden_update(A, secants[k][0], secants[k][1] - f_old)
+            fresh, since_fd = False, since_fd + 1
+        else:
+            A_new = jacobian_at(x, f)
+            if not switch:   # a change of difference scheme is not the problem's non-linearity
+                col = np.linalg.norm(A_fd, axis=0)
+                nu = np.linalg.norm(A_new - A_fd, axis=0) / np.maximum(col, 1e-12)
+                s = np.maximum(np.maximum(1.0, s / 2.0), (nu / NONLINEARITY_TAU) ** 2)
+            A = A_fd = A_new
+            fresh, since_fd = True, 0
         if stalled:
             reason = "merit converged"
             break

@@ -271,7 +271,7 @@ def residual_bias(model, lens, residuals: str, workers: int = 1) -> ResidualBias
 def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
               workers: int | None = None, max_iter: int = 15, bound_factor: float = 2.0,
               progress: bool = True, x0=None, n_params: int | None = 16,
-              jacobian_settings=None, residuals: str = "auto") -> ProxyFit:
+              jacobian_settings=None, residuals: str = "auto", refresh: int = 1) -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
 
     Parameters
@@ -311,6 +311,10 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         wavelength and fewer pupil samples; steps are still accepted on the
         full model's merit (``benchmarks/proxy.py --fast-jacobian`` measures
         what it costs).
+    refresh : int
+        DLS: a finite-difference Jacobian every ``refresh`` accepted steps
+        at most, Broyden secant updates in between (:mod:`calibration.dls`;
+        ``benchmarks/proxy.py --refresh`` measures what it costs).
     """
     from .sfr_model import ModelSettings, SfrModel
 
@@ -382,7 +386,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         if method == "dls":
             res = damped_least_squares(fun, u0, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
                                        max_iter=max_iter, target_chi2=1.0, trials=workers, jac_many=jac_many,
-                                       progress=report)
+                                       refresh=refresh, progress=report)
             u, evals = res.x, res.evaluations
         elif method == "scipy":
             from scipy.optimize import least_squares

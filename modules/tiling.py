@@ -54,6 +54,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 
@@ -190,9 +191,36 @@ def read_window(image: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     c = image.shape[2]
     if out is None:
         out = np.empty((c, rows.size, cols.size), np.float32)
-    for k in range(c):  # one plane at a time: 3-4× faster than a moveaxis copy
-        out[k] = sub[..., k]
+    if _cv2_planes(sub.dtype, out.dtype, c):
+        # OpenCV's SIMD de-interleave straight into the planes: 3.2× faster than numpy's
+        # strided plane copies on a 1,072² float32 window (8.0 → 2.5 ms)
+        cv2.split(sub, [out[k] for k in range(c)])
+    else:
+        for k in range(c):  # one plane at a time: 3-4× faster than a moveaxis copy
+            out[k] = sub[..., k]
     return out
+
+
+def _cv2_planes(a, b, channels: int) -> bool:
+    """Whether OpenCV can (de-)interleave between these dtypes: same dtype,
+    one it has (float32; float16 only as CV_16F), at most 4 channels."""
+    return a == b and a in (np.float32, np.float16) and 1 < channels <= 4
+
+
+def write_planes(dst: np.ndarray, planes: np.ndarray) -> None:
+    """``dst[..., k] = planes[k]`` for an ``(h, w, C)`` view ``dst`` (rows
+    may be strided) and ``(C, h, w)`` planes: OpenCV's interleave into the
+    view where it can (5.5× numpy's plane loop on 1,024² × 3 float32), else
+    numpy."""
+    c = planes.shape[0]
+    if _cv2_planes(dst.dtype, planes.dtype, c) and dst.strides[1:] == (c * dst.itemsize, dst.itemsize):
+        r = cv2.merge([planes[k] for k in range(c)], dst=dst)
+        if r is dst or np.shares_memory(r, dst):   # written in place (OpenCV reallocates otherwise)
+            return
+        dst[...] = r
+        return
+    for k in range(c):
+        dst[..., k] = planes[k]
 
 
 #: an operator run per tile: ``fn(window (C + extra, h, w), rows (h,), cols
@@ -258,8 +286,7 @@ def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple
                                  f"{(c + extra_channels, *shape)}; expected {(out.shape[2], *shape)}")
             ci, cj = t.rows.core_in_window, t.cols.core_in_window
             dst = out[t.rows.core_start:t.rows.core_stop, t.cols.core_start:t.cols.core_stop]
-            for k in range(out.shape[2]):
-                dst[..., k] = y[k, ci, cj]
+            write_planes(dst, y[:, ci, cj])
             if bar is not None:
                 bar.update()
     finally:

@@ -112,3 +112,46 @@ def test_cheap_jacobian_reaches_the_same_minimum(rng):
     res = damped_least_squares(f, np.array([1.0, 0.5, 0.0]), lower=lo, upper=hi, h=1e-6, gtol=1e-9,
                                jac_many=cheap, max_iter=60)
     assert np.allclose(res.x, [2.0, 1.3, 0.4], atol=2e-3)
+
+
+def test_broyden_reuse_reaches_the_same_minimum_with_fewer_evaluations(rng):
+    # two Gaussian peaks (6 parameters, 120 residuals): the secant updates must not change
+    # the answer, and must get near it for fewer evaluations than a Jacobian every step
+    t = np.linspace(-1, 1, 120)
+    truth = np.array([1.0, -0.3, 0.2, 0.8, 0.4, 0.15])
+
+    def model(p):
+        return (p[0] * np.exp(-(t - p[1]) ** 2 / (2 * p[2] ** 2))
+                + p[3] * np.exp(-(t - p[4]) ** 2 / (2 * p[5] ** 2)))
+
+    y = model(truth) + rng.normal(0, 0.01, t.size)
+
+    def f(p):
+        return (model(p) - y) / 0.01
+
+    lo, hi = np.array([0, -1, 0.05, 0, -1, 0.05]), np.array([3, 1, 1, 3, 1, 1.0])
+    x0 = np.array([0.7, -0.2, 0.3, 0.6, 0.3, 0.25])
+    kw = {"lower": lo, "upper": hi, "h": 1e-6, "gtol": 1e-6, "ftol": 1e-8, "max_iter": 100}
+    full = damped_least_squares(f, x0, **kw)
+    reuse = damped_least_squares(f, x0, refresh=2, **kw)
+    assert reuse.merit == pytest.approx(full.merit, rel=1e-8)
+    assert np.allclose(reuse.x, full.x, atol=1e-5)
+    assert any(h.get("secant") for h in reuse.history)
+
+    def evaluations_to(res, merit):
+        return next(h["evaluations"] for h in res.history if h["merit"] <= merit)
+
+    near = full.merit * 1.01
+    assert evaluations_to(reuse, near) < 0.7 * evaluations_to(full, near)
+    # the merit never rises, secant steps included
+    assert all(h["merit"] <= h0["merit"] + 1e-9 for h0, h in zip(reuse.history, reuse.history[1:]))
+
+
+def test_broyden_update_is_exact_on_a_linear_map(rng):
+    from calibration.dls import broyden_update
+
+    B = rng.normal(size=(5, 3))
+    A = np.zeros((5, 3))
+    for dx in np.eye(3):   # three independent secants recover a linear map exactly
+        A = broyden_update(A, dx, B @ dx)
+    assert np.allclose(A, B, atol=1e-12)

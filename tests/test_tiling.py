@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from modules.tiling import plan_tiles, reflect_indices, run_tiled, split_axis
+from modules.tiling import plan_tiles, read_window, reflect_indices, run_tiled, split_axis, write_planes
 
 
 @pytest.mark.parametrize("n", [1, 2, 5, 16])
@@ -92,3 +92,22 @@ def test_progress_bar_on_request(capsys):
               desc="corr")
     err = capsys.readouterr().err
     assert "corr" in err and "tile" in err
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float16, np.float64])
+@pytest.mark.parametrize("channels", [1, 3, 5])
+def test_plane_copies_equal_numpy_on_strided_views(rng, dtype, channels):
+    # the OpenCV (de-)interleave paths and the numpy fallback give the same bytes
+    image = rng.random((40, 50, channels)).astype(dtype)
+    rows, cols = np.arange(5, 30), np.r_[2, 1, 0, 0:20]   # a reflected border: a gathered copy
+    for r, c in ((rows, cols), (rows, np.arange(3, 40))):  # and a plain view with strided rows
+        buf = np.full((channels + 2, r.size, c.size), -1, dtype)
+        read_window(image, r, c, buf)
+        assert np.array_equal(buf[:channels], image[r][:, c].transpose(2, 0, 1))
+        assert np.all(buf[channels:] == -1)   # the extra channels are left alone
+    out = np.zeros((30, 60, channels), dtype)
+    planes = rng.random((channels, 20, 30)).astype(dtype)
+    write_planes(out[4:24, 7:37], planes)
+    assert np.array_equal(out[4:24, 7:37], planes.transpose(1, 2, 0))
+    out[4:24, 7:37] = 0
+    assert not out.any()   # nothing written outside the view
