@@ -21,6 +21,10 @@ examples:
   isp export model.pt -o m.onnx --tile-size 384 --overlap 32        # fixed margin, no measurement
   isp process photo.dng -o photo.jpg --set correction.model=e9.int8.onnx
 
+The UNet is exported packed 2×2 to depth (its stem and head reindexed, the
+same function): the stage packs each tile as it reads it, and ONNX Runtime
+skips a strided full-resolution conv and a DepthToSpace (INT8 ≈ 10 % faster).
+
 Writes MODEL.onnx (FP32), with --int8 MODEL.int8.onnx (or --int8-output), and
 MODEL.export.json: nodes per op type, torch vs ONNX max abs error, the measured
 tile overlap, convs quantised after ORT's optimisation, INT8 vs FP32 PSNR on
@@ -39,6 +43,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--tile-size", type=int, default=512,
                    help="tile side the stage uses, margins included, px (default 512; 0: whole frames)")
     p.add_argument("--overlap", type=int, help="tile margin per side (px) to write instead of measuring it")
+    p.add_argument("--planar", action="store_true",
+                   help="export the UNet on full-resolution planes instead of its space-to-depth form "
+                        "(the same function; the packed form runs faster, see `isp export --help`)")
     p.add_argument("--no-measure-overlap", action="store_true",
                    help="skip the overlap measurement (the stage then uses receptive_radius)")
     q = p.add_argument_group("INT8")
@@ -73,7 +80,8 @@ def run(args) -> int:
         raise ConfigError(f"--calib-data {args.calib_data}: not an `isp synth` folder (no manifest.json)")
     report = {"checkpoint": str(args.checkpoint)}
     fp32 = export_onnx(args.checkpoint, out, opset=args.opset, tile_size=args.tile_size,
-                       measure_overlap=not args.no_measure_overlap, overlap=args.overlap)
+                       measure_overlap=not args.no_measure_overlap, overlap=args.overlap,
+                       packed=not args.planar)
     report["fp32"] = fp32
     meta = fp32["metadata"]
     print(f"{out}: {fp32['convs']} convs, torch vs ONNX max abs {fp32['parity_max_abs']:.2g}, "

@@ -175,17 +175,20 @@ def _session(model_bytes_or_path, threads: int = 2):
 
 def onnx_parity(model, session, sizes=((64, 96), (96, 128)), seed: int = 0) -> float:
     """Max abs difference, torch vs ONNX Runtime, over test inputs of ``sizes``
-    (dynamic H, W exercised); the torch model in float32 eval mode."""
+    (dynamic H, W exercised); the torch model in float32 eval mode, on
+    unpacked inputs (a packed export is packed and unpacked by
+    :func:`modules.correction.run_model`, so the repacking is checked too)."""
     import torch
 
+    from modules.correction import run_model
+
     fov = getattr(model, "fov_encoding", "none") == "xy"
-    name = session.get_inputs()[0].name
     err = 0.0
     for k, size in enumerate(sizes):
         x = _model_input(sample_frame(size, fov, seed + k), fov)
         with torch.no_grad():
             ref = model(torch.from_numpy(x)).numpy()
-        got = session.run(None, {name: x})[0]
+        got = run_model(session, x)
         if got.shape != ref.shape:
             raise ExportError(f"ONNX output shape {got.shape} differs from torch's {ref.shape} at input {size}")
         err = max(err, float(np.abs(got - ref).max()))
@@ -233,11 +236,13 @@ def measure_tile_overlap(path, candidates=OVERLAP_CANDIDATES, tolerance: float =
     return {"overlap": found, "errors": errors, "tile": tiles, "tolerance": tolerance, "shape": list(shape)}
 
 
-def _export_bytes(model, opset: int) -> bytes:
+def _export_bytes(model, opset: int, packing: int = 1) -> bytes:
     import torch
 
+    from modules.correction import pack_input
+
     fov = getattr(model, "fov_encoding", "none") == "xy"
-    x = torch.from_numpy(_model_input(sample_frame((64, 96), fov), fov))
+    x = torch.from_numpy(pack_input(_model_input(sample_frame((64, 96), fov), fov), packing))
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the legacy exporter's deprecation and constant-folding notes
@@ -250,7 +255,7 @@ def _export_bytes(model, opset: int) -> bytes:
 
 def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int = 512,
                 measure_overlap: bool = True, overlap: int | None = None,
-                parity_tolerance: float = PARITY_TOLERANCE) -> dict:
+                parity_tolerance: float = PARITY_TOLERANCE, packed: bool = True) -> dict:
     """Export a checkpoint to an ONNX model for the ``correction`` stage.
 
     Parameters
@@ -270,6 +275,12 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
         Write this ``tile_overlap`` instead of measuring.
     parity_tolerance : float
         Max abs torch ↔ ONNX difference accepted.
+    packed : bool
+        Export a :class:`~restoration.network.DOConvUNet` in its
+        space-to-depth form (:class:`~restoration.network.SpaceToDepthForm`:
+        the same function, input and output packed by its ``scale``;
+        metadata ``space_to_depth``), which the stage packs while it tiles;
+        other models are exported as they are.
 
     Returns
     -------
@@ -331,7 +342,14 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
         md["process"] = meta["process"]
     if overlap is not None:
         md["tile_overlap"] = str(int(overlap))
-    proto = onnx.load_from_string(_export_bytes(model, opset))
+    exported, packing = model, 1
+    if packed and getattr(model, "config", {}).get("scale", 1) > 1 and hasattr(model, "run"):
+        from restoration.network import SpaceToDepthForm
+
+        exported = SpaceToDepthForm(model).eval()
+        packing = exported.packing
+        md["space_to_depth"] = str(packing)
+    proto = onnx.load_from_string(_export_bytes(exported, opset, packing))
     n_conv = check_constant_weights(proto)
     set_metadata(proto, md)
     onnx.checker.check_model(proto)

@@ -109,6 +109,26 @@ class SynthCalibration:
         return self.n
 
 
+class PackedReader:
+    """A calibration reader whose image inputs are packed ``s × s`` to depth
+    (:func:`modules.correction.pack_input`), for a model exported so."""
+
+    def __init__(self, reader, packing: int):
+        self.reader, self.packing = reader, packing
+
+    def rewind(self):
+        self.reader.rewind()
+
+    def get_next(self):
+        from modules.correction import pack_input
+
+        feed = self.reader.get_next()
+        return None if feed is None else {k: pack_input(v, self.packing) for k, v in feed.items()}
+
+    def __len__(self):
+        return len(self.reader)
+
+
 def optimized_graph(path, threads: int = 2):
     """The graph ORT runs after every optimisation (``ORT_ENABLE_ALL``, as the
     stage loads it), as an ``onnx.ModelProto``."""
@@ -261,6 +281,9 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
     t0 = time.perf_counter()
     src = onnx.load(str(fp32_path))
     meta = {p.key: p.value for p in src.metadata_props}
+    packing = int(meta.get("space_to_depth", 1))
+    if packing > 1:   # the reader yields the model's unpacked inputs, as the stage sees frames
+        calibration_reader = PackedReader(calibration_reader, packing)
     with tempfile.TemporaryDirectory() as d:
         pre, q = Path(d) / "pre.onnx", Path(d) / "q.onnx"
         quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
@@ -319,13 +342,14 @@ def int8_psnr(fp32_path, int8_path, directory, n: int = 16, *, indices=None, thr
     """
     import onnxruntime as ort
 
-    from modules.correction import session_options
+    from modules.correction import model_info, run_model, session_options
 
     pairs = _pairs(directory)
     idx = list(indices) if indices is not None else list(range(max(0, len(pairs) - n), len(pairs)))
     sess = [ort.InferenceSession(str(p), session_options(threads), providers=["CPUExecutionProvider"])
             for p in (fp32_path, int8_path)]
-    fov = sess[0].get_inputs()[0].shape[1] == 5
+    infos = [model_info(s) for s in sess]
+    fov = infos[0].fov_encoding == "xy"
     scores = {"input": [], "fp32": [], "int8": []}
     for i in idx:
         item = pairs[int(i)]
@@ -337,8 +361,8 @@ def int8_psnr(fp32_path, int8_path, directory, n: int = 16, *, indices=None, thr
         x = np.ascontiguousarray(x[None], dtype=np.float32)
         target = item["target"][:h, :w]
         scores["input"].append(_psnr(pairs.process(rgb[:h, :w], item), target))
-        for key, s in zip(("fp32", "int8"), sess):
-            y = s.run(None, {s.get_inputs()[0].name: x})[0][0].transpose(1, 2, 0)
+        for key, s, info in zip(("fp32", "int8"), sess, infos):
+            y = run_model(s, x, info)[0].transpose(1, 2, 0)
             scores[key].append(_psnr(pairs.process(y, item), target))
     mean = {k: float(np.mean(v)) for k, v in scores.items()}
     return {"pairs": len(idx), "input_psnr_db": mean["input"], "fp32_psnr_db": mean["fp32"],

@@ -27,6 +27,8 @@ Model contract
 Inputs: the image ``(1, C, H, W)`` float32, ``C = 3`` (RGB in the slot's
 domain) or ``5`` (RGB, field x, field y), ``H, W`` any multiple of
 ``input_multiple``; optionally ``stats`` (below). Output: ``(1, 3, H, W)``.
+With ``space_to_depth = s`` the same, packed: ``(1, 3s² [+ 2], H/s, W/s)``
+in, ``(1, 3s², H/s, W/s)`` out (:func:`pack_input`).
 Quantised (QDQ INT8) and float models go through the same path; the
 quantisation must be static (fixed scales), since a scale computed from
 the input would differ between tiles.
@@ -45,6 +47,9 @@ metadata key              default    meaning
                                      (full width, px; margin = width // 2), else 32
 ``input_multiple``        4          H and W of every call are multiples of it, and tile
                                      origins too (a UNet's total stride)
+``space_to_depth``        1          ``s > 1``: input and output packed ``s × s`` to depth
+                                     (:func:`pack_input`, :func:`unpack_output`); the
+                                     stage packs while it reads each tile
 ``attention``             "local"    ``"local"``: attention statistics from a bounded
                                      neighbourhood (tile-consistent, nothing to do);
                                      ``"global"``: pooled over the whole input, so the
@@ -210,6 +215,7 @@ class ModelInfo:
     dtype: type
     stats_name: str | None
     stats_shape: tuple[int, ...] | None
+    packing: int = 1
 
 
 def _int_meta(meta: dict, key: str, default: int, name: str, minimum: int = 0) -> int:
@@ -253,10 +259,16 @@ def model_info(session, name: str = "model") -> ModelInfo:
         raise ConfigError(f"model {name}: expected one image input (plus optional {STATS_INPUT!r}); "
                           f"got {[i.name for i in inputs]}")
     img = images[0]
-    want = 5 if fov == "xy" else 3
+    packing = _int_meta(meta, "space_to_depth", 1, name, minimum=1)
+    multiple = _int_meta(meta, "input_multiple", DEFAULT_MULTIPLE, name, minimum=1)
+    if multiple % packing:
+        raise ConfigError(f"model {name}: metadata space_to_depth={packing} does not divide "
+                          f"input_multiple={multiple}")
+    want = 3 * packing * packing + (2 if fov == "xy" else 0)
     if len(img.shape) != 4 or (isinstance(img.shape[1], int) and img.shape[1] != want):
+        packed = f", packed {packing}×{packing} to depth" if packing > 1 else ""
         raise ConfigError(f"model {name}: input {img.name!r} has shape {img.shape}; with fov_encoding "
-                          f"{fov!r} it must be (1, {want}, H, W)")
+                          f"{fov!r}{packed} it must be (1, {want}, H, W)")
     if img.type not in _DTYPES:
         raise ConfigError(f"model {name}: input type {img.type}; valid: {', '.join(_DTYPES)}")
     stats_shape = None
@@ -270,9 +282,53 @@ def model_info(session, name: str = "model") -> ModelInfo:
     return ModelInfo(
         name=name, meta=meta, fov_encoding=fov,
         tile_size=_int_meta(meta, "tile_size", DEFAULT_TILE_SIZE, name),
-        overlap=overlap, multiple=_int_meta(meta, "input_multiple", DEFAULT_MULTIPLE, name, minimum=1),
+        overlap=overlap, multiple=multiple,
         attention=attention, input_name=img.name, in_channels=want, dtype=_DTYPES[img.type],
-        stats_name=STATS_INPUT if stats else None, stats_shape=stats_shape)
+        stats_name=STATS_INPUT if stats else None, stats_shape=stats_shape, packing=packing)
+
+
+def pack_input(x: np.ndarray, s: int) -> np.ndarray:
+    """A model input ``(N, 3 [+ 2], H, W)`` packed ``s × s`` to depth:
+    ``(N, 3s² [+ 2], H/s, W/s)``, channel ``(dy·s + dx)·3 + c`` = colour
+    ``c`` of pixel ``(s·i + dy, s·j + dx)``, then the field channels
+    averaged over each block (its centre's position, for a field linear in
+    the pixel index). ``s = 1`` returns ``x``.
+
+    >>> x = np.arange(2 * 5 * 2 * 2, dtype=np.float32).reshape(2, 5, 2, 2)
+    >>> pack_input(x, 2).shape
+    (2, 14, 1, 1)
+    >>> np.array_equal(unpack_output(pack_input(x, 2)[:, :12], 2), x[:, :3])
+    True
+    """
+    if s == 1:
+        return x
+    n, c, h, w = x.shape
+    if h % s or w % s:
+        raise ValueError(f"H, W = {h}, {w} must be multiples of {s}")
+    rgb = x[:, :3].reshape(n, 3, h // s, s, w // s, s).transpose(0, 3, 5, 1, 2, 4)
+    out = [rgb.reshape(n, 3 * s * s, h // s, w // s)]
+    if c > 3:
+        out.append(x[:, 3:].reshape(n, c - 3, h // s, s, w // s, s).mean(axis=(3, 5), dtype=np.float64))
+    return np.ascontiguousarray(np.concatenate(out, axis=1), dtype=x.dtype)
+
+
+def unpack_output(y: np.ndarray, s: int) -> np.ndarray:
+    """Inverse of the RGB part of :func:`pack_input`: ``(N, 3s², h, w)`` →
+    ``(N, 3, h·s, w·s)``."""
+    if s == 1:
+        return y
+    n, c, h, w = y.shape
+    k = c // (s * s)
+    return np.ascontiguousarray(y.reshape(n, s, s, k, h, w).transpose(0, 3, 4, 1, 5, 2).reshape(n, k, h * s, w * s))
+
+
+def run_model(session, x: np.ndarray, info: ModelInfo | None = None) -> np.ndarray:
+    """One call of an exported model on an unpacked input ``(N, 3 [+ 2], H,
+    W)`` → ``(N, 3, H, W)``, packing and unpacking as its metadata says
+    (for tools and tests; the stage packs while it tiles)."""
+    info = info or model_info(session)
+    s = info.packing
+    return unpack_output(session.run(None, {info.input_name: pack_input(x, s)})[0], s)
 
 
 def frame_statistics(data: np.ndarray, channels: int, origin: tuple[int, int] = (0, 0),
@@ -451,14 +507,18 @@ class Correction(StageBase):
             s = frame_statistics(frame.data, info.stats_shape[1], origin, full)
             feeds[info.stats_name] = s.reshape(info.stats_shape).astype(info.dtype)
 
+        k, p = 3 * info.packing ** 2, info.packing
+
         def run(x: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
             if info.fov_encoding == "xy":
-                x[3:] = field_coordinates_at(rows + origin[0], cols + origin[1], full)
+                if p > 1:   # each block's centre: the mean of its pixels' (reflected) positions
+                    rows, cols = rows.reshape(-1, p).mean(1), cols.reshape(-1, p).mean(1)
+                x[k:] = field_coordinates_at(rows + origin[0], cols + origin[1], full)
             return sess.run(None, {info.input_name: x[None], **feeds})[0][0]
 
         n = len(plan_tiles(frame.data.shape[:2], tile, margin, mult))
         out = run_tiled(run, frame.data, tile=tile, margin=margin, multiple=mult, out_channels=3,
-                        extra_channels=info.in_channels - 3, dtype=info.dtype,
+                        extra_channels=info.in_channels - k, dtype=info.dtype, packing=p,
                         progress=self.progress, desc=f"correction {info.name}")
         lens = info.meta.get("lens", "?")
         how = f"{n} tiles of {tile} px, overlap {margin} px" if n > 1 else f"whole frame, margin {margin} px"

@@ -183,36 +183,69 @@ def window_indices(t: Tile, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndar
 
 
 def read_window(image: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                out: np.ndarray | None = None) -> np.ndarray:
+                out: np.ndarray | None = None, packing: int = 1) -> np.ndarray:
     """The window of an ``(H, W, C)`` image at ``rows × cols`` as ``(C, h,
     w)`` (the layout a network takes), written into ``out[:C]`` when given
-    (a buffer reused between tiles), else into a new float32 array."""
+    (a buffer reused between tiles), else into a new float32 array.
+
+    ``packing = s > 1``: packed ``s × s`` to depth instead, ``(C·s², h/s,
+    w/s)`` with channel ``(dy·s + dx)·C + c`` from pixel ``(s·i + dy, s·j +
+    dx)`` (:func:`modules.correction.pack_input`): row ``dy`` of every block
+    is a plain view of the window whose pixels interleave ``(dx, c)``, so
+    packing costs the same de-interleave as the planar copy.
+    """
     sub = _gather(image, rows, cols)
-    c = image.shape[2]
+    c, s = image.shape[2], packing
+    h, w = rows.size // s, cols.size // s
+    if rows.size % s or cols.size % s:
+        raise ValueError(f"window {rows.size}×{cols.size} is not a multiple of the packing {s}")
     if out is None:
-        out = np.empty((c, rows.size, cols.size), np.float32)
-    if _cv2_planes(sub.dtype, out.dtype, c):
+        out = np.empty((c * s * s, h, w), np.float32)
+    for dy in range(s):
+        # (h, w, s·c): a view while the window's pixels are contiguous along a row (they are)
+        _split(sub[dy::s].reshape(h, w, s * c), out[dy * s * c:(dy + 1) * s * c])
+    return out
+
+
+def _split(src: np.ndarray, planes: np.ndarray) -> None:
+    """``planes[k] = src[..., k]``."""
+    c = src.shape[2]
+    if _cv2_planes(src.dtype, planes.dtype, c):
         # OpenCV's SIMD de-interleave straight into the planes: 3.2× faster than numpy's
-        # strided plane copies on a 1,072² float32 window (8.0 → 2.5 ms)
-        cv2.split(sub, [out[k] for k in range(c)])
+        # strided plane copies on a 1,072² × 3 float32 window (8.0 → 2.5 ms)
+        cv2.split(src, [planes[k] for k in range(c)])
     else:
         for k in range(c):  # one plane at a time: 3-4× faster than a moveaxis copy
-            out[k] = sub[..., k]
-    return out
+            planes[k] = src[..., k]
 
 
 def _cv2_planes(a, b, channels: int) -> bool:
     """Whether OpenCV can (de-)interleave between these dtypes: same dtype,
-    one it has (float32; float16 only as CV_16F), at most 4 channels."""
-    return a == b and a in (np.float32, np.float16) and 1 < channels <= 4
+    one it has (float32; float16 only as CV_16F), 2 to 12 channels."""
+    return a == b and a in (np.float32, np.float16) and 1 < channels <= 12
 
 
-def write_planes(dst: np.ndarray, planes: np.ndarray) -> None:
+def write_planes(dst: np.ndarray, planes: np.ndarray, packing: int = 1) -> None:
     """``dst[..., k] = planes[k]`` for an ``(h, w, C)`` view ``dst`` (rows
     may be strided) and ``(C, h, w)`` planes: OpenCV's interleave into the
     view where it can (5.5× numpy's plane loop on 1,024² × 3 float32), else
-    numpy."""
-    c = planes.shape[0]
+    numpy. ``packing = s > 1``: ``planes`` are ``(C·s², ⌈h/s⌉, ⌈w/s⌉)``,
+    packed as :func:`read_window` packs (``h, w`` need not be multiples of
+    ``s``: a tile cut by the frame's edge)."""
+    s = packing
+    hh, ww, c = dst.shape
+    if s > 1:
+        for dy in range(min(s, hh)):
+            rows = dst[dy::s]
+            nr, p = rows.shape[0], planes[dy * s * c:(dy + 1) * s * c]
+            view = rows.reshape(nr, ww // s, s * c) if ww % s == 0 else None
+            if view is not None and np.shares_memory(view, dst):   # a view, never a copy to write into
+                write_planes(view, p[:, :nr, :ww // s])
+                continue
+            for dx in range(min(s, ww)):
+                cols = rows[:, dx::s]
+                write_planes(cols, p[dx * c:(dx + 1) * c, :nr, :cols.shape[1]])
+        return
     if _cv2_planes(dst.dtype, planes.dtype, c) and dst.strides[1:] == (c * dst.itemsize, dst.itemsize):
         r = cv2.merge([planes[k] for k in range(c)], dst=dst)
         if r is dst or np.shares_memory(r, dst):   # written in place (OpenCV reallocates otherwise)
@@ -233,7 +266,7 @@ TileFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple: int = 1,
               out_channels: int | None = None, extra_channels: int = 0, dtype=np.float32,
-              progress: bool | None = False, desc: str = "tiles") -> np.ndarray:
+              packing: int = 1, progress: bool | None = False, desc: str = "tiles") -> np.ndarray:
     """Apply a local operator to ``image`` tile by tile (crop-centre stitching).
 
     Parameters
@@ -252,6 +285,10 @@ def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple
         (e.g. field position), so the window can go to a model as it is.
     dtype : numpy dtype
         Of the window buffer.
+    packing : int
+        ``s > 1``: ``fn`` takes the window packed ``s × s`` to depth and
+        returns its output packed the same way (:func:`read_window`,
+        :func:`write_planes`); ``multiple`` must be a multiple of ``s``.
     progress : bool or None
         tqdm bar on stderr; ``None`` shows one when stderr is a terminal and
         there are at least 4 tiles.
@@ -264,6 +301,9 @@ def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple
     if image.ndim != 3:
         raise ValueError(f"image must be (H, W, C), got shape {image.shape}")
     h, w, c = image.shape
+    s = int(packing)
+    if s < 1 or multiple % s:
+        raise ValueError(f"packing {packing} must be ≥ 1 and divide multiple {multiple}")
     tiles = plan_tiles((h, w), tile, margin, multiple)
     out = np.empty((h, w, c if out_channels is None else out_channels), np.float32)
     if progress is None:
@@ -277,16 +317,18 @@ def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple
     try:
         for t in tiles:
             rows, cols = window_indices(t, (h, w))
-            shape = (rows.size, cols.size)
+            shape = (rows.size // s, cols.size // s)
             if shape not in buffers:
-                buffers[shape] = np.zeros((c + extra_channels, *shape), dtype)
-            y = fn(read_window(image, rows, cols, buffers[shape]), rows, cols)
-            if y.ndim != 3 or y.shape[1:] != shape or y.shape[0] != out.shape[2]:
+                buffers[shape] = np.zeros((c * s * s + extra_channels, *shape), dtype)
+            y = fn(read_window(image, rows, cols, buffers[shape], s), rows, cols)
+            want = (out.shape[2] * s * s, *shape)
+            if y.shape != want:
                 raise ValueError(f"tile operator returned shape {y.shape} for a window "
-                                 f"{(c + extra_channels, *shape)}; expected {(out.shape[2], *shape)}")
+                                 f"{(c * s * s + extra_channels, *shape)}; expected {want}")
             ci, cj = t.rows.core_in_window, t.cols.core_in_window
             dst = out[t.rows.core_start:t.rows.core_stop, t.cols.core_start:t.cols.core_stop]
-            write_planes(dst, y[:, ci, cj])
+            # cores start on the packing grid (margins are multiples of `multiple`)
+            write_planes(dst, y[:, ci.start // s:-(-ci.stop // s), cj.start // s:-(-cj.stop // s)], s)
             if bar is not None:
                 bar.update()
     finally:

@@ -352,3 +352,27 @@ def test_sqrt_encoding_is_the_identity_without_a_correction():
     assert torch.allclose(y, want, atol=1e-6)
     with pytest.raises(ConfigError, match="encoding"):
         build_model("doconv", encoding="gamma")
+
+
+@pytest.mark.parametrize("kw", [{}, {"scale": 4, "depths": (1, 1, 1)}, {"encoding": "sqrt", "field": False},
+                                {"conv": "static"}])
+def test_space_to_depth_form_is_the_same_function(kw):
+    """The export's packed form (stem and head reindexed) equals the model on
+    the packed input, to float rounding; built here with plain reshapes."""
+    from restoration.network import SpaceToDepthForm, build_model, field_features
+
+    torch.manual_seed(0)
+    model = build_model("doconv", widths=(8, 16), **{"depths": (0, 1, 0), **kw}).eval()
+    with torch.no_grad():
+        model.head[0].weight.mul_(10)
+    s = model.scale
+    x = torch.rand(2, model.in_channels, 8 * s, 12 * s)
+    x[:, 3:] = x[:, 3:] * 2 - 1
+    n, _, h, w = x.shape
+    rgb = x[:, :3].reshape(n, 3, h // s, s, w // s, s).permute(0, 3, 5, 1, 2, 4).reshape(n, 3 * s * s, h // s, w // s)
+    packed = torch.cat([rgb, field_features(x[:, 3:5], s)[:, :2]], 1) if model.field else rgb
+    with torch.no_grad():
+        ref = model(x)
+        got = SpaceToDepthForm(model)(packed)
+    unpacked = got.reshape(n, s, s, 3, h // s, w // s).permute(0, 3, 4, 1, 5, 2).reshape(n, 3, h, w)
+    assert torch.abs(unpacked - ref).max() < 1e-5

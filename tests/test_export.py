@@ -79,7 +79,30 @@ def test_fp32_parity_and_constant_weights(exported):
     sess = ort.InferenceSession(str(d / "tiny.onnx"), providers=["CPUExecutionProvider"])
     with torch.no_grad():
         ref = model(torch.from_numpy(x)).numpy()
+    # the file takes its input packed 2×2 to depth: built here by hand, pixel by pixel of a block
+    assert report["metadata"]["space_to_depth"] == "2"
+    rgb = [x[:, c, dy::2, dx::2] for dy in range(2) for dx in range(2) for c in range(3)]
+    field = [(x[:, c, 0::2, 0::2] + x[:, c, 1::2, 1::2]) / 2 for c in (3, 4)]   # linear: block centre
+    got = sess.run(None, {"input": np.stack(rgb + field, axis=1)})[0]
+    assert got.shape == (1, 12, 24, 40)
+    for k, (dy, dx, c) in enumerate((dy, dx, c) for dy in range(2) for dx in range(2) for c in range(3)):
+        assert np.abs(got[:, k] - ref[:, c, dy::2, dx::2]).max() <= 1e-4
+
+
+def test_planar_export_is_the_same_function(exported, tmp_path):
+    from export.onnx_export import _model_input, export_onnx, sample_frame
+
+    d, model, _ = exported
+    report = export_onnx(d / "tiny.pt", tmp_path / "planar.onnx", tile_size=256, packed=False,
+                         measure_overlap=False)
+    assert "space_to_depth" not in report["metadata"] and report["parity_max_abs"] <= 1e-4
+    x = _model_input(sample_frame((48, 80), True, 9), True)
+    sess = ort.InferenceSession(str(tmp_path / "planar.onnx"), providers=["CPUExecutionProvider"])
+    with torch.no_grad():
+        ref = model(torch.from_numpy(x)).numpy()
     assert np.abs(sess.run(None, {"input": x})[0] - ref).max() <= 1e-4
+    # the packed form drops the full-resolution DepthToSpace of the head
+    assert report["ops"].get("DepthToSpace", 0) == 2
 
 
 def test_metadata_accepted_by_the_correction_stage(exported):
@@ -149,6 +172,7 @@ def test_int8_psnr_drop(exported, quantized):
     import cv2
 
     from export.onnx_export import _model_input, sample_frame
+    from modules.correction import run_model
 
     d = exported[0]
     s32, s8 = (ort.InferenceSession(str(d / f), providers=["CPUExecutionProvider"])
@@ -158,7 +182,7 @@ def test_int8_psnr_drop(exported, quantized):
         target = np.clip(sample_frame((96, 128), True, 100 + k), 0, 1)
         x = _model_input(cv2.GaussianBlur(target, (0, 0), 1.5), True)
         for s, acc in ((s32, p32), (s8, p8)):
-            y = s.run(None, {"input": x})[0][0].transpose(1, 2, 0)
+            y = run_model(s, x)[0].transpose(1, 2, 0)
             acc.append(10 * np.log10(1 / np.mean((y - target) ** 2)))
     drop = np.mean(p32) - np.mean(p8)
     assert drop <= 0.2, (np.mean(p32), np.mean(p8))
@@ -202,7 +226,31 @@ def test_int8_keeps_the_input_encoding_and_output_decoding_in_float(tmp_path):
     out = m.graph.output[0].name
     assert prod[out].op_type == "Sub" and all(prod[i].op_type != "DequantizeLinear"
                                               for i in prod[out].input if i in prod)
+    from modules.correction import run_model
+
     x = next(iter(_reader(1, 64, 7).it))["input"]
-    a = ort.InferenceSession(str(tmp_path / "sq.onnx")).run(None, {"input": x})[0]
-    b = ort.InferenceSession(str(tmp_path / "sq.int8.onnx")).run(None, {"input": x})[0]
+    a = run_model(ort.InferenceSession(str(tmp_path / "sq.onnx")), x)
+    b = run_model(ort.InferenceSession(str(tmp_path / "sq.int8.onnx")), x)
     assert np.abs(a - b).mean() < 0.01
+
+
+@pytest.mark.parametrize("shape", [(150, 203), (96, 128)])
+def test_stage_packs_tiles_as_the_planar_model_sees_them(exported, tmp_path, shape):
+    """The stage with the packed export, in tiles on a frame whose sides are
+    not multiples of the packing, equals the planar export run on the whole
+    frame (field channels, reflection at the borders and the cut last tiles
+    included)."""
+    from export.onnx_export import export_onnx, sample_frame
+    from isp import CFA, CameraMeta, Frame
+    from modules.correction import Correction
+
+    d = exported[0]
+    export_onnx(d / "tiny.pt", tmp_path / "planar.onnx", tile_size=256, packed=False, overlap=16)
+    img = sample_frame(shape, True, 5)
+    meta = CameraMeta(cfa=CFA.RGGB, raw_size=(400, 500), active_area=(0, 0, 400, 500))
+    frame = Frame(img, Domain.CAMERA_RGB, meta)
+    for tile in (0, 64):   # whole frame, then tiles (the same tiles for both)
+        planar = Correction(model=tmp_path / "planar.onnx", tile_size=tile, overlap=16).process(frame).data
+        packed = Correction(model=d / "tiny.onnx", tile_size=tile, overlap=16).process(frame).data
+        assert not np.allclose(planar, img, atol=1e-3)   # the model does something
+        assert np.abs(packed - planar).max() <= 2e-5
