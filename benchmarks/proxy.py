@@ -82,8 +82,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration.lens_io import read_lens  # noqa: E402
-from calibration.proxy import (default_names, fit_proxy, parameter_space, residual_bias,  # noqa: E402
-                               screen_parameters)
+from calibration.proxy import (N_PARAMS, REFRESH, default_names, fit_proxy, parameter_space,  # noqa: E402
+                               residual_bias, screen_parameters)
 from calibration.proxy_pixel import fit_pixel_mse, render_edges  # noqa: E402
 from calibration.proxy_synth import synthetic_observations  # noqa: E402
 from calibration.psf_map import psf_map  # noqa: E402
@@ -277,8 +277,9 @@ def main(argv=None) -> dict:
                     help="noise σ at the centre (0..1); several for a noise sweep")
     ap.add_argument("--noise-growth", type=float, default=1.0)
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
-    ap.add_argument("--n-params", type=int, default=16, help="fitted parameters (screened); 0: all")
-    ap.add_argument("--max-iter", type=int, default=15, help="iterations (Jacobians) per fit")
+    ap.add_argument("--n-params", type=int, default=N_PARAMS,
+                    help=f"fitted parameters (screened; default {N_PARAMS}); 0: all")
+    ap.add_argument("--max-iter", type=int, default=15, help="iterations per fit (one Jacobian each with --refresh 1)")
     ap.add_argument("--scipy-max-iter", type=int, default=None,
                     help="fit_proxy max_iter for scipy (its max_nfev: about this many TRF iterations); "
                          "default --max-iter, as the others")
@@ -288,9 +289,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--fast-jacobian", action="store_true",
                     help="ours: Jacobian from a cheaper model (pupil 32 samples; steps still judged on the full model)")
-    ap.add_argument("--refresh", type=int, default=1,
+    ap.add_argument("--refresh", type=int, default=REFRESH,
                     help="ours: a finite-difference Jacobian every REFRESH accepted steps, Broyden updates "
-                         "in between (default 1: every step)")
+                         f"in between (default {REFRESH}; 1: every step)")
     args = ap.parse_args(argv)
     args.n_params = None if args.n_params <= 0 else args.n_params
     grid = (int(args.grid[0]), int(args.grid[1]))

@@ -82,7 +82,7 @@ Jacobians only.
 Stopping (Algorithm 1's ``‖Aᵀf + εΔP‖ ≫ 0`` made concrete): the projected
 gradient's largest component below ``gtol``, or φ falling by less than
 ``ftol`` relatively over two accepted steps, or φ/M below ``target_chi2``
-(the residual reached the noise floor), or ``max_iter`` Jacobians.
+(the residual reached the noise floor), or ``max_iter`` iterations.
 """
 
 from __future__ import annotations
@@ -220,7 +220,8 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
     lam0 : float
         Initial λ.
     max_iter : int
-        Jacobians at most.
+        Iterations at most (one finite-difference Jacobian each with
+        ``refresh = 1``, fewer with secant updates).
     gtol, ftol : float
         Stopping tolerances (projected gradient ∞-norm; relative fall of φ).
         With ``refresh`` > 1 the gradient test uses a fresh Jacobian.

@@ -55,7 +55,8 @@ def cmd_fit(args) -> int:
           f"({args.method}, {args.residuals} residuals)", flush=True)
     fit = fit_proxy(nominal, obs, method=args.method, workers=args.workers, max_iter=args.max_iter,
                     n_params=args.n_params, residuals=args.residuals,
-                    jacobian_settings=ModelSettings(pupil_samples=32) if args.fast_jacobian else None)
+                    jacobian_settings=ModelSettings(pupil_samples=32) if args.fast_jacobian else None,
+                    refresh=args.refresh)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
@@ -75,6 +76,8 @@ def cmd_fit(args) -> int:
 
 def add_parser(sub) -> None:
     """Register ``fit`` on the ``isp calib`` sub-parsers."""
+    from .proxy import N_PARAMS, REFRESH
+
     sp = sub.add_parser("fit", help="fit a proxy camera (lens perturbations) to a measured SFR",
                         description=__doc__.split("\n\n")[0].replace("``", "`"), epilog=EPILOG,
                         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -89,8 +92,12 @@ def add_parser(sub) -> None:
                          "sfra: SFRA per edge (the paper); bands: plus the mean SFR in four frequency bands; "
                          "odd: plus the LSF's asymmetry in four bands (coma's direction, which SFR drops); "
                          "shape: SFRA, bands and asymmetry")
-    sp.add_argument("--n-params", type=int, default=16, help="perturbations fitted, the most sensitive (default 16)")
-    sp.add_argument("--max-iter", type=int, default=15, help="iterations (Jacobians) at most (default 15)")
+    sp.add_argument("--n-params", type=int, default=N_PARAMS,
+                    help=f"perturbations fitted, the most sensitive (default {N_PARAMS})")
+    sp.add_argument("--max-iter", type=int, default=15, help="iterations at most (default 15)")
+    sp.add_argument("--refresh", type=int, default=REFRESH,
+                    help="a finite-difference Jacobian every REFRESH accepted steps, Broyden secant updates "
+                         f"in between (default {REFRESH}; 1: every step)")
     sp.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
     sp.add_argument("--fast-jacobian", action="store_true",
                     help="Jacobian from a cheaper model (pupil 32 samples); steps judged on the full model")

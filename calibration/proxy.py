@@ -48,6 +48,10 @@ FOCUS_TOLERANCE_MM = 0.010
 #: model is smooth well below that (central differences at 0.0125-tolerance
 #: steps matched the linear model to ρ = 1.000)
 DLS_STEP = 0.03
+#: parameters fitted by default (screened), and finite-difference Jacobians every
+#: this many accepted steps (Broyden updates between; ``benchmarks/proxy.py`` measures both)
+N_PARAMS = 16
+REFRESH = 1
 
 #: what :func:`fit_proxy` can fit to
 RESIDUALS = ("sfra", "bands", "odd", "shape")
@@ -270,8 +274,8 @@ def residual_bias(model, lens, residuals: str, workers: int = 1) -> ResidualBias
 
 def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
               workers: int | None = None, max_iter: int = 15, bound_factor: float = 2.0,
-              progress: bool = True, x0=None, n_params: int | None = 16,
-              jacobian_settings=None, residuals: str = "auto", refresh: int = 1) -> ProxyFit:
+              progress: bool = True, x0=None, n_params: int | None = N_PARAMS,
+              jacobian_settings=None, residuals: str = "auto", refresh: int = REFRESH) -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
 
     Parameters
@@ -285,7 +289,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     workers : int, optional
         Processes for the Jacobian (default up to 2).
     max_iter : int
-        Jacobians (DLS) at most; for scipy its ``max_nfev``, which TRF
+        Iterations (DLS) at most; for scipy its ``max_nfev``, which TRF
         counts without its finite differences (about ``max_iter``
         iterations).
     bound_factor : float
