@@ -204,7 +204,8 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
                          gtol: float = 1e-6, ftol: float = 1e-4, target_chi2: float | None = None,
                          radius: float | None = 1.0, trials: int = 1, jacobian: str = "auto", scaling: str = "levenberg",
                          jac_many: Callable[[Sequence[np.ndarray]], list] | None = None,
-                         refresh: int = 1, progress: Callable[[dict], None] | None = None) -> DlsResult:
+                         refresh: int = 1, progress: Callable[[dict], None] | None = None,
+                         jac0: np.ndarray | None = None) -> DlsResult:
     """Minimise ``‖fun(x)‖²`` within ``[lower, upper]`` (module docstring).
 
     Parameters
@@ -247,6 +248,12 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
         every step.
     progress : callable, optional
         Called with each iteration's record.
+    jac0 : (M, N) array, optional
+        A Jacobian at ``x0`` to start from instead of a finite-difference
+        one (e.g. the screening's wider secants,
+        :func:`calibration.proxy.screen_parameters`). It is treated as a
+        secant Jacobian: a failed step or a small gradient re-linearises by
+        finite differences before anything is concluded from it.
 
     Returns
     -------
@@ -282,14 +289,20 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
     phi = float(f @ f)
     m = f.size
     central = jacobian == "central"
-    A = jacobian_at(x, f)
+    if jac0 is not None:
+        A = np.asarray(jac0, float)
+        if A.shape != (m, n):
+            raise ValueError(f"jac0 has shape {A.shape}; the problem's Jacobian is {(m, n)}")
+    else:
+        A = jacobian_at(x, f)
     lam = float(lam0)
     delta = None if radius is None else float(radius)
     s = np.ones(n)
     if scaling not in ("marquardt", "levenberg"):
         raise ValueError(f"scaling must be 'marquardt' or 'levenberg', not {scaling!r}")
     refresh = max(1, int(refresh))
-    fresh, since_fd, A_fd = True, 0, A   # A is a finite-difference Jacobian at x; accepted steps on secants
+    # A is a finite-difference Jacobian at x (or jac0, a secant one); accepted steps on secants
+    fresh, since_fd, A_fd = jac0 is None, 0, (A if jac0 is None else None)
     history = [{"iteration": 0, "merit": phi, "lambda": lam, "accepted": True, "step": 0.0, "evaluations": evals}]
     if progress:
         progress(history[-1])
@@ -387,7 +400,7 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
             fresh, since_fd = False, since_fd + 1
         else:
             A_new = jacobian_at(x, f)
-            if not switch:   # a change of difference scheme is not the problem's non-linearity
+            if not switch and A_fd is not None:   # a change of scheme is not the problem's non-linearity
                 col = np.linalg.norm(A_fd, axis=0)
                 nu = np.linalg.norm(A_new - A_fd, axis=0) / np.maximum(col, 1e-12)
                 s = np.maximum(np.maximum(1.0, s / 2.0), (nu / NONLINEARITY_TAU) ** 2)

@@ -76,7 +76,7 @@ def cmd_fit(args) -> int:
 
 def add_parser(sub) -> None:
     """Register ``fit`` on the ``isp calib`` sub-parsers."""
-    from .proxy import N_PARAMS, REFRESH
+    from .proxy import MAX_ITER, N_PARAMS, REFRESH
 
     sp = sub.add_parser("fit", help="fit a proxy camera (lens perturbations) to a measured SFR",
                         description=__doc__.split("\n\n")[0].replace("``", "`"), epilog=EPILOG,
@@ -94,7 +94,7 @@ def add_parser(sub) -> None:
                          "shape: SFRA, bands and asymmetry")
     sp.add_argument("--n-params", type=int, default=N_PARAMS,
                     help=f"perturbations fitted, the most sensitive (default {N_PARAMS})")
-    sp.add_argument("--max-iter", type=int, default=15, help="iterations at most (default 15)")
+    sp.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"iterations at most (default {MAX_ITER})")
     sp.add_argument("--refresh", type=int, default=REFRESH,
                     help="a finite-difference Jacobian every REFRESH accepted steps, Broyden secant updates "
                          f"in between (default {REFRESH}; 1: every step)")

@@ -48,10 +48,16 @@ FOCUS_TOLERANCE_MM = 0.010
 #: model is smooth well below that (central differences at 0.0125-tolerance
 #: steps matched the linear model to ρ = 1.000)
 DLS_STEP = 0.03
-#: parameters fitted by default (screened), and finite-difference Jacobians every
-#: this many accepted steps (Broyden updates between; ``benchmarks/proxy.py`` measures both)
+#: parameters fitted by default (screened)
 N_PARAMS = 16
-REFRESH = 1
+#: finite-difference Jacobians every this many accepted steps (Broyden updates between), and
+#: iterations at most. Measured on e9, 15 × 20 regions, 600 observations, 16 parameters, SFRA +
+#: asymmetry, --fast-jacobian, on one 2-core machine (``benchmarks/proxy.py``): a Jacobian every
+#: step, 10 iterations, screened apart: 89.5 s + 38.6 s screening, merit 71.5 k, SFR MSE ×10⁻³
+#: 0.23 / 0.74 / 1.60 at FoV 0.1 / 0.5 / 0.9; every 3rd step, 20 iterations, screening inside
+#: (its secants the first Jacobian): 91.7 s in all, merit 73.6 k, 0.22 / 0.75 / 1.55
+REFRESH = 3
+MAX_ITER = 20
 
 #: what :func:`fit_proxy` can fit to
 RESIDUALS = ("sfra", "bands", "odd", "shape")
@@ -71,7 +77,8 @@ def default_names(lens: Lens, kinds=("decenter", "tilt", "thickness", "focus")) 
     return names
 
 
-def screen_parameters(model, names, n_keep: int, *, bias=None, fun_many=None, h: float = 0.5) -> list[str]:
+def screen_parameters(model, names, n_keep: int, *, bias=None, fun_many=None, h: float = 0.5,
+                      return_jacobian: bool = False):
     """The ``n_keep`` parameters to which the fit's residuals (``bias``'s
     kind: SFRA, or with the bands or the asymmetry) are most sensitive
     (norm of the Jacobian column in tolerance units, one forward
@@ -79,7 +86,12 @@ def screen_parameters(model, names, n_keep: int, *, bias=None, fun_many=None, h:
     always kept. With more parameters than the data constrain (e9 has 48
     decenters, tilts and gaps), DLS wanders along weak directions; the most
     sensitive ones make an equivalent proxy (paper §3.2 perturbs a chosen
-    subset too)."""
+    subset too).
+
+    ``return_jacobian``: also return the kept columns, ``(M, n_kept)``
+    residual change per tolerance, in the order of the returned names: a
+    secant Jacobian at the nominal lens that :func:`fit_proxy` starts from
+    instead of computing a first finite-difference one."""
     names = list(names)
     space = parameter_space(model.nominal, names)
     pts = [np.zeros(len(names))] + [np.eye(len(names))[j] * h for j in range(len(names))]
@@ -92,7 +104,11 @@ def screen_parameters(model, names, n_keep: int, *, bias=None, fun_many=None, h:
     fname = focus_name(model.nominal)
     order = [names[j] for j in np.argsort(-sens) if names[j] != fname]
     keep = order[: max(0, n_keep - (fname in names))]
-    return [n for n in names if n in keep or n == fname]
+    kept = [n for n in names if n in keep or n == fname]
+    if not return_jacobian:
+        return kept
+    cols = [(np.asarray(rs[1 + names.index(n)]) - rs[0]) / h for n in kept]
+    return kept, np.stack(cols, axis=1)
 
 
 def focus_name(lens: Lens) -> str:
@@ -273,7 +289,7 @@ def residual_bias(model, lens, residuals: str, workers: int = 1) -> ResidualBias
 
 
 def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
-              workers: int | None = None, max_iter: int = 15, bound_factor: float = 2.0,
+              workers: int | None = None, max_iter: int = MAX_ITER, bound_factor: float = 2.0,
               progress: bool = True, x0=None, n_params: int | None = N_PARAMS,
               jacobian_settings=None, residuals: str = "auto", refresh: int = REFRESH) -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
@@ -330,67 +346,78 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     bias = residual_bias(model, nominal, residuals, workers)
     screen = names is None and n_params is not None
     names = list(names) if names is not None else default_names(nominal)
+    cheap_model = None   # in this process, where there is no pool
     pool = None
-
-    def start_pool():
+    if workers > 1:
+        # one pool for screening and fit, its workers' models built once over every candidate
+        # parameter; the fit's points are embedded in that space (zeros elsewhere: the same lens)
         import multiprocessing as mp
 
         ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-        return ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+        pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                    initargs=((nominal, obs, settings, names, bias, jacobian_settings),))
+    elif jacobian_settings is not None:
+        cheap_model = SfrModel(nominal, obs, jacobian_settings)
+    all_names, where = names, None
 
-    if screen and len(names) > n_params:
-        # screened on the residuals the fit will use: the asymmetry makes decenters visible that SFRA hides
-        if workers > 1:
-            pool = start_pool()
-        names = screen_parameters(model, names, n_params, bias=bias,
-                                  fun_many=None if pool is None else (lambda pts: list(pool.map(_residual_task, pts))))
-        if pool is not None:
-            pool.shutdown()
-            pool = None
-    space = parameter_space(nominal, names)
-    n = len(space.names)
-    lower = np.full(n, -bound_factor)
-    upper = np.full(n, bound_factor)
-    u0 = np.zeros(n) if x0 is None else np.asarray(x0, float)
-    if workers > 1:
-        pool = start_pool()
-
-    def fun(u):
-        return _residuals(model, space, bias, u)
-
-    def fun_many(points):
-        if pool is None or len(points) == 1:
-            return [fun(p) for p in points]
-        return list(pool.map(_residual_task, points))
-
-    jac_many = None
-    if jacobian_settings is not None:
-        cheap = SfrModel(nominal, obs, jacobian_settings) if pool is None else None
-
-        def jac_many(points):
-            if pool is None:
-                return [_residuals(cheap, space, bias, p) for p in points]
-            return list(pool.map(_cheap_residual_task, points))
+    def on_pool(task, points):
+        if where is not None:
+            full = np.zeros((len(points), len(all_names)))
+            full[:, where] = points
+            points = list(full)
+        return list(pool.map(task, points))
 
     bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=max_iter, unit="iter", desc=f"proxy fit ({n} parameters)")
-
-    def report(rec):
-        if bar is not None and rec["iteration"] > 0:
-            bar.update(1)
-            bar.set_postfix(merit=f"{rec['merit']:.4g}", evals=rec["evaluations"])
-
-    bias_sfra = bias.sfra
-    before = model.predict(nominal).sfra + bias_sfra
     try:
+        jac0 = None
+        if screen and len(names) > n_params:
+            # screened on the residuals the fit will use (the asymmetry makes decenters visible
+            # that SFRA hides), by the Jacobian's model: a ranking, and the fit's first Jacobian
+            task = _residual_task if jacobian_settings is None else _cheap_residual_task
+            names, jac0 = screen_parameters(cheap_model or model, names, n_params, bias=bias,
+                                            return_jacobian=True,
+                                            fun_many=None if pool is None else (lambda pts: on_pool(task, pts)))
+        space = parameter_space(nominal, names)
+        n = len(space.names)
+        if names != all_names:
+            where = np.array([all_names.index(k) for k in names])
+        lower = np.full(n, -bound_factor)
+        upper = np.full(n, bound_factor)
+        u0 = np.zeros(n) if x0 is None else np.asarray(x0, float)
+        if x0 is not None:
+            jac0 = None   # screened at the nominal lens, not at x0
+
+        def fun(u):
+            return _residuals(model, space, bias, u)
+
+        def fun_many(points):
+            if pool is None or len(points) == 1:
+                return [fun(p) for p in points]
+            return on_pool(_residual_task, points)
+
+        jac_many = None
+        if jacobian_settings is not None:
+            def jac_many(points):
+                if pool is None:
+                    return [_residuals(cheap_model, space, bias, p) for p in points]
+                return on_pool(_cheap_residual_task, points)
+
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=max_iter, unit="iter", desc=f"proxy fit ({n} parameters)")
+
+        def report(rec):
+            if bar is not None and rec["iteration"] > 0:
+                bar.update(1)
+                bar.set_postfix(merit=f"{rec['merit']:.4g}", evals=rec["evaluations"])
+
+        bias_sfra = bias.sfra
+        before = model.predict(nominal).sfra + bias_sfra
         if method == "dls":
             res = damped_least_squares(fun, u0, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
                                        max_iter=max_iter, target_chi2=1.0, trials=workers, jac_many=jac_many,
-                                       refresh=refresh, progress=report)
+                                       refresh=refresh, progress=report, jac0=jac0)
             u, evals = res.x, res.evaluations
         elif method == "scipy":
             from scipy.optimize import least_squares

@@ -42,7 +42,7 @@ from isp.errors import ConfigError, InputError
 
 from .onnx_export import ExportError, op_counts, set_metadata
 
-__all__ = ["SynthCalibration", "count_quantized_convs", "int8_psnr", "mobile_usability", "float_io_nodes",
+__all__ = ["SynthCalibration", "count_quantized_convs", "dequantize_qdq", "int8_psnr", "mobile_usability", "float_io_nodes",
            "quantize_int8", "synth_crops"]
 
 #: op types that are a quantised conv in ORT's optimised CPU graph
@@ -215,6 +215,73 @@ def bypass_input_qdq(model, nodes: list[str]) -> int:
             node.input[k] = q.input[0]
             count += 1
     return count
+
+
+def dequantize_qdq(model):
+    """The FP32 twin of a QDQ model: every ``DequantizeLinear`` of a constant
+    (weights, biases) folded into a float initializer, every activation
+    ``QuantizeLinear`` → ``DequantizeLinear`` pair removed. The twin computes
+    the FP32 graph with the INT8 model's rounded weights, so it is the peer a
+    speed comparison needs when only the shipped INT8 file is at hand
+    (``benchmarks/correction.py``); its outputs differ from the INT8 model's
+    by the activation rounding only. Modifies and returns ``model``
+    (``onnx.ModelProto``); metadata ``precision`` becomes ``fp32-dequantized``.
+
+    Example
+    -------
+    >>> import onnx
+    >>> fp32 = dequantize_qdq(onnx.load("modules/models/e9_default.int8.onnx"))  # doctest: +SKIP
+    """
+    from onnx import helper, numpy_helper
+
+    g = model.graph
+    consts = {i.name: i for i in g.initializer}
+    prod = {o: n for n in g.node for o in n.output}
+    alias, folded, drop = {}, [], set()
+    for k, n in enumerate(g.node):
+        if n.op_type != "DequantizeLinear":
+            continue
+        if n.input[0] in consts:
+            q = numpy_helper.to_array(consts[n.input[0]]).astype(np.float64)
+            scale = numpy_helper.to_array(consts[n.input[1]]).astype(np.float64)
+            zero = (numpy_helper.to_array(consts[n.input[2]]).astype(np.float64)
+                    if len(n.input) > 2 and n.input[2] else np.zeros_like(scale))
+            if scale.ndim == 1 and q.ndim > 1:   # per-channel along ``axis``
+                axis = next((helper.get_attribute_value(a) for a in n.attribute if a.name == "axis"), 1)
+                shape = [1] * q.ndim
+                shape[axis] = -1
+                scale, zero = scale.reshape(shape), zero.reshape(shape)
+            folded.append(numpy_helper.from_array(((q - zero) * scale).astype(np.float32), n.output[0]))
+            drop.add(k)
+        else:
+            q = prod.get(n.input[0])
+            if q is not None and q.op_type == "QuantizeLinear":
+                alias[n.output[0]] = q.input[0]
+                drop.add(k)
+
+    def resolve(name):
+        while name in alias:
+            name = alias[name]
+        return name
+
+    kept = [n for k, n in enumerate(g.node) if k not in drop]
+    for n in kept:
+        for j, name in enumerate(n.input):
+            n.input[j] = resolve(name)
+    for o in g.output:
+        o.name = resolve(o.name)
+    # the QuantizeLinear nodes nobody reads any more, then the unused constants
+    used = {i for n in kept for i in n.input} | {o.name for o in g.output}
+    kept = [n for n in kept if n.op_type != "QuantizeLinear" or any(o in used for o in n.output)]
+    used = {i for n in kept for i in n.input} | {o.name for o in g.output}
+    inits = [i for i in g.initializer if i.name in used] + [i for i in folded if i.name in used]
+    del g.node[:]
+    g.node.extend(kept)
+    del g.initializer[:]
+    g.initializer.extend(inits)
+    del g.value_info[:]   # the quantiser's shapes name tensors that are gone
+    set_metadata(model, {"precision": "fp32-dequantized"})
+    return model
 
 
 #: activation range calibration: the 99.9th percentile of each tensor's

@@ -63,3 +63,30 @@ def test_missing_measurement_is_one_line_exit_2(capsys, tmp_path):
     err = capsys.readouterr().err.strip()
     assert code == 2 and "nope.json" in err and "\n" not in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_screened_fit_on_two_workers_starts_from_the_screening_secants(device_obs):
+    """fit_proxy with its own screening on a pool: one pool serves the
+    screening (every candidate parameter) and the fit (its points embedded
+    in that space, zeros elsewhere, which is the same lens: checked to
+    1e-12); the fit's first Jacobian is the screening's, so its first record
+    holds one evaluation, and the proxy still beats the nominal lens."""
+    from calibration.proxy import _residuals, fit_proxy, parameter_space, residual_bias
+    from calibration.proxy_data import Observations
+    from calibration.sfr_model import SfrModel
+
+    lens, obs_path = device_obs
+    obs = Observations.load(obs_path)
+    names = ["e1.decenter_x", "e2.tilt_zx", "s17.thickness", "e3.decenter_y"]
+    model = SfrModel(lens, obs)
+    bias = residual_bias(model, lens, "sfra", 1)
+    u = np.array([0.7, -0.4])
+    sub = _residuals(model, parameter_space(lens, ["e1.decenter_x", "s17.thickness"]), bias, u)
+    full = _residuals(model, parameter_space(lens, names), bias, np.array([0.7, 0.0, -0.4, 0.0]))
+    assert np.allclose(sub, full, rtol=0, atol=1e-12)
+
+    fit = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False)
+    assert len(fit.space.names) == 3 and "s17.thickness" in fit.space.names
+    assert fit.result.history[0]["evaluations"] == 1
+    e = fit.errors()
+    assert e["after"]["sfra_rms"] < 0.5 * e["before"]["sfra_rms"]
