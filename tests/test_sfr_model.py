@@ -113,3 +113,20 @@ def test_node_psfs_other_methods_go_node_by_node(device):
     m = SfrModel(lens, obs, ModelSettings(pupil_samples=32, method="fft"))
     ref = _node_psfs_per_field(m, pl, method="fft")
     np.testing.assert_allclose(m.node_psfs(pl), ref, rtol=0, atol=1e-9 * ref.max())
+
+
+def test_sfra_of_is_area_to_on_every_row():
+    """The one-product SFRA equals the per-row trapezoid of
+    ``sfr_edge.area_to`` (end value interpolated), on grids that end
+    past 0.5, exactly on it, irregular ones, and NaN where a grid stops
+    short of 0.5."""
+    from calibration.sfr_edge import area_to
+    from calibration.sfr_model import sfra_of
+
+    rng = np.random.default_rng(5)
+    grids = [np.linspace(0, 1, 65), np.linspace(0, 0.5, 33), np.append(0.0, np.sort(rng.random(49)) * 0.9),
+             np.linspace(0, 0.6, 7)]
+    for f in grids:
+        s = rng.random((6, f.size))
+        assert np.allclose(sfra_of(f, s), [area_to(f, r, 0.5) for r in s], rtol=0, atol=1e-14)
+    assert np.isnan(sfra_of(np.linspace(0, 0.4, 9), np.ones((2, 9)))).all()
