@@ -88,7 +88,7 @@ def add_parser(sub) -> None:
     sp.add_argument("--method", choices=("dls", "scipy"), default="dls",
                     help="dls: damped least squares, dynamic damping (default); scipy: least_squares TRF")
     sp.add_argument("--residuals", choices=("auto", "sfra", "bands", "odd", "shape"), default="auto",
-                    help="auto (default): odd where the measurement has the LSF asymmetry, else sfra; "
+                    help="auto (default): shape where the measurement has the LSF asymmetry, else sfra; "
                          "sfra: SFRA per edge (the paper); bands: plus the mean SFR in four frequency bands; "
                          "odd: plus the LSF's asymmetry in four bands (coma's direction, which SFR drops); "
                          "shape: SFRA, bands and asymmetry")
