@@ -28,7 +28,7 @@ from isp.errors import IspError
 EPILOG = """examples:
   isp calib fit --lens e9.zmx --measured capture.dng -o e9_proxy/
   isp calib fit --lens e9.zmx --measured chart_sfr.json --method scipy --max-iter 20
-  isp calib fit --lens e9.zmx --measured obs.json --residuals bands --fast-jacobian
+  isp calib fit --lens e9.zmx --measured obs.json --residuals bands --no-fast-jacobian
 """
 
 
@@ -99,8 +99,10 @@ def add_parser(sub) -> None:
                     help="a finite-difference Jacobian every REFRESH accepted steps, Broyden secant updates "
                          f"in between (default {REFRESH}; 1: every step)")
     sp.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
-    sp.add_argument("--fast-jacobian", action="store_true",
-                    help="Jacobian from a cheaper model (pupil 32 samples); steps judged on the full model")
+    sp.add_argument("--fast-jacobian", action=argparse.BooleanOptionalAction, default=True,
+                    help="Jacobian from a cheaper model (pupil 32 samples), steps judged on the full model "
+                         "(default on: on e9 at 15 × 20 regions it ended at a lower merit in 109 s against "
+                         "181 s with the full model's Jacobian)")
     sp.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
     sp.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")
     sp.add_argument("--pixel-um", type=float, metavar="UM", help="pixel pitch, µm (default: the capture's)")
