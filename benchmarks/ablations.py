@@ -21,6 +21,8 @@ spatial_frozen      spatial attention trained per pixel, frozen to its mean
 placement_raw       same position, trained raw → raw (loss in camera RGB)
 placement_srgb      at the end of the pipeline, sRGB → sRGB
 sqrt_input          ours with the slot input encoded as √x inside the network
+static_sqrt         "static" with the √x encoding (against sqrt_input: the
+                    dynamic convolution's gain on the packaged model's design)
 ==================  ==========================================================
 
 Run (about 8 minutes of training per entry at 1,500 steps, two at a time
@@ -56,6 +58,7 @@ ENTRIES = {
     "placement_raw": ("doconv", "raw"),
     "placement_srgb": ("doconv", "srgb"),
     "sqrt_input": ("doconv:sqrt", "pipeline"),
+    "static_sqrt": ("static:sqrt", "pipeline"),
 }
 RINGS = ("0.1", "0.5", "0.9")
 
