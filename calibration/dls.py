@@ -77,7 +77,10 @@ is taken instead after a step whose gain ratio fell below 0.25, before a
 rejection is answered with more damping, and before the fit may stop on a
 stalled merit: a secant Jacobian is only trusted while its steps keep
 their promise. The non-linearity factors ``s_j`` compare finite-difference
-Jacobians only.
+Jacobians only. A start Jacobian handed in (``jac0``, e.g. the wider
+secants a parameter screening already evaluated at ``x0``) is trusted the
+same way: as a secant one, replaced by finite differences at the first
+sign that it misleads.
 
 Stopping (Algorithm 1's ``‖Aᵀf + εΔP‖ ≫ 0`` made concrete): the projected
 gradient's largest component below ``gtol``, or φ falling by less than

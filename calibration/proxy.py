@@ -19,7 +19,13 @@ scaled by their tolerances: the fit works in tolerance units, bounded to
 real device's focus is set at assembly and unknown to the model.
 
 The Jacobian's columns are independent lens evaluations and run on a
-process pool (``workers``, default 2).
+process pool (``workers``, default 2). By default (``n_params``) the fit
+keeps the :data:`N_PARAMS` parameters to which its residuals are most
+sensitive (:func:`screen_parameters`); screening and fit share the pool,
+and the screening's secants are the fit's first Jacobian, which Broyden
+updates refine between finite-difference ones (:data:`REFRESH`). Beyond
+SFRA, the residuals can carry the SFR's band means and the LSF's
+asymmetry (``residuals``; "auto" takes all three where measured).
 """
 
 from __future__ import annotations
