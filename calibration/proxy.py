@@ -55,7 +55,7 @@ FOCUS_TOLERANCE_MM = 0.010
 #: steps matched the linear model to ρ = 1.000)
 DLS_STEP = 0.03
 #: parameters fitted by default (screened)
-N_PARAMS = 24   # 16 left the pixel-level fit ahead on e9 (README); 24 put ours ahead on every lens
+N_PARAMS = 24   # 16 left the pixel-level fit ahead on e9; 24 put ours ahead of it on every lens (README)
 #: finite-difference Jacobians every this many accepted steps (Broyden updates between), and
 #: iterations at most. Measured on e9, 15 × 20 regions, 600 observations, 16 parameters, SFRA +
 #: asymmetry, --fast-jacobian, on one 2-core machine (``benchmarks/proxy.py``): a Jacobian every
