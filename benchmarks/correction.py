@@ -83,6 +83,37 @@ def _time(path: Path, frame, threads: int, runs: int, tile_size: int | None = No
             "outside_model_s": round(statistics.median(secs) - model, 3)}
 
 
+def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
+    """Share of the model's kernel time per operator type (ONNX Runtime's
+    profiler, the stage's session options) on one window of ``side``²
+    pixels, the size of a 1,024-px tile with its context: ``{op: percent}``,
+    largest first, and ``ms`` per run."""
+    import onnxruntime as ort
+
+    from modules.correction import model_info, pack_input, session_options
+
+    opts = session_options(threads)
+    opts.enable_profiling = True
+    with tempfile.TemporaryDirectory() as d:
+        opts.profile_file_prefix = str(Path(d) / "ort")
+        sess = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        info = model_info(sess)
+        rng = np.random.default_rng(0)
+        x = (0.2 + 0.3 * rng.random((1, info.in_channels - 3 * info.packing ** 2 + 3, side, side))).astype(np.float32)
+        feed = {info.input_name: pack_input(x, info.packing)}
+        sess.run(None, feed)   # warm-up; ORT profiles it too, hence runs + 1 below
+        for _ in range(runs):
+            sess.run(None, feed)
+        events = json.loads(Path(sess.end_profiling()).read_text())
+    per_op: dict[str, float] = {}
+    for e in events:
+        if e.get("cat") == "Node" and e["name"].endswith("_kernel_time"):
+            per_op[e["args"]["op_name"]] = per_op.get(e["args"]["op_name"], 0.0) + e["dur"]
+    total = sum(per_op.values())
+    shares = {k: round(100 * v / total, 1) for k, v in sorted(per_op.items(), key=lambda kv: -kv[1])}
+    return {"ms": round(total / 1000 / (runs + 1), 1), "percent": shares}
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
@@ -95,6 +126,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--runs", type=int, default=3, help="warm runs per model (median; default 3)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--tile-size", type=int, help="override the models' tile_size metadata (px)")
+    ap.add_argument("--profile", action="store_true",
+                    help="also the share of each operator type in the model's time, on one 1,072² window")
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.lower().split("x"))
 
@@ -122,6 +155,8 @@ def main(argv=None) -> dict:
         frame = Frame(img, Domain.CAMERA_RGB, meta)
         r32 = _time(fp32, frame, args.threads, args.runs, args.tile_size)
         r8 = _time(int8, frame, args.threads, args.runs, args.tile_size)
+        profile = ({"fp32": op_shares(fp32, args.threads, 1072), "int8": op_shares(int8, args.threads, 1072)}
+                   if args.profile else None)
     mp = w * h / 1e6
     result = {"size": f"{w}x{h}", "threads": args.threads, "runs": args.runs,
               "fp32_s": r32["median_s"], "int8_s": r8["median_s"],
@@ -131,12 +166,18 @@ def main(argv=None) -> dict:
               "peak_rss_mb": round(max(r32["peak_rss_delta_mib"], r8["peak_rss_delta_mib"]) * 1.048576, 1),
               "fp32": r32, "int8": r8, "model": str(fp32) if args.fp32 or args.checkpoint else f"dequantized {int8}",
               "int8_model": str(int8)}
+    if profile is not None:
+        result["op_profile"] = profile
     print(f"{w}×{h}, {args.threads} threads, median of {args.runs}: FP32 {result['fp32_s']:.2f} s, "
           f"INT8 {result['int8_s']:.2f} s ({result['ms_per_mp_int8']:.0f} ms/MP), speedup "
           f"{result['speedup']:.2f}×, peak RSS +{result['peak_rss_mb']} MB")
     for name, r in (("FP32", r32), ("INT8", r8)):
         print(f"  {name}: {r['model_s']:.2f} s in the model ({r['model_ms_per_computed_mp']:.0f} ms per MP computed, "
               f"{r['computed_over_frame']}× the frame with the overlap), {r['outside_model_s']:.2f} s outside it")
+    if profile is not None:
+        for name, p in profile.items():
+            top = ", ".join(f"{k} {v} %" for k, v in list(p["percent"].items())[:5])
+            print(f"  {name} operators on one 1,072² window ({p['ms']} ms): {top}")
     print(json.dumps(result))
     return result
 

@@ -56,8 +56,9 @@ radius is within ±0.1 of it; the nearest radius where none is):
 at each level and fitted again; a summary table shows how the errors of
 ``ours`` and ``pixel`` grow with the noise.
 
-Prints a table per device, the summaries, and one JSON object as the LAST
-line. Usage:
+Prints a table per device, the summaries (over all devices and, with
+several lenses, per lens: the figures of the README's tables), and one JSON
+object as the LAST line. Usage:
     python benchmarks/proxy.py [--lenses e9 e2] [--devices 2] [--grid 5 7]
                                [--noise 0.004] [--methods nominal pixel scipy ours]
 """
@@ -271,6 +272,19 @@ def summarise(cases: list[dict], methods) -> dict:
     return out
 
 
+def print_summary(summary: dict, title: str) -> None:
+    """The means of :func:`summarise`, a line per noise level and method."""
+    fk = [f"{f:g}" for f in FOVS]
+    print(f"\nSummary: {title}")
+    for noise, per in summary.items():
+        print(f"noise {noise}")
+        for m, r in per.items():
+            print(f"  {m:<8} SFR MSE×1e-3 " + " ".join(f"{r['sfr_mse'][k] * 1e3:7.3f}" for k in fk)
+                  + "   truth " + " ".join(f"{r['sfr_mse_truth'][k] * 1e3:7.3f}" for k in fk)
+                  + "   SSIM " + " ".join(f"{r['ssim'][k]:.4f}" for k in fk)
+                  + f"   {r['seconds']:6.1f} s {r['evaluations']:6.0f} evals")
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--lenses", nargs="*", default=None,
@@ -349,15 +363,14 @@ def main(argv=None) -> dict:
                 print(f"{name} device {d}: failed ({type(exc).__name__}: {exc})")
                 result["skipped"].append({"lens": name, "device": d, "reason": f"{type(exc).__name__}: {exc}"})
     summary = summarise(cases, args.methods)
-    fk = [f"{f:g}" for f in FOVS]
-    print(f"\nSummary: mean over {len({(c['lens'], c['device']) for c in cases})} device(s)")
-    for noise, per in summary.items():
-        print(f"noise {noise}")
-        for m, r in per.items():
-            print(f"  {m:<8} SFR MSE×1e-3 " + " ".join(f"{r['sfr_mse'][k] * 1e3:7.3f}" for k in fk)
-                  + "   truth " + " ".join(f"{r['sfr_mse_truth'][k] * 1e3:7.3f}" for k in fk)
-                  + "   SSIM " + " ".join(f"{r['ssim'][k]:.4f}" for k in fk)
-                  + f"   {r['seconds']:6.1f} s {r['evaluations']:6.0f} evals")
+    print_summary(summary, f"mean over {len({(c['lens'], c['device']) for c in cases})} device(s)")
+    lenses = sorted({c["lens"] for c in cases})
+    by_lens = {}
+    if len(lenses) > 1:   # the paper's table is per lens: the mean over each lens's devices
+        for name in lenses:
+            sel = [c for c in cases if c["lens"] == name]
+            by_lens[name] = summarise(sel, args.methods)
+            print_summary(by_lens[name], f"{name}, mean over {len(sel)} case(s)")
     if len(summary) > 1:
         print("\nNoise sweep: SFR MSE ×10⁻³ vs truth (all FoV) and SSIM (all FoV)")
         print(f"{'noise':>7} " + " ".join(f"{m + ' truth':>14} {m + ' SSIM':>13}" for m in ("ours", "pixel")))
@@ -370,6 +383,8 @@ def main(argv=None) -> dict:
             print(f"{noise:>7} " + " ".join(cells))
     result["cases"] = cases
     result["summary"] = summary
+    if by_lens:
+        result["summary_by_lens"] = by_lens
     result["seconds"] = round(time.perf_counter() - t_all, 1)
     print(json.dumps(result))
     return result

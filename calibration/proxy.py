@@ -386,7 +386,8 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
             # screened on the residuals the fit will use (the asymmetry makes decenters visible
             # that SFRA hides), by the Jacobian's model: a ranking, and the fit's first Jacobian
             task = _residual_task if jacobian_settings is None else _cheap_residual_task
-            names, jac0 = screen_parameters(cheap_model or model, names, n_params, bias=bias,
+            screen_model = model if cheap_model is None else cheap_model
+            names, jac0 = screen_parameters(screen_model, names, n_params, bias=bias,
                                             return_jacobian=True,
                                             fun_many=None if pool is None else (lambda pts: on_pool(task, pts)))
         space = parameter_space(nominal, names)

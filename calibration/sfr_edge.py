@@ -76,6 +76,7 @@ __all__ = [
     "adaptive_window",
     "apodize_lsf",
     "area_to",
+    "area_weights",
     "binning_correction",
     "binning_transfer",
     "crossing",
@@ -952,9 +953,32 @@ def area_to(freq: np.ndarray, sfr: np.ndarray, fmax: float = 0.5) -> float:
     >>> area_to(np.array([0.0, 0.25, 0.5, 0.75]), np.ones(4))
     0.5
     """
+    w = area_weights(np.asarray(freq, float), fmax)
+    return float(np.asarray(sfr, float)[:w.size] @ w)
+
+
+def area_weights(freq: np.ndarray, fmax: float) -> np.ndarray:
+    """Weights ``w`` of :func:`area_to`: the area is linear in the curve,
+    ``area_to(freq, sfr, fmax) == sfr[:len(w)] @ w``, so many curves on one
+    grid take one product. Trapezoids over ``freq`` up to ``fmax``, the end
+    value interpolated between its neighbours (as ``np.interp``). ``w``
+    covers only the samples the area reads (a curve may be undefined past
+    them); ``[nan]`` where ``freq`` stops short of ``fmax``.
+
+    >>> area_weights(np.array([0.0, 0.25, 0.5, 0.75]), 0.5).tolist()
+    [0.125, 0.25, 0.125]
+    """
     if freq[-1] < fmax:
-        return float("nan")
+        return np.array([np.nan])
     n = int(np.searchsorted(freq, fmax, side="right"))
-    f = np.append(freq[:n], fmax)
-    s = np.append(sfr[:n], np.interp(fmax, freq, sfr))
-    return float(np.sum(0.5 * (s[1:] + s[:-1]) * np.diff(f)))
+    d = np.diff(np.append(freq[:n], fmax))
+    t = 0.5 * (np.append(0.0, d) + np.append(d, 0.0))   # trapezoid weights of the n + 1 points
+    w = np.zeros(freq.size)
+    w[:n] = t[:n]
+    # the end value, interpolated between its neighbours, carries t[n]
+    i = max(n - 1, 0)
+    j = i if freq[i] == fmax else min(i + 1, freq.size - 1)   # an end on a sample reads no further
+    a = 0.0 if j == i else (fmax - freq[i]) / (freq[j] - freq[i])
+    w[i] += t[n] * (1.0 - a)
+    w[j] += t[n] * a
+    return w[:j + 1]

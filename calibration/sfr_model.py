@@ -64,6 +64,7 @@ from .psf_map import _wavelength_plan, chief_ray_fields, sensor_to_image
 from .sfr import LUMINANCE_WEIGHTS
 from .sfr_asym import BANDS as ODD_BANDS
 from .sfr_asym import model_odd_bands, odd_bands, project_masses
+from .sfr_edge import area_weights
 
 __all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "sfra_of"]
 
@@ -110,35 +111,15 @@ class Prediction:
 
 def sfra_of(freq: np.ndarray, sfr: np.ndarray) -> np.ndarray:
     """Area under each SFR row from 0 to 0.5 cycles/pixel (cycles/pixel),
-    as :func:`calibration.sfr_edge.area_to` computes it (trapezoids, the
-    end value interpolated), for all rows by one product with its weights.
+    as :func:`calibration.sfr_edge.area_to` computes it, for all rows by
+    one product with its weights (:func:`calibration.sfr_edge.area_weights`).
 
     >>> f = np.linspace(0, 0.6, 7)
     >>> float(sfra_of(f, np.ones((2, 7)))[1])
     0.5
     """
-    sfr = np.atleast_2d(sfr)
-    return sfr @ area_weights(np.asarray(freq, float), 0.5)
-
-
-def area_weights(freq: np.ndarray, fmax: float) -> np.ndarray:
-    """Weights ``w`` (F,) with ``sfr @ w == area_to(freq, sfr, fmax)``: the
-    area is linear in the curve. NaN weights where ``freq`` stops short of
-    ``fmax`` (as ``area_to`` gives NaN)."""
-    if freq[-1] < fmax:
-        return np.full(freq.size, np.nan)
-    n = int(np.searchsorted(freq, fmax, side="right"))
-    d = np.diff(np.append(freq[:n], fmax))
-    t = 0.5 * (np.append(0.0, d) + np.append(d, 0.0))   # trapezoid weights of the n + 1 points
-    w = np.zeros(freq.size)
-    w[:n] = t[:n]
-    # the end value, interpolated between its neighbours (np.interp's), carries t[n]
-    i = max(n - 1, 0)
-    j = min(i + 1, freq.size - 1)
-    a = 0.0 if j == i else (fmax - freq[i]) / (freq[j] - freq[i])
-    w[i] += t[n] * (1.0 - a)
-    w[j] += t[n] * a
-    return w
+    w = area_weights(np.asarray(freq, float), 0.5)
+    return np.atleast_2d(sfr)[:, :w.size] @ w
 
 
 def mtf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:

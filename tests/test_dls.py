@@ -114,9 +114,9 @@ def test_cheap_jacobian_reaches_the_same_minimum(rng):
     assert np.allclose(res.x, [2.0, 1.3, 0.4], atol=2e-3)
 
 
-def test_broyden_reuse_reaches_the_same_minimum_with_fewer_evaluations(rng):
-    # two Gaussian peaks (6 parameters, 120 residuals): the secant updates must not change
-    # the answer, and must get near it for fewer evaluations than a Jacobian every step
+def _two_peaks(rng):
+    """Two Gaussian peaks (6 parameters, 120 residuals, noise 0.01): the
+    residual function, a start and the solver's keywords."""
     t = np.linspace(-1, 1, 120)
     truth = np.array([1.0, -0.3, 0.2, 0.8, 0.4, 0.15])
 
@@ -131,7 +131,13 @@ def test_broyden_reuse_reaches_the_same_minimum_with_fewer_evaluations(rng):
 
     lo, hi = np.array([0, -1, 0.05, 0, -1, 0.05]), np.array([3, 1, 1, 3, 1, 1.0])
     x0 = np.array([0.7, -0.2, 0.3, 0.6, 0.3, 0.25])
-    kw = {"lower": lo, "upper": hi, "h": 1e-6, "gtol": 1e-6, "ftol": 1e-8, "max_iter": 100}
+    return f, x0, {"lower": lo, "upper": hi, "h": 1e-6, "gtol": 1e-6, "ftol": 1e-8, "max_iter": 100}
+
+
+def test_broyden_reuse_reaches_the_same_minimum_with_fewer_evaluations(rng):
+    # the secant updates must not change the answer, and must get near it for fewer
+    # evaluations than a Jacobian every step
+    f, x0, kw = _two_peaks(rng)
     full = damped_least_squares(f, x0, **kw)
     reuse = damped_least_squares(f, x0, refresh=2, **kw)
     assert reuse.merit == pytest.approx(full.merit, rel=1e-8)
@@ -161,23 +167,9 @@ def test_a_wide_secant_start_jacobian_reaches_the_same_minimum(rng):
     # the proxy fit starts from its screening's secants (h = 0.5 tolerances): a start
     # Jacobian that is only roughly right must not change the answer, must save the first
     # finite-difference Jacobian, and a wrong shape is refused
-    t = np.linspace(-1, 1, 120)
-    truth = np.array([1.0, -0.3, 0.2, 0.8, 0.4, 0.15])
-
-    def model(p):
-        return (p[0] * np.exp(-(t - p[1]) ** 2 / (2 * p[2] ** 2))
-                + p[3] * np.exp(-(t - p[4]) ** 2 / (2 * p[5] ** 2)))
-
-    y = model(truth) + rng.normal(0, 0.01, t.size)
-
-    def f(p):
-        return (model(p) - y) / 0.01
-
-    lo, hi = np.array([0, -1, 0.05, 0, -1, 0.05]), np.array([3, 1, 1, 3, 1, 1.0])
-    x0 = np.array([0.7, -0.2, 0.3, 0.6, 0.3, 0.25])
+    f, x0, kw = _two_peaks(rng)
     f0 = f(x0)
     wide = np.stack([(f(x0 + 0.05 * e) - f0) / 0.05 for e in np.eye(6)], axis=1)
-    kw = {"lower": lo, "upper": hi, "h": 1e-6, "gtol": 1e-6, "ftol": 1e-8, "max_iter": 100}
     full = damped_least_squares(f, x0, **kw)
     started = damped_least_squares(f, x0, jac0=wide, **kw)
     assert started.merit == pytest.approx(full.merit, rel=1e-8)

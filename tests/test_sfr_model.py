@@ -115,18 +115,30 @@ def test_node_psfs_other_methods_go_node_by_node(device):
     np.testing.assert_allclose(m.node_psfs(pl), ref, rtol=0, atol=1e-9 * ref.max())
 
 
-def test_sfra_of_is_area_to_on_every_row():
-    """The one-product SFRA equals the per-row trapezoid of
-    ``sfr_edge.area_to`` (end value interpolated), on grids that end
-    past 0.5, exactly on it, irregular ones, and NaN where a grid stops
-    short of 0.5."""
+def test_sfra_of_is_the_trapezoid_to_half_nyquist_on_every_row():
+    """The one-product SFRA equals, row by row, the trapezoid over the
+    samples up to 0.5 cycles/pixel with the end value interpolated
+    (written out here with numpy), on grids that end past 0.5, exactly on
+    it and irregular ones; samples past the end are not read (NaN there
+    changes nothing); NaN where a grid stops short of 0.5."""
     from calibration.sfr_edge import area_to
     from calibration.sfr_model import sfra_of
+
+    def trapezoid(f, s):
+        n = int(np.searchsorted(f, 0.5, side="right"))
+        x, y = np.append(f[:n], 0.5), np.append(s[:n], np.interp(0.5, f, s))
+        return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(x)))
 
     rng = np.random.default_rng(5)
     grids = [np.linspace(0, 1, 65), np.linspace(0, 0.5, 33), np.append(0.0, np.sort(rng.random(49)) * 0.9),
              np.linspace(0, 0.6, 7)]
     for f in grids:
         s = rng.random((6, f.size))
-        assert np.allclose(sfra_of(f, s), [area_to(f, r, 0.5) for r in s], rtol=0, atol=1e-14)
+        want = [trapezoid(f, r) for r in s]
+        assert np.allclose(sfra_of(f, s), want, rtol=0, atol=1e-14)
+        assert np.allclose([area_to(f, r) for r in s], want, rtol=0, atol=1e-14)
+    f = np.linspace(0, 1, 65)
+    s = rng.random((2, f.size))
+    s[:, 40:] = np.nan
+    assert np.isfinite(sfra_of(f, s)).all() and np.isfinite(area_to(f, s[0]))
     assert np.isnan(sfra_of(np.linspace(0, 0.4, 9), np.ones((2, 9)))).all()
