@@ -24,6 +24,9 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
     with the same finite-difference step; ``max_nfev = --max-iter``, which
     TRF counts without its finite differences: about ``--max-iter``
     iterations, as the others;
+  - ``scipy_shape``: the same on the shape residuals (below), those of
+    ``ours_shape``, the default: the optimiser compared on the same
+    residuals and data;
   - ``ours``: ``fit_proxy(method="dls")`` — SFRA residuals, damped least
     squares with dynamic damping (paper Algorithm 1); ``--fast-jacobian``
     takes its Jacobian from a cheaper model (pupil 32 samples), ``--refresh
@@ -67,8 +70,9 @@ from __future__ import annotations
 
 import os
 
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(var, "1")
+if __name__ == "__main__":   # one BLAS thread per fit worker; not when a test imports the helpers
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
@@ -95,7 +99,7 @@ LENS_DIR = ROOT.parent / "shared" / "data" / "lenses" / "phone"
 GRID = (5, 7)
 FOVS = (0.1, 0.5, 0.9)
 FOV_WINDOW = 0.1
-METHODS = ("nominal", "pixel", "scipy", "ours", "ours_bands", "ours_odd", "ours_shape")
+METHODS = ("nominal", "pixel", "scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape")
 NYQUIST = 0.5
 
 
@@ -201,9 +205,9 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                                 workers=args.pixel_workers)
             fitted, evals, secs, u, stop = fit.lens, fit.evaluations, fit.seconds, fit.u, fit.message
             extra = {"pixel_mse_before": fit.mse_before, "pixel_mse_after": fit.mse_after}
-        elif m in ("scipy", "ours", "ours_bands", "ours_odd", "ours_shape"):
+        elif m in ("scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape"):
             iters = args.max_iter
-            if m == "scipy":
+            if m.startswith("scipy"):
                 # fit_proxy's scipy max_iter is scipy's max_nfev, which TRF counts without its
                 # finite differences: about max_iter iterations, as the others
                 iters = args.scipy_max_iter or args.max_iter
@@ -214,7 +218,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
             fit = fit_proxy(lens, obs, names=None if own else names, n_params=args.n_params,
                             settings=settings, method="dls" if ours else "scipy",
                             workers=args.workers if ours else 1, max_iter=iters, progress=False,
-                            jacobian_settings=fast, residuals=m[5:] if m.startswith("ours_") else "sfra",
+                            jacobian_settings=fast, residuals=m.partition("_")[2] or "sfra",
                             refresh=args.refresh if ours else 1)
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
             stop = fit.result.reason if fit.result is not None else ""
@@ -238,13 +242,13 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
 
 def table(case: dict, title: str) -> str:
     fk = [f"{f:g}" for f in FOVS]
-    head = (f"{'method':<8} | " + " ".join(f"{'MSE@' + k:>8}" for k in fk) + " | "
+    head = (f"{'method':<11} | " + " ".join(f"{'MSE@' + k:>8}" for k in fk) + " | "
             + " ".join(f"{'truth@' + k:>9}" for k in fk) + " | " + " ".join(f"{'SSIM@' + k:>9}" for k in fk)
             + f" | {'time s':>7} {'evals':>6}")
     lines = [title, "SFR MSE ×10⁻³ vs measured (MSE) and vs the truth lens's noise-free SFR (truth); SSIM of edge images",
              head, "-" * len(head)]
     for m, r in case["methods"].items():
-        lines.append(f"{m:<8} | " + " ".join(f"{r['sfr_mse'][k] * 1e3:8.3f}" for k in fk) + " | "
+        lines.append(f"{m:<11} | " + " ".join(f"{r['sfr_mse'][k] * 1e3:8.3f}" for k in fk) + " | "
                      + " ".join(f"{r['sfr_mse_truth'][k] * 1e3:9.3f}" for k in fk) + " | "
                      + " ".join(f"{r['ssim'][k]:9.4f}" for k in fk) + f" | {r['seconds']:7.1f} {r['evaluations']:6d}")
     rad = ", ".join(f"{k}: r {lo:.2f}–{hi:.2f}" for k, (lo, hi) in case["fov_radius"].items())
@@ -272,6 +276,93 @@ def summarise(cases: list[dict], methods) -> dict:
     return out
 
 
+def load_cases(paths) -> tuple[list[dict], list[str]]:
+    """The cases of earlier runs (the JSON object on each log's last line;
+    one device measured at one noise in several runs, with other methods, is
+    one case) and the union of their methods, in :data:`METHODS` order. The
+    runs must have drawn the same devices (same ``--lenses`` and ``--seed``)."""
+    merged: dict[tuple, dict] = {}
+    for p in paths:
+        lines = [ln for ln in Path(p).read_text().splitlines() if ln.startswith("{")]
+        if not lines:
+            raise SystemExit(f"{p}: no JSON line (not a benchmarks/proxy.py log?)")
+        for c in json.loads(lines[-1])["cases"]:
+            # the same seeded device in two runs (other methods): one case
+            key = (c["lens"], c["device"], c["noise"])
+            if key in merged:
+                merged[key]["methods"].update(c["methods"])
+            else:
+                merged[key] = c
+    cases = list(merged.values())
+    seen = {m for c in cases for m in c["methods"]}
+    return cases, [m for m in METHODS if m in seen]
+
+
+def paired(cases: list[dict], ref: str, methods, level: float = 0.95) -> dict:
+    """``ref`` against every other method, device by device, per lens and FoV
+    (and over all lenses): is it better, worse, or not distinguishable?
+
+    Means over three devices are dominated by the worst device, so the
+    verdict is paired: for SFR MSE the per-device log ratio ``ln(other /
+    ref)`` (> 0: ``ref`` closer), for SSIM the difference ``ref − other``;
+    their mean with a Student-t interval at ``level`` over the devices.
+    ``better`` / ``worse`` when the interval excludes 0, else ``tied`` (the
+    devices do not tell the two apart). Also the geometric-mean ratio and how
+    many devices ``ref`` wins. Returns ``{key: {lens or "all": {fov: {method:
+    {...}}}}}``.
+    """
+    from scipy.stats import t as student_t
+
+    out = {}
+    groups = {name: [c for c in cases if c["lens"] == name] for name in sorted({c["lens"] for c in cases})}
+    if len(groups) > 1:
+        groups["all"] = list(cases)
+    for key in ("sfr_mse", "ssim"):
+        out[key] = {}
+        for name, sel in groups.items():
+            per_fov = {}
+            for k in [f"{f:g}" for f in FOVS]:
+                cells = {}
+                for m in methods:
+                    if m in (ref, "nominal"):
+                        continue
+                    pairs = [(c["methods"][m][key][k], c["methods"][ref][key][k]) for c in sel
+                             if m in c["methods"] and ref in c["methods"]]
+                    if not pairs:
+                        continue
+                    o, r = np.array(pairs, dtype=float).T
+                    d = np.log(o / r) if key == "sfr_mse" else r - o
+                    n = d.size
+                    half = (float(student_t.ppf(0.5 + level / 2, n - 1) * d.std(ddof=1) / np.sqrt(n))
+                            if n > 1 else float("inf"))
+                    mean = float(d.mean())
+                    verdict = "better" if mean - half > 0 else "worse" if mean + half < 0 else "tied"
+                    cells[m] = {"n": n, "mean": mean, "half_width": half, "verdict": verdict,
+                                "wins": int(np.sum(d > 0))}
+                    if key == "sfr_mse":
+                        cells[m]["ratio"] = float(np.exp(mean))   # geometric mean of other / ref
+                per_fov[k] = cells
+            out[key][name] = per_fov
+    return out
+
+
+def print_paired(comp: dict, ref: str) -> None:
+    """:func:`paired` as lines: ratio (other / ref), interval, wins, verdict."""
+    print(f"\nPaired, {ref} against each method (SFR MSE: geometric-mean ratio other/{ref}, 95 % interval "
+          f"over devices; SSIM: mean {ref} − other)")
+    for key, per in comp.items():
+        for name, per_fov in per.items():
+            for k, cells in per_fov.items():
+                parts = []
+                for m, c in cells.items():
+                    if key == "sfr_mse":
+                        lo, hi = np.exp(c["mean"] - c["half_width"]), np.exp(c["mean"] + c["half_width"])
+                        parts.append(f"{m} {c['ratio']:.2f}× [{lo:.2f}, {hi:.2f}] {c['wins']}/{c['n']} {c['verdict']}")
+                    else:
+                        parts.append(f"{m} {c['mean']:+.4f} ±{c['half_width']:.4f} {c['wins']}/{c['n']} {c['verdict']}")
+                print(f"  {key:<7} {name[-4:]:>5} FoV {k}: " + "; ".join(parts))
+
+
 def print_summary(summary: dict, title: str) -> None:
     """The means of :func:`summarise`, a line per noise level and method."""
     fk = [f"{f:g}" for f in FOVS]
@@ -279,7 +370,7 @@ def print_summary(summary: dict, title: str) -> None:
     for noise, per in summary.items():
         print(f"noise {noise}")
         for m, r in per.items():
-            print(f"  {m:<8} SFR MSE×1e-3 " + " ".join(f"{r['sfr_mse'][k] * 1e3:7.3f}" for k in fk)
+            print(f"  {m:<11} SFR MSE×1e-3 " + " ".join(f"{r['sfr_mse'][k] * 1e3:7.3f}" for k in fk)
                   + "   truth " + " ".join(f"{r['sfr_mse_truth'][k] * 1e3:7.3f}" for k in fk)
                   + "   SSIM " + " ".join(f"{r['ssim'][k]:.4f}" for k in fk)
                   + f"   {r['seconds']:6.1f} s {r['evaluations']:6.0f} evals")
@@ -290,6 +381,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--lenses", nargs="*", default=None,
                     help="lens tokens (e9, e2, e1, e11) or name parts; default all in ../shared/data/lenses/phone")
     ap.add_argument("--devices", type=int, default=2, help="perturbed devices per lens")
+    ap.add_argument("--first-device", type=int, default=0,
+                    help="index of the first device (seeded by lens, index): devices 3..5 of a lens are "
+                         "`--first-device 3 --devices 3`, the same devices a `--devices 6` run draws")
+    ap.add_argument("--from-json", nargs="+", type=Path, default=None, metavar="LOG",
+                    help="no fits: summarise the cases of earlier runs (the JSON on each LOG's last line), "
+                         "e.g. two shards of devices")
+    ap.add_argument("--ref", default="ours_shape", choices=METHODS,
+                    help="the method the paired comparison holds against the others (default ours_shape)")
     ap.add_argument("--grid", type=int, nargs=2, default=list(GRID), metavar=("R", "C"),
                     help="field grid of the truth PSF map and the edges (paper: 15 20)")
     ap.add_argument("--noise", type=float, nargs="+", default=[0.004],
@@ -329,7 +428,10 @@ def main(argv=None) -> dict:
         return result
     cases = []
     t_all = time.perf_counter()
-    for li, path in enumerate(pick_lenses(args.lenses)):
+    if args.from_json:
+        cases, methods = load_cases(args.from_json)
+        args.methods = result["methods"] = methods
+    for li, path in enumerate([] if args.from_json else pick_lenses(args.lenses)):
         name = path.stem
         try:
             lens = read_lens(path)
@@ -339,7 +441,7 @@ def main(argv=None) -> dict:
             print(f"{name}: skipped ({type(exc).__name__}: {exc})")
             result["skipped"].append({"lens": name, "reason": f"{type(exc).__name__}: {exc}"})
             continue
-        for d in range(args.devices):
+        for d in range(args.first_device, args.first_device + args.devices):
             rng = np.random.default_rng([args.seed, li, d])
             u_true = rng.uniform(-1.0, 1.0, len(all_names))
             try:
@@ -371,6 +473,10 @@ def main(argv=None) -> dict:
             sel = [c for c in cases if c["lens"] == name]
             by_lens[name] = summarise(sel, args.methods)
             print_summary(by_lens[name], f"{name}, mean over {len(sel)} case(s)")
+    comparison = None
+    if args.ref in args.methods and len(args.methods) > 1 and cases:
+        comparison = paired(cases, args.ref, args.methods)
+        print_paired(comparison, args.ref)
     if len(summary) > 1:
         print("\nNoise sweep: SFR MSE ×10⁻³ vs truth (all FoV) and SSIM (all FoV)")
         print(f"{'noise':>7} " + " ".join(f"{m + ' truth':>14} {m + ' SSIM':>13}" for m in ("ours", "pixel")))
@@ -385,6 +491,8 @@ def main(argv=None) -> dict:
     result["summary"] = summary
     if by_lens:
         result["summary_by_lens"] = by_lens
+    if comparison:
+        result["paired"] = comparison
     result["seconds"] = round(time.perf_counter() - t_all, 1)
     print(json.dumps(result))
     return result

@@ -1,0 +1,48 @@
+"""The proxy benchmark's paired verdicts (benchmarks/proxy.py::paired):
+the interval is Student's t over the devices (scipy's one-sample t-test
+interval is the reference), and the verdict follows it."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.stats import ttest_1samp
+
+from benchmarks.proxy import FOVS, load_cases, paired
+
+
+def _case(lens, device, mse: dict, ssim: dict):
+    fk = [f"{f:g}" for f in FOVS]
+    return {"lens": lens, "device": device, "noise": 0.004,
+            "methods": {m: {"sfr_mse": {k: v for k in fk}, "ssim": {k: ssim[m] for k in fk}}
+                        for m, v in mse.items()}}
+
+
+def test_the_interval_is_students_t_over_devices_and_the_verdicts_follow_it():
+    other = [2.0, 3.0, 1.5, 2.5]      # ref wins by 1.5–3× on every device
+    mixed = [0.5, 2.0, 0.8, 1.6]      # ref wins on two, loses on two
+    cases = [_case("L", d, {"ours_shape": 1.0, "scipy": other[d], "pixel": mixed[d], "nominal": 9.0},
+                   {"ours_shape": 0.95, "scipy": 0.95 - 0.01 * (d + 1), "pixel": 0.96, "nominal": 0.5})
+             for d in range(4)]
+    comp = paired(cases, "ours_shape", ["nominal", "pixel", "scipy", "ours_shape"])
+    cell = comp["sfr_mse"]["L"]["0.5"]
+    assert "nominal" not in cell and "ours_shape" not in cell
+    ref = ttest_1samp(np.log(other), 0.0).confidence_interval(0.95)
+    s = cell["scipy"]
+    assert s["mean"] - s["half_width"] == pytest.approx(ref.low, rel=1e-9)
+    assert s["mean"] + s["half_width"] == pytest.approx(ref.high, rel=1e-9)
+    assert s["ratio"] == pytest.approx(np.exp(np.mean(np.log(other))))
+    assert (s["verdict"], s["wins"], s["n"]) == ("better", 4, 4)
+    assert cell["pixel"]["verdict"] == "tied" and cell["pixel"]["wins"] == 2
+    # SSIM: higher is better; ref − other = 0.01·(d + 1) > 0 everywhere, and −0.01 against pixel
+    assert comp["ssim"]["L"]["0.9"]["scipy"]["verdict"] == "better"
+    assert comp["ssim"]["L"]["0.9"]["pixel"]["verdict"] == "worse"
+
+
+def test_runs_of_the_same_devices_merge_into_one_case(tmp_path):
+    a = _case("L", 0, {"nominal": 9.0, "scipy": 2.0}, {"nominal": 0.5, "scipy": 0.9})
+    b = _case("L", 0, {"nominal": 9.0, "ours_shape": 1.0}, {"nominal": 0.5, "ours_shape": 0.9})
+    for name, case in (("a.log", a), ("b.log", b)):
+        (tmp_path / name).write_text("some progress\n" + json.dumps({"cases": [case]}) + "\n")
+    cases, methods = load_cases([tmp_path / "a.log", tmp_path / "b.log"])
+    assert len(cases) == 1 and methods == ["nominal", "scipy", "ours_shape"]
