@@ -298,7 +298,12 @@ def load_cases(paths) -> tuple[list[dict], list[str]]:
     return cases, [m for m in METHODS if m in seen]
 
 
-def paired(cases: list[dict], ref: str, methods, level: float = 0.95) -> dict:
+#: non-inferiority margins of :func:`paired`: ``ref`` may trail another method by
+#: at most 10 % in SFR MSE or 0.005 in edge-image SSIM (at the 95 % bound)
+MARGINS = {"sfr_mse": float(np.log(1.10)), "ssim": 0.005}
+
+
+def paired(cases: list[dict], ref: str, methods, level: float = 0.95, margins=None) -> dict:
     """``ref`` against every other method, device by device, per lens and FoV
     (and over all lenses): is it better, worse, or not distinguishable?
 
@@ -307,12 +312,17 @@ def paired(cases: list[dict], ref: str, methods, level: float = 0.95) -> dict:
     ref)`` (> 0: ``ref`` closer), for SSIM the difference ``ref − other``;
     their mean with a Student-t interval at ``level`` over the devices.
     ``better`` / ``worse`` when the interval excludes 0, else ``tied`` (the
-    devices do not tell the two apart). Also the geometric-mean ratio and how
-    many devices ``ref`` wins. Returns ``{key: {lens or "all": {fov: {method:
-    {...}}}}}``.
+    devices do not tell the two apart). ``noninferior``: the interval's
+    lower end is above ``−margin`` (:data:`MARGINS`), i.e. ``ref`` is at
+    worst a margin behind — the test "best or tied" is judged by (a
+    non-inferiority test; a strict "tied" would call every consistent
+    0.1 % difference a loss, and an interval over three devices nearly
+    anything a tie). Also the geometric-mean ratio and how many devices
+    ``ref`` wins. Returns ``{key: {lens or "all": {fov: {method: {...}}}}}``.
     """
     from scipy.stats import t as student_t
 
+    margins = MARGINS if margins is None else margins
     out = {}
     groups = {name: [c for c in cases if c["lens"] == name] for name in sorted({c["lens"] for c in cases})}
     if len(groups) > 1:
@@ -338,7 +348,7 @@ def paired(cases: list[dict], ref: str, methods, level: float = 0.95) -> dict:
                     mean = float(d.mean())
                     verdict = "better" if mean - half > 0 else "worse" if mean + half < 0 else "tied"
                     cells[m] = {"n": n, "mean": mean, "half_width": half, "verdict": verdict,
-                                "wins": int(np.sum(d > 0))}
+                                "noninferior": bool(mean - half > -margins[key]), "wins": int(np.sum(d > 0))}
                     if key == "sfr_mse":
                         cells[m]["ratio"] = float(np.exp(mean))   # geometric mean of other / ref
                 per_fov[k] = cells
@@ -349,7 +359,8 @@ def paired(cases: list[dict], ref: str, methods, level: float = 0.95) -> dict:
 def print_paired(comp: dict, ref: str) -> None:
     """:func:`paired` as lines: ratio (other / ref), interval, wins, verdict."""
     print(f"\nPaired, {ref} against each method (SFR MSE: geometric-mean ratio other/{ref}, 95 % interval "
-          f"over devices; SSIM: mean {ref} − other)")
+          f"over devices; SSIM: mean {ref} − other; INFERIOR: {ref} trails by more than the margin, "
+          f"{np.exp(MARGINS['sfr_mse']) - 1:.0%} in SFR MSE, {MARGINS['ssim']} in SSIM)")
     for key, per in comp.items():
         for name, per_fov in per.items():
             for k, cells in per_fov.items():
@@ -357,9 +368,11 @@ def print_paired(comp: dict, ref: str) -> None:
                 for m, c in cells.items():
                     if key == "sfr_mse":
                         lo, hi = np.exp(c["mean"] - c["half_width"]), np.exp(c["mean"] + c["half_width"])
-                        parts.append(f"{m} {c['ratio']:.2f}× [{lo:.2f}, {hi:.2f}] {c['wins']}/{c['n']} {c['verdict']}")
+                        parts.append(f"{m} {c['ratio']:.2f}× [{lo:.2f}, {hi:.2f}] {c['wins']}/{c['n']} {c['verdict']}"
+                                     + ("" if c["noninferior"] else " INFERIOR"))
                     else:
-                        parts.append(f"{m} {c['mean']:+.4f} ±{c['half_width']:.4f} {c['wins']}/{c['n']} {c['verdict']}")
+                        parts.append(f"{m} {c['mean']:+.4f} ±{c['half_width']:.4f} {c['wins']}/{c['n']} {c['verdict']}"
+                                     + ("" if c["noninferior"] else " INFERIOR"))
                 print(f"  {key:<7} {name[-4:]:>5} FoV {k}: " + "; ".join(parts))
 
 

@@ -178,3 +178,22 @@ def test_a_wide_secant_start_jacobian_reaches_the_same_minimum(rng):
     assert started.history[1]["secant"]
     with pytest.raises(ValueError, match="jac0"):
         damped_least_squares(f, x0, jac0=wide[:, :5], **kw)
+
+
+def test_bracketed_trials_let_the_damping_fall_and_halve_the_iterations_on_a_linear_problem():
+    """A linear problem is its own Gauss–Newton model: the bolder of two
+    trials always wins, so bracketed trials divide λ by 4 (and the gain rule
+    by 3) every step and reach the solution in half the iterations; trials
+    that only add damping (bracket=False) fall by 3 a step."""
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(40, 6)) @ np.diag([1, 1, 0.3, 0.1, 0.03, 0.01])   # condition 100
+    b = a @ rng.uniform(-1, 1, 6)
+    runs = {br: damped_least_squares(lambda x: a @ x - b, np.zeros(6), lower=-2 * np.ones(6), upper=2 * np.ones(6),
+                                     trials=2, max_iter=30, h=1e-3, bracket=br, gtol=1e-10, ftol=1e-12,
+                                     jacobian="forward")
+            for br in (False, True)}
+    lam = {br: [h["lambda"] for h in r.history] for br, r in runs.items()}
+    assert lam[True][1] == pytest.approx(lam[True][0] / 12) and lam[False][1] == pytest.approx(lam[False][0] / 3)
+    iters = {br: len(r.history) - 1 for br, r in runs.items()}
+    assert runs[True].merit < 1e-12 and runs[False].merit < 1e-12
+    assert 2 * iters[True] <= iters[False], iters
