@@ -212,8 +212,11 @@ class ProxyFit(FittedLens):
 
 # -- evaluation (picklable: one model per worker process) -----------------------------
 def _init_worker(payload):
+    from isp.runtime import one_blas_thread
+
     from .sfr_model import SfrModel
 
+    one_blas_thread()
     nominal, obs, settings, names, bias, *rest = payload
     _WORKER["model"] = SfrModel(nominal, obs, settings)
     jac_settings = rest[0] if rest else None

@@ -84,8 +84,11 @@ def pixel_residuals(model, space: ParameterSpace, edges, u) -> np.ndarray:
 
 
 def _init_worker(payload):
+    from isp.runtime import one_blas_thread
+
     from .sfr_model import SfrModel
 
+    one_blas_thread()
     nominal, obs, settings, names, edges = payload
     _WORKER["model"] = SfrModel(nominal, obs, settings)
     _WORKER["space"] = parameter_space(nominal, names)

@@ -638,9 +638,10 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
         if workers > 1:
             # The platform's default start method (fork on Linux: no `if __name__ ==
             # "__main__"` guard needed; spawn elsewhere needs it). FFTs run on one
-            # thread per worker; the BLAS products are kept single-threaded by
-            # calibration.psf itself.
-            with ProcessPoolExecutor(max_workers=workers) as ex:
+            # thread per worker, and so does BLAS (one_blas_thread).
+            from isp.runtime import one_blas_thread
+
+            with ProcessPoolExecutor(max_workers=workers, initializer=one_blas_thread) as ex:
                 for res in ex.map(_region_task, tasks, chunksize=max(1, len(tasks) // (8 * workers))):
                     results.append(res)
                     bar.update()

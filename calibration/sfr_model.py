@@ -403,7 +403,9 @@ def _map_forked(fn, items, workers: int) -> list:
         return [fn(x) for x in items]
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+    from isp.runtime import one_blas_thread
+
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=one_blas_thread) as pool:
         return list(pool.map(fn, items, chunksize=max(1, len(items) // (4 * workers))))
 
 

