@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import ttest_1samp
 
-from benchmarks.proxy import FOVS, load_cases, paired
+from benchmarks.proxy import FOVS, load_cases, paired, summarise
 
 
 def _case(lens, device, mse: dict, ssim: dict):
@@ -46,3 +46,11 @@ def test_runs_of_the_same_devices_merge_into_one_case(tmp_path):
         (tmp_path / name).write_text("some progress\n" + json.dumps({"cases": [case]}) + "\n")
     cases, methods = load_cases([tmp_path / "a.log", tmp_path / "b.log"])
     assert len(cases) == 1 and methods == ["nominal", "scipy", "ours_shape"]
+
+
+def test_the_summary_counts_the_parameters_left_on_the_bounds():
+    fk = {k: 1.0 for k in ("0.1", "0.5", "0.9")}
+    rec = lambda u: {"sfr_mse": fk, "sfr_mse_truth": fk, "ssim": fk, "seconds": 1.0, "evaluations": 1, "u": u}
+    cases = [{"noise": 0.004, "methods": {"ours_shape": rec([2.0, -1.9999, 0.5])}},
+             {"noise": 0.004, "methods": {"ours_shape": rec([1.99, 0.0, -2.0])}}]
+    assert summarise(cases, ["ours_shape"])["0.004"]["ours_shape"]["at_bounds"] == [1, 2]
