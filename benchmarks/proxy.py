@@ -6,8 +6,11 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
 * **truth**: the lens with every :func:`calibration.proxy.default_names`
   parameter (element decenters and tilts, air gaps, focus) perturbed
   uniformly within ±1 tolerance (seeded); its PSF map
-  (``psf_map(grid=GRID, channels=("G",), n=48, pupil_samples=48,
-  n_wavelengths=3)``) is the device;
+  (``psf_map(grid=GRID, channels=("G",), n=96, pupil_samples=64,
+  n_wavelengths=3)``: a 48 µm window, which holds ≥ 98 % of every corner
+  PSF, ``benchmarks/psf_window.py``; until 2026-11-25 it was 24 µm, which
+  cut up to 13 % off and made the truth itself unreachable for the
+  model) is the device;
 * **measurement**: :func:`calibration.proxy_synth.synthetic_observations`
   — a vertical and a horizontal 5° edge at every region centre, rendered
   exactly through the truth PSFs, noise σ = ``noise``·(1 + r²) (r the
@@ -93,7 +96,7 @@ from calibration.proxy import (N_PARAMS, default_names, fit_proxy, parameter_spa
 from calibration.proxy_pixel import fit_pixel_mse, render_edges  # noqa: E402
 from calibration.proxy_synth import synthetic_observations  # noqa: E402
 from calibration.psf_map import psf_map  # noqa: E402
-from calibration.sfr_model import ModelSettings, SfrModel  # noqa: E402
+from calibration.sfr_model import FAST_JACOBIAN, ModelSettings, SfrModel  # noqa: E402
 
 LENS_DIR = ROOT.parent / "shared" / "data" / "lenses" / "phone"
 GRID = (5, 7)
@@ -215,7 +218,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                 iters = args.scipy_max_iter or args.max_iter
                 extra = {"scipy_max_nfev": iters}
             ours = m.startswith("ours")
-            fast = ModelSettings(pupil_samples=32) if (ours and args.fast_jacobian) else None
+            fast = FAST_JACOBIAN if (ours and args.fast_jacobian) else None
             own = ours and args.screen_in_fit   # fit_proxy screens itself: its time counts it
             fit = fit_proxy(lens, obs, names=None if own else names, n_params=args.n_params,
                             settings=settings, method="dls" if ours else "scipy",
@@ -469,7 +472,7 @@ def main(argv=None) -> dict:
                 truth = space.apply(u_true * space.tolerance)
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
-                    pm = psf_map(truth, grid=grid, channels=("G",), n=48, pupil_samples=48, n_wavelengths=3,
+                    pm = psf_map(truth, grid=grid, channels=("G",), n=96, pupil_samples=64, n_wavelengths=3,
                                  progress=False)
                 for w in caught:
                     log(f"  warning: {w.message}")

@@ -36,7 +36,7 @@ def cmd_fit(args) -> int:
     from .cli import _load
     from .loop_cli import _check_out, _publish, load_measured, match_sensor
     from .proxy import fit_proxy
-    from .sfr_model import ModelSettings
+    from .sfr_model import FAST_JACOBIAN
 
     t0 = time.perf_counter()
     if args.max_iter < 1:
@@ -55,7 +55,7 @@ def cmd_fit(args) -> int:
           f"({args.method}, {args.residuals} residuals)", flush=True)
     fit = fit_proxy(nominal, obs, method=args.method, workers=args.workers, max_iter=args.max_iter,
                     n_params=args.n_params, residuals=args.residuals,
-                    jacobian_settings=ModelSettings(pupil_samples=32) if args.fast_jacobian else None,
+                    jacobian_settings=FAST_JACOBIAN if args.fast_jacobian else None,
                     refresh=args.refresh)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))

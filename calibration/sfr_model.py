@@ -78,6 +78,15 @@ class ModelSettings:
 
 ``pupil_samples``: pupil grid across the stop. ``psf_n``,
     ``psf_pitch_um``: PSF window (default pitch: half the pixel pitch).
+    The PSF is normalised inside its window, so the light a window drops
+    is missing from the SFR's fall at low frequencies. The default 64 (a
+    32 µm window on 1 µm pixels) was 32 until 2026-11-25: on the four
+    phone lenses' devices (±1 tolerance) a 16 µm window dropped up to 30 %
+    of a corner PSF and put the corner SFR up to 0.116 RMS off a 64 µm
+    reference; 32 µm keeps it within 0.018 for 1.4× the evaluation time
+    (48 µm: 0.003 for 2×; ``benchmarks/psf_window.py``). The window must
+    stay inside the sampled pupil's replica period ≈ λ·N·``pupil_samples``
+    (:func:`_check_window`).
     ``n_wavelengths``: Gauss nodes per channel. ``aiming``: "real" (the
     pupil grid is aimed at the real stop once, at the nominal lens) or
     "paraxial" (paraxial entrance pupil: 0.003 cycles/pixel RMS off on e9,
@@ -88,7 +97,7 @@ class ModelSettings:
     """
 
     pupil_samples: int = 48
-    psf_n: int = 32
+    psf_n: int = 64
     psf_pitch_um: float | None = None
     n_wavelengths: int = 2
     aiming: str = "real"
@@ -98,6 +107,11 @@ class ModelSettings:
     aperture_px: float = 1.0
     noise_realisations: int = 4
     seed: int = 0
+
+
+#: the cheaper model a fit may take its Jacobian from (``--fast-jacobian``): fewer pupil samples, and so a
+#: window inside their shorter replica period (:func:`_check_window`)
+FAST_JACOBIAN = ModelSettings(pupil_samples=32, psf_n=48)
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,6 +216,7 @@ class SfrModel:
             raise ValueError(f"observations have no R, G, B or L channel (got {sorted(used)})")
         self.wavelengths, self.wl_weights = _wavelength_plan(self.channels, s.n_wavelengths, s.camera,
                                                              s.illuminant)
+        _check_window(nominal_lens, s, self.pitch_um, float(np.min(self.wavelengths)))
         self.mix = self._channel_mix()
         self._aim = _real_aim(nominal(nominal_lens), self.fields, s.pupil_samples) if s.aiming == "real" else None
         self._traced_key = None
@@ -416,6 +431,27 @@ class MeasurementBias(NamedTuple):
     sfra: np.ndarray
     sfr: np.ndarray
     odd: np.ndarray
+
+
+def _check_window(lens, s: ModelSettings, pitch_um: float, lam_min_nm: float) -> None:
+    """Refuse a PSF window wider than the replica period of the sampled
+    pupil: ``pupil_samples`` samples across a pupil of image-space
+    numerical aperture 1/(2N) (N the working F-number) make the diffracted
+    field periodic with period λ·N·``pupil_samples``; a window past it
+    folds the far tails back onto the core (silently, for the "debye"
+    sums)."""
+    from . import paraxial
+
+    n_w = paraxial.first_order(nominal(lens).lens).working_f_number
+    if not (math.isfinite(n_w) and n_w > 0):
+        return
+    period_um = lam_min_nm * 1e-3 * n_w * s.pupil_samples
+    window_um = s.psf_n * pitch_um
+    if window_um > period_um:
+        need = math.ceil(window_um / (lam_min_nm * 1e-3 * n_w))
+        raise ValueError(f"the PSF window ({window_um:.3g} µm: psf_n {s.psf_n} × {pitch_um:.3g} µm) exceeds the "
+                         f"pupil sampling's replica period (≈ {period_um:.3g} µm at {lam_min_nm:.0f} nm, "
+                         f"N = {n_w:.2f}, {s.pupil_samples} samples): use pupil_samples ≥ {need} or a smaller psf_n")
 
 
 def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.ndarray]:

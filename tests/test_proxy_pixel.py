@@ -59,7 +59,7 @@ def test_pixel_fit_moves_toward_truth(device):
     from calibration.sfr_model import ModelSettings
 
     lens, names, truth, _, obs, edges = device
-    fit = fit_pixel_mse(lens, obs, edges, names=names, settings=ModelSettings(pupil_samples=32), max_iter=5)
+    fit = fit_pixel_mse(lens, obs, edges, names=names, settings=ModelSettings(pupil_samples=32, psf_n=32), max_iter=5)
     assert fit.u.shape == (2,) and np.all(np.abs(fit.u) <= 2.0)
     assert tuple(fit.space.names) == tuple(names)
     assert abs(fit.u[0] - truth[0]) < 0.3 * abs(truth[0])    # focus: from 1 tolerance off to < 0.3

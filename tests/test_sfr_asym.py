@@ -105,7 +105,7 @@ def e9_device():
     lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
     true = {"e1.decenter_x": 0.002, "e2.tilt_yz": 0.02}
     pl = apply(lens, true)
-    pm = M.psf_map(pl, grid=(3, 4), channels=("G",), n=32, pupil_samples=48, n_wavelengths=3, cache=False,
+    pm = M.psf_map(pl, grid=(3, 4), channels=("G",), n=96, pupil_samples=64, n_wavelengths=3, cache=False,
                    progress=False)
     obs = synthetic_observations(pm, noise=0.0)
     return lens, true, pl, obs, SfrModel(lens, obs, ModelSettings())

@@ -31,7 +31,7 @@ def device():
 
     lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
     pl = apply(lens, {"e1.decenter_x": 0.002, "e2.tilt_yz": 0.02})
-    pm = M.psf_map(pl, grid=(3, 4), channels=("G",), n=32, pupil_samples=48, n_wavelengths=3, cache=False,
+    pm = M.psf_map(pl, grid=(3, 4), channels=("G",), n=96, pupil_samples=64, n_wavelengths=3, cache=False,
                    progress=False)
     return lens, pl, synthetic_observations(pm, noise=0.0)
 
@@ -98,7 +98,7 @@ def test_node_psfs_all_nodes_at_once_match_each_node_alone(device, monkeypatch, 
     from calibration import psf
 
     lens, pl, obs = device
-    m = SfrModel(lens, obs, ModelSettings(pupil_samples=32))
+    m = SfrModel(lens, obs, ModelSettings(pupil_samples=32, psf_n=32))
     dz = None if defocus_um is None else np.linspace(-1.0, 1.0, len(m.regions)) * defocus_um * 1e-3
     ref = _node_psfs_per_field(m, pl, dz)
     np.testing.assert_allclose(m.node_psfs(pl, dz), ref, rtol=0, atol=1e-6 * ref.max())
@@ -110,7 +110,7 @@ def test_node_psfs_other_methods_go_node_by_node(device):
     """property: a method other than "debye" takes the per-node PSFs on the
     batched trace."""
     lens, pl, obs = device
-    m = SfrModel(lens, obs, ModelSettings(pupil_samples=32, method="fft"))
+    m = SfrModel(lens, obs, ModelSettings(pupil_samples=32, psf_n=32, method="fft"))
     ref = _node_psfs_per_field(m, pl, method="fft")
     np.testing.assert_allclose(m.node_psfs(pl), ref, rtol=0, atol=1e-9 * ref.max())
 
@@ -142,3 +142,15 @@ def test_sfra_of_is_the_trapezoid_to_half_nyquist_on_every_row():
     s[:, 40:] = np.nan
     assert np.isfinite(sfra_of(f, s)).all() and np.isfinite(area_to(f, s[0]))
     assert np.isnan(sfra_of(np.linspace(0, 0.4, 9), np.ones((2, 9)))).all()
+
+
+def test_a_window_past_the_pupil_replica_period_is_refused(device):
+    """32 pupil samples across e9 (N ≈ 1.95) repeat the diffracted field
+    every ≈ 0.48 µm · 1.95 · 32 ≈ 30 µm: a 32 µm window is refused (it would
+    fold the tails onto the core), a 24 µm one is not."""
+    from calibration.sfr_model import FAST_JACOBIAN
+
+    lens, _, obs = device
+    with pytest.raises(ValueError, match=r"replica period .*pupil_samples ≥ 3[3-6]"):
+        SfrModel(lens, obs, ModelSettings(pupil_samples=32, psf_n=64))
+    SfrModel(lens, obs, FAST_JACOBIAN)
