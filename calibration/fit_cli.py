@@ -36,6 +36,7 @@ def cmd_fit(args) -> int:
     from .cli import _load
     from .loop_cli import _check_out, _publish, load_measured, match_sensor
     from .proxy import fit_proxy
+    from .psf_map import WINDOW_ENERGY_WARN
     from .sfr_model import FAST_JACOBIAN
 
     t0 = time.perf_counter()
@@ -69,6 +70,10 @@ def cmd_fit(args) -> int:
     print(f"SFRA RMS {e['before']['sfra_rms']:.4f} → {e['after']['sfra_rms']:.4f} cycles/pixel, "
           f"χ²/obs {e['before']['chi2_per_obs']:.1f} → {e['after']['chi2_per_obs']:.2f}; "
           f"{fit.evaluations} lens evaluations, {fit.seconds:.0f} s")
+    if fit.window_energy < WINDOW_ENERGY_WARN:
+        print(f"note: the fitted lens throws {1 - fit.window_energy:.0%} of some region's light outside the model's "
+              f"{fit.settings.get('psf_n')}-sample PSF window; its SFR there is too high at low frequencies "
+              "(a wider window: ModelSettings.psf_n, benchmarks/psf_window.py)")
     print(f"wrote {out}/proxy.json, fit.json, merit.png, sfra_maps.png, parameters.png "
           f"({time.perf_counter() - t0:.0f} s)")
     return 0

@@ -160,6 +160,9 @@ class ProxyFit(FittedLens):
     evaluations: int = 0
     seconds: float = 0.0
     settings: dict = field(default_factory=dict)
+    #: the least share of an observation's light inside the model's PSF window, fitted lens
+    #: (:meth:`calibration.sfr_model.SfrModel.window_energy`); well below 1, the window is too small
+    window_energy: float = 1.0
 
     @property
     def std(self) -> np.ndarray:
@@ -191,6 +194,7 @@ class ProxyFit(FittedLens):
             "merit_history": [h["merit"] for h in (self.result.history if self.result else [])],
             "observations": len(self.observations),
             "settings": self.settings,
+            "window_energy_min": round(self.window_energy, 4),
         }
 
     def save(self, directory) -> dict:
@@ -459,9 +463,11 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
             pool.shutdown()
         if bar is not None:
             bar.close()
-    after = model.predict(space.apply(u * space.tolerance)).sfra + bias_sfra
+    fitted = space.apply(u * space.tolerance)
+    after = model.predict(fitted).sfra + bias_sfra
     return ProxyFit(nominal, space, np.asarray(u), res, obs, before, after, bias_sfra, method, evals,
-                    time.perf_counter() - t0, settings=_settings_dict(settings))
+                    time.perf_counter() - t0, settings=_settings_dict(settings),
+                    window_energy=float(np.min(model.window_energy(fitted))))
 
 
 def _settings_dict(settings) -> dict:

@@ -1089,14 +1089,16 @@ per-field PSFs (:func:`debye_psf`, PSF maps) stay complex128."""
 
 
 def _debye_nodes(tn: _TracedNodes, centers: np.ndarray, z_image, ox: np.ndarray, oy: np.ndarray,
-                 chunk: int = 2, dtype=None) -> np.ndarray:
+                 chunk: int = 2, dtype=None, energy: bool = False):
     """Normalised Debye PSFs of every field of ``tn``, (K, len(oy), len(ox)):
     ``_mono(_sphere(tn.node(k), centers[k]), "debye", ox, oy)[0]`` with the
     image plane at ``z_image`` (scalar or (K,), mm), ``chunk`` fields per
     vectorised step. Rays off the sphere enter with zero amplitude.
     ``dtype``: of the phasor tables and their product, default
     :data:`DEBYE_SUM_DTYPE` (complex128 reproduces the per-field path to
-    ~1e-12)."""
+    ~1e-12). ``energy``: also return each field's window energy (K,), the
+    fraction of its exit-pupil power on the window (``PSF.window_energy``,
+    module docstring)."""
     dtype = DEBYE_SUM_DTYPE if dtype is None else dtype
     k = len(tn)
     z = np.broadcast_to(np.asarray(tn.z_image if z_image is None else z_image, dtype=np.float64), (k,))
@@ -1118,7 +1120,16 @@ def _debye_nodes(tn: _TracedNodes, centers: np.ndarray, z_image, ox: np.ndarray,
         i = int(np.argmax(bad))
         raise PSFError(f"the PSF at {tn.wavelength_nm:g} nm has no energy in the window (centre "
                        f"{np.asarray(centers)[i]} mm); check center, n and pitch_um")
-    return out / total[:, None, None]
+    if not energy:
+        return out / total[:, None, None]
+    # Σ I·pitch²·N_h / P, as _mono: P the rays' power M Δp², N_h their harmonic-mean cosine to the plane
+    ok = amp > 0
+    dp = 2.0 / tn.samples
+    power = np.count_nonzero(ok, axis=1) * dp * dp
+    inv_cos = np.where(ok, 1.0 / np.maximum(np.abs(tn.dirn[..., 2]), 1e-12), 0.0)
+    n_h = np.count_nonzero(ok, axis=1) / inv_cos.sum(axis=1)
+    pitch2 = float(ox[1] - ox[0]) * float(oy[1] - oy[0]) if len(ox) > 1 and len(oy) > 1 else 0.0
+    return out / total[:, None, None], total * pitch2 * n_h / power
 
 
 # -- public PSFs ---------------------------------------------------------------------

@@ -262,6 +262,10 @@ class SfrModel:
         recomputes the reference spheres and the
         diffraction sums, all nodes at once for the "debye" method
         (:func:`calibration.psf._debye_nodes`; the others node by node)."""
+        return self._node_psfs(lens, defocus_mm)[0]
+
+    def _node_psfs(self, lens, defocus_mm=None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`node_psfs` and each node's window energy per channel (nodes, channels)."""
         pl = nominal(lens)
         s = self.settings
         traced = self._trace(pl)
@@ -272,26 +276,38 @@ class SfrModel:
         z = traced[ref].z_image + dz
         centre = traced[ref].chief_image_points(z)
         out = np.zeros((k, len(self.channels), s.psf_n, s.psf_n))
+        energy = np.zeros((k, len(self.channels)))
         for j, tn in enumerate(traced):
             if not np.any(self.wl_weights[:, j]):
                 continue
             if s.method == "debye":
-                data = _debye_nodes(tn, centre, z, o, o)
+                data, e = _debye_nodes(tn, centre, z, o, o, energy=True)
             else:
-                data = np.stack([_mono(_sphere(tn.node(i, z[i]), centre[i]), s.method, o, o, workers=1)[0]
-                                 for i in range(k)])
+                pairs = [_mono(_sphere(tn.node(i, z[i]), centre[i]), s.method, o, o, workers=1) for i in range(k)]
+                data, e = np.stack([p[0] for p in pairs]), np.array([p[1] for p in pairs])
             out += self.wl_weights[None, :, j, None, None] * data[:, None]
-        return out
+            energy += self.wl_weights[None, :, j] * e[:, None]
+        return out, energy
 
     # -- prediction ----------------------------------------------------------------------
     def observation_psfs(self, lens, defocus_mm=None) -> np.ndarray:
         """(N, m, m): each observation's PSF in its colour (its region's),
         cached for the last lens and defocus (the SFR and the asymmetry of
         one evaluation share them)."""
+        return self._observation_psfs(lens, defocus_mm)[0]
+
+    def window_energy(self, lens, defocus_mm=None) -> np.ndarray:
+        """(N,) the fraction of each observation's light that lands in its
+        PSF window (``PSF.window_energy`` of :mod:`calibration.psf`, mixed
+        as the observation's colour): 1 − the far tails the window drops."""
+        return self._observation_psfs(lens, defocus_mm)[1]
+
+    def _observation_psfs(self, lens, defocus_mm=None) -> tuple[np.ndarray, np.ndarray]:
         key = (self._trace_key_of(lens), None if defocus_mm is None else np.asarray(defocus_mm, float).tobytes())
         if self._psf_cache[0] != key:
-            p = self.node_psfs(lens, defocus_mm)
-            self._psf_cache = (key, np.einsum("nc,ncij->nij", self.mix, p[self.obs_node]))
+            p, energy = self._node_psfs(lens, defocus_mm)
+            e = np.clip(np.einsum("nc,nc->n", self.mix, energy[self.obs_node]), 0.0, 1.0)
+            self._psf_cache = (key, (np.einsum("nc,ncij->nij", self.mix, p[self.obs_node]), e))
         return self._psf_cache[1]
 
     def predict_odd(self, lens, defocus_mm=None) -> np.ndarray:

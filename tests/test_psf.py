@@ -452,6 +452,10 @@ def test_property_batched_debye_psfs_match_per_field_psfs(batch, dz_um):
     exact = P._debye_nodes(tn, centre, z, o, o, dtype=np.complex128)
     np.testing.assert_allclose(exact, ref, rtol=0, atol=1e-9 * ref.max())
     np.testing.assert_allclose(P._debye_nodes(tn, centre, z, o, o), ref, rtol=0, atol=1e-6 * ref.max())
+    # and each field's window energy is the per-field PSF's (PSF.window_energy)
+    e_ref = [P._mono(P._sphere(tn.node(k, z[k]), centre[k]), "debye", o, o)[1] for k in range(len(tn))]
+    np.testing.assert_allclose(P._debye_nodes(tn, centre, z, o, o, dtype=np.complex128, energy=True)[1], e_ref,
+                               rtol=1e-9)
 
 
 @pytest.mark.parametrize("one_thread", [True, False])

@@ -154,3 +154,23 @@ def test_a_window_past_the_pupil_replica_period_is_refused(device):
     with pytest.raises(ValueError, match=r"replica period .*pupil_samples ≥ 3[3-6]"):
         SfrModel(lens, obs, ModelSettings(pupil_samples=32, psf_n=64))
     SfrModel(lens, obs, FAST_JACOBIAN)
+
+
+def test_window_energy_matches_the_psf_map_and_grows_with_the_window(device):
+    """SfrModel.window_energy (the batched Debye sums' share of the
+    exit-pupil power on the window) equals psf_map's per-region window
+    energy (per-field path, its own chief-ray aiming) within 0.01, is ≈ 1
+    on a generous window and falls on a small one."""
+    from calibration import psf_map as M
+
+    lens, pl, obs = device
+    m = SfrModel(lens, obs, ModelSettings(psf_n=32))
+    e = m.window_energy(pl)
+    pm = M.psf_map(pl, grid=obs.grid, channels=("G",), n=32, pupil_samples=48, n_wavelengths=2, cache=False,
+                   progress=False)
+    ref = np.array([pm.window_energy[r, c, 0] for r, c in obs.region])
+    np.testing.assert_allclose(e, ref, atol=0.01)
+    wide = SfrModel(lens, obs, ModelSettings(psf_n=96, pupil_samples=64)).window_energy(pl)
+    small = SfrModel(lens, obs, ModelSettings(psf_n=12)).window_energy(pl)
+    assert np.all(wide > 0.97) and np.all(wide >= e - 1e-9) and np.all(e > small)
+    assert small.min() < 0.8
