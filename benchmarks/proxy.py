@@ -21,6 +21,9 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
   measurement; its time is reported apart):
 
   - ``nominal``: no fit;
+  - ``truth``: no fit either — the device's own lens through the same
+    forward model, what a perfect fit would score: the floor the model
+    (its PSF window, sampling, wavelengths) leaves;
   - ``pixel``: :func:`calibration.proxy_pixel.fit_pixel_mse` — MSE
     between simulated and measured edge images (scipy TRF);
   - ``scipy``: ``fit_proxy(method="scipy")`` — SFRA residuals, scipy TRF
@@ -102,7 +105,7 @@ LENS_DIR = ROOT.parent / "shared" / "data" / "lenses" / "phone"
 GRID = (5, 7)
 FOVS = (0.1, 0.5, 0.9)
 FOV_WINDOW = 0.1
-METHODS = ("nominal", "pixel", "scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape")
+METHODS = ("nominal", "truth", "pixel", "scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape")
 NYQUIST = 0.5
 #: every fit's box, in tolerances (fit_proxy's and fit_pixel_mse's ``bound_factor``)
 BOUND = 2.0
@@ -205,6 +208,8 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
         stop, extra = "", {}
         if m == "nominal":
             fitted, evals, secs, u = lens, 0, 0.0, np.zeros(len(names))
+        elif m == "truth":
+            fitted, evals, secs, u = truth_lens, 0, 0.0, np.zeros(len(names))
         elif m == "pixel":
             fit = fit_pixel_mse(lens, obs, edges, names=names, settings=settings, max_iter=args.max_iter,
                                 workers=args.pixel_workers)
@@ -343,7 +348,7 @@ def paired(cases: list[dict], ref: str, methods, level: float = 0.95, margins=No
             for k in [f"{f:g}" for f in FOVS]:
                 cells = {}
                 for m in methods:
-                    if m in (ref, "nominal"):
+                    if m in (ref, "nominal", "truth"):
                         continue
                     pairs = [(c["methods"][m][key][k], c["methods"][ref][key][k]) for c in sel
                              if m in c["methods"] and ref in c["methods"]]

@@ -21,12 +21,12 @@ def _case(lens, device, mse: dict, ssim: dict):
 def test_the_interval_is_students_t_over_devices_and_the_verdicts_follow_it():
     other = [2.0, 3.0, 1.5, 2.5]      # ref wins by 1.5–3× on every device
     mixed = [0.5, 2.0, 0.8, 1.6]      # ref wins on two, loses on two
-    cases = [_case("L", d, {"ours_shape": 1.0, "scipy": other[d], "pixel": mixed[d], "nominal": 9.0},
-                   {"ours_shape": 0.95, "scipy": 0.95 - 0.01 * (d + 1), "pixel": 0.96, "nominal": 0.5})
+    cases = [_case("L", d, {"ours_shape": 1.0, "scipy": other[d], "pixel": mixed[d], "nominal": 9.0, "truth": 0.5},
+                   {"ours_shape": 0.95, "scipy": 0.95 - 0.01 * (d + 1), "pixel": 0.96, "nominal": 0.5, "truth": 0.97})
              for d in range(4)]
-    comp = paired(cases, "ours_shape", ["nominal", "pixel", "scipy", "ours_shape"])
+    comp = paired(cases, "ours_shape", ["nominal", "truth", "pixel", "scipy", "ours_shape"])
     cell = comp["sfr_mse"]["L"]["0.5"]
-    assert "nominal" not in cell and "ours_shape" not in cell
+    assert "nominal" not in cell and "truth" not in cell and "ours_shape" not in cell
     ref = ttest_1samp(np.log(other), 0.0).confidence_interval(0.95)
     s = cell["scipy"]
     assert s["mean"] - s["half_width"] == pytest.approx(ref.low, rel=1e-9)
