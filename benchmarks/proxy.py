@@ -229,7 +229,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                             settings=settings, method="dls" if ours else "scipy",
                             workers=args.workers if ours else 1, max_iter=iters, progress=False,
                             jacobian_settings=fast, residuals=m.partition("_")[2] or "sfra",
-                            refresh=args.refresh if ours else 1)
+                            refresh=args.refresh if ours else 1, bounds=args.bounds)
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
             stop = fit.result.reason if fit.result is not None else ""
             if fit.result is not None:
@@ -439,6 +439,8 @@ def main(argv=None) -> dict:
                     help="ours: a finite-difference Jacobian every REFRESH accepted steps, Broyden updates "
                          "in between (default 1, every step: the methods compared at equal iterations; "
                          "fit_proxy's own default is calibration.proxy.REFRESH with more iterations)")
+    ap.add_argument("--bounds", choices=("clip", "box"), default="clip",
+                    help="ours: a step clipped to the box (default) or the damped model's minimiser in it")
     ap.add_argument("--screen-in-fit", action="store_true",
                     help="ours: fit_proxy screens the parameters itself (with the Jacobian's model, its "
                          "secants the fit's first Jacobian), so the reported fit time includes the screening, "
@@ -447,7 +449,7 @@ def main(argv=None) -> dict:
     args.n_params = None if args.n_params <= 0 else args.n_params
     grid = (int(args.grid[0]), int(args.grid[1]))
     settings = ModelSettings()
-    result = {"fast_jacobian": bool(args.fast_jacobian), "refresh": args.refresh, "grid": list(grid), "noise": args.noise, "devices": args.devices, "methods": args.methods,
+    result = {"fast_jacobian": bool(args.fast_jacobian), "refresh": args.refresh, "bounds": args.bounds, "grid": list(grid), "noise": args.noise, "devices": args.devices, "methods": args.methods,
               "max_iter": args.max_iter, "n_params": args.n_params, "seed": args.seed, "cases": [], "skipped": []}
     if not LENS_DIR.is_dir() and not args.from_json:
         print(f"{LENS_DIR} not found")

@@ -66,6 +66,11 @@ without): so it is not the default.
 
 Bounds: a step is clipped to the box; a parameter at a bound whose gradient
 points outward is held fixed for the step (projected Gauss–Newton).
+``bounds="box"`` instead takes the damped model's minimiser inside the box
+(a bounded-variable least-squares solve on the Cholesky factor of
+``AᵀA + D``): a clipped step leaves the other parameters where the clipped
+one's motion had sent them. On six random bounded linear problems it needs
+41 iterations in all against 54 (``tests/test_dls.py``).
 
 Jacobian accuracy: forward differences are biased by O(h·f''), which near
 the minimum swamps the small gradient (on e9 the fit crawled with ρ ≈ 0.1
@@ -195,15 +200,33 @@ def broyden_update(A: np.ndarray, dx: np.ndarray, df: np.ndarray) -> np.ndarray:
 
 
 def _damped_step(jtj: np.ndarray, g: np.ndarray, idx: np.ndarray, eps: np.ndarray,
-                 delta: float | None) -> np.ndarray:
+                 delta: float | None, room: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Eq. 21 on the free parameters ``idx``; with a radius ``delta`` the
-    damping is raised (× 2 at a time) until ``‖ΔP‖ ≤ delta``."""
+    damping is raised (× 2 at a time) until ``‖ΔP‖ ≤ delta``.
+
+    ``room``: ``(lower − x, upper − x)``, the box around the current point.
+    Then the step is the damped quadratic's minimiser *inside* the box,
+    ``min ½ΔPᵀ(AᵀA + D)ΔP + gᵀΔP`` subject to the bounds (bounded-variable
+    least squares on the Cholesky factor, :func:`scipy.optimize.lsq_linear`,
+    "bvls": exact for these few parameters), rather than the unconstrained
+    step clipped to the box, which leaves the other parameters where the
+    clipped one's motion had sent them."""
     dx = np.zeros(g.size)
     if not idx.size:
         return dx
     sub = jtj[np.ix_(idx, idx)]
     for _ in range(60):
-        dx[idx] = -np.linalg.solve(sub + np.diag(eps[idx]), g[idx])
+        h = sub + np.diag(eps[idx])
+        if room is None:
+            dx[idx] = -np.linalg.solve(h, g[idx])
+        else:
+            from scipy.optimize import lsq_linear
+
+            c = np.linalg.cholesky(h)                            # h = c cᵀ: ½ΔPᵀhΔP + gᵀΔP = ½‖cᵀΔP + c⁻¹g‖² + const
+            lo, hi = room[0][idx], room[1][idx]
+            r = lsq_linear(c.T, -np.linalg.solve(c, g[idx]), bounds=(np.minimum(lo, 0.0), np.maximum(hi, 0.0)),
+                           method="bvls", tol=1e-12)
+            dx[idx] = r.x
         if delta is None or np.linalg.norm(dx) <= delta:
             break
         eps = eps * 2.0
@@ -217,7 +240,7 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
                          radius: float | None = 1.0, trials: int = 1, jacobian: str = "auto", scaling: str = "levenberg",
                          jac_many: Callable[[Sequence[np.ndarray]], list] | None = None,
                          refresh: int = 1, progress: Callable[[dict], None] | None = None,
-                         jac0: np.ndarray | None = None, bracket: bool = False) -> DlsResult:
+                         jac0: np.ndarray | None = None, bracket: bool = False, bounds: str = "clip") -> DlsResult:
     """Minimise ``‖fun(x)‖²`` within ``[lower, upper]`` (module docstring).
 
     Parameters
@@ -270,6 +293,10 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
         With ``trials`` ≥ 2, try dampings on both sides of the current one
         rather than only more damped ones (module docstring; off by default,
         as measured there).
+    bounds : {"clip", "box"}
+        How a step meets the box: "clip" cuts the damped step at the box;
+        "box" takes the damped model's minimiser inside the box (module
+        docstring).
 
     Returns
     -------
@@ -315,6 +342,8 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
     delta = None if radius is None else float(radius)
     k0 = max(1, trials) // 2 if bracket else 0   # trials bolder than (λ, Δ): see the module docstring
     s = np.ones(n)
+    if bounds not in ("clip", "box"):
+        raise ValueError(f"bounds must be 'clip' or 'box', not {bounds!r}")
     if scaling not in ("marquardt", "levenberg"):
         raise ValueError(f"scaling must be 'marquardt' or 'levenberg', not {scaling!r}")
     refresh = max(1, int(refresh))
@@ -344,12 +373,14 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
             d = np.full(n, np.mean(d))
         accepted = False
         idx = np.flatnonzero(free)
+        room = (lower - x, upper - x) if bounds == "box" else None
         secants = []   # (Δx, f(x + Δx)) of every trial: Broyden's data when A is not refreshed
         for _ in range(12):  # rounds of retries with more damping
             steps = []
             for k in range(max(1, trials)):
                 e = k - k0
-                dx = _damped_step(jtj, g, idx, lam * 4.0 ** e * d * s, None if delta is None else delta / 2.0 ** e)
+                dx = _damped_step(jtj, g, idx, lam * 4.0 ** e * d * s, None if delta is None else delta / 2.0 ** e,
+                                  room)
                 steps.append(np.clip(x + dx, lower, upper) - x)
             f_trials = many([x + dx for dx in steps])
             phis = [float(v @ v) for v in f_trials]

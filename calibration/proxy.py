@@ -310,7 +310,8 @@ def residual_bias(model, lens, residuals: str, workers: int = 1) -> ResidualBias
 def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
               workers: int | None = None, max_iter: int = MAX_ITER, bound_factor: float = 2.0,
               progress: bool = True, x0=None, n_params: int | None = N_PARAMS,
-              jacobian_settings=None, residuals: str = "auto", refresh: int = REFRESH) -> ProxyFit:
+              jacobian_settings=None, residuals: str = "auto", refresh: int = REFRESH,
+              bounds: str = "clip") -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
 
     Parameters
@@ -354,6 +355,10 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         DLS: a finite-difference Jacobian every ``refresh`` accepted steps
         at most, Broyden secant updates in between (:mod:`calibration.dls`;
         ``benchmarks/proxy.py --refresh`` measures what it costs).
+    bounds : {"clip", "box"}
+        DLS: how a step meets the ±``bound_factor`` box
+        (:func:`calibration.dls.damped_least_squares`; ``benchmarks/proxy.py
+        --bounds`` measures it).
     """
     from .sfr_model import ModelSettings, SfrModel
 
@@ -437,7 +442,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         if method == "dls":
             res = damped_least_squares(fun, u0, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
                                        max_iter=max_iter, target_chi2=1.0, trials=workers, jac_many=jac_many,
-                                       refresh=refresh, progress=report, jac0=jac0)
+                                       refresh=refresh, progress=report, jac0=jac0, bounds=bounds)
             u, evals = res.x, res.evaluations
         elif method == "scipy":
             from scipy.optimize import least_squares

@@ -197,3 +197,53 @@ def test_bracketed_trials_let_the_damping_fall_and_halve_the_iterations_on_a_lin
     iters = {br: len(r.history) - 1 for br, r in runs.items()}
     assert runs[True].merit < 1e-12 and runs[False].merit < 1e-12
     assert 2 * iters[True] <= iters[False], iters
+
+
+def test_box_step_is_the_damped_models_minimiser_in_the_box():
+    """bounds="box": the step minimises ‖AΔ + f‖² + Δᵀ D Δ inside the box
+    (oracle: scipy's lsq_linear on the augmented system [A; √D], trust-region
+    reflective, a different algorithm from the step's BVLS); clipping the
+    free step does not, on some of the same problems."""
+    from scipy.optimize import lsq_linear
+
+    from calibration.dls import _damped_step
+
+    clip_worse = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        a = rng.normal(size=(30, 8)) @ (np.eye(8) + 0.8 * rng.normal(size=(8, 8)))
+        f = 5 * rng.normal(size=30)
+        eps = np.full(8, 0.5)
+        x = rng.uniform(-2, 2, 8)
+        lo, hi = -2 - x, 2 - x
+        q = lambda d: np.sum((a @ d + f) ** 2) + d @ (eps * d)   # noqa: E731
+        ref = lsq_linear(np.vstack([a, np.diag(np.sqrt(eps))]), -np.concatenate([f, np.zeros(8)]),
+                         bounds=(lo, hi), method="trf", tol=1e-12)
+        box = _damped_step(a.T @ a, a.T @ f, np.arange(8), eps, None, (lo, hi))
+        assert np.all(box >= lo - 1e-12) and np.all(box <= hi + 1e-12)
+        assert q(box) <= q(ref.x) * (1 + 1e-8)
+        clip = np.clip(_damped_step(a.T @ a, a.T @ f, np.arange(8), eps, None), lo, hi)
+        clip_worse += q(clip) > q(ref.x) * (1 + 1e-3)
+    assert clip_worse >= 10
+
+
+def test_box_steps_reach_the_bounded_solution_in_fewer_iterations():
+    """Six bounded linear problems whose solutions sit on 1–4 bounds: both
+    bound rules reach scipy's lsq_linear solution; the box steps in fewer
+    iterations all told (41 against 54 when written)."""
+    from scipy.optimize import lsq_linear
+
+    iters = {"clip": 0, "box": 0}
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        a = rng.normal(size=(40, 8)) @ (np.eye(8) + 0.8 * rng.normal(size=(8, 8)))
+        b = a @ rng.uniform(-3, 3, 8) + rng.normal(size=40)
+        ref = lsq_linear(a, b, bounds=(-2, 2), tol=1e-12)
+        assert np.any(ref.active_mask != 0)
+        for rule in iters:
+            r = damped_least_squares(lambda x: a @ x - b, np.zeros(8), lower=-2 * np.ones(8), upper=2 * np.ones(8),
+                                     trials=2, max_iter=30, h=1e-3, gtol=1e-10, ftol=1e-12, jacobian="forward",
+                                     bounds=rule)
+            np.testing.assert_allclose(r.x, ref.x, atol=1e-6)
+            iters[rule] += len(r.history) - 1
+    assert iters["box"] < 0.85 * iters["clip"], iters
