@@ -43,7 +43,11 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
     SFR in four frequency bands);
   - ``ours_odd``: the same with ``residuals="odd"`` (SFRA plus the LSF's
     asymmetry in four bands, :mod:`calibration.sfr_asym`);
-  - ``ours_shape``: SFRA, the four SFR bands and the four asymmetry bands.
+  - ``ours_shape``: SFRA, the four SFR bands and the four asymmetry bands;
+  - ``ours_box``: ``ours_shape`` whose steps are the damped model's
+    minimiser inside the ±2-tolerance box (``bounds="box"``,
+    :func:`calibration.dls.damped_least_squares`) instead of the clipped
+    step.
 
 Per method, at FoV 0.1 / 0.5 / 0.9 (the observations whose normalised
 radius is within ±0.1 of it; the nearest radius where none is):
@@ -105,8 +109,11 @@ LENS_DIR = ROOT.parent / "shared" / "data" / "lenses" / "phone"
 GRID = (5, 7)
 FOVS = (0.1, 0.5, 0.9)
 FOV_WINDOW = 0.1
-METHODS = ("nominal", "truth", "pixel", "scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape")
+METHODS = ("nominal", "truth", "pixel", "scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape",
+           "ours_box")
 NYQUIST = 0.5
+#: residuals of the methods whose name does not end in them
+RESIDUALS = {"ours_box": "shape"}
 #: every fit's box, in tolerances (fit_proxy's and fit_pixel_mse's ``bound_factor``)
 BOUND = 2.0
 
@@ -215,7 +222,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                                 workers=args.pixel_workers)
             fitted, evals, secs, u, stop = fit.lens, fit.evaluations, fit.seconds, fit.u, fit.message
             extra = {"pixel_mse_before": fit.mse_before, "pixel_mse_after": fit.mse_after}
-        elif m in ("scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape"):
+        elif m in ("scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape", "ours_box"):
             iters = args.max_iter
             if m.startswith("scipy"):
                 # fit_proxy's scipy max_iter is scipy's max_nfev, which TRF counts without its
@@ -228,8 +235,8 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
             fit = fit_proxy(lens, obs, names=None if own else names, n_params=args.n_params,
                             settings=settings, method="dls" if ours else "scipy",
                             workers=args.workers if ours else 1, max_iter=iters, progress=False,
-                            jacobian_settings=fast, residuals=m.partition("_")[2] or "sfra",
-                            refresh=args.refresh if ours else 1, bounds=args.bounds)
+                            jacobian_settings=fast, residuals=RESIDUALS.get(m, m.partition("_")[2] or "sfra"),
+                            refresh=args.refresh if ours else 1, bounds="box" if m == "ours_box" else "clip")
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
             stop = fit.result.reason if fit.result is not None else ""
             if fit.result is not None:
@@ -439,8 +446,6 @@ def main(argv=None) -> dict:
                     help="ours: a finite-difference Jacobian every REFRESH accepted steps, Broyden updates "
                          "in between (default 1, every step: the methods compared at equal iterations; "
                          "fit_proxy's own default is calibration.proxy.REFRESH with more iterations)")
-    ap.add_argument("--bounds", choices=("clip", "box"), default="clip",
-                    help="ours: a step clipped to the box (default) or the damped model's minimiser in it")
     ap.add_argument("--screen-in-fit", action="store_true",
                     help="ours: fit_proxy screens the parameters itself (with the Jacobian's model, its "
                          "secants the fit's first Jacobian), so the reported fit time includes the screening, "
@@ -449,7 +454,7 @@ def main(argv=None) -> dict:
     args.n_params = None if args.n_params <= 0 else args.n_params
     grid = (int(args.grid[0]), int(args.grid[1]))
     settings = ModelSettings()
-    result = {"fast_jacobian": bool(args.fast_jacobian), "refresh": args.refresh, "bounds": args.bounds, "grid": list(grid), "noise": args.noise, "devices": args.devices, "methods": args.methods,
+    result = {"fast_jacobian": bool(args.fast_jacobian), "refresh": args.refresh, "grid": list(grid), "noise": args.noise, "devices": args.devices, "methods": args.methods,
               "max_iter": args.max_iter, "n_params": args.n_params, "seed": args.seed, "cases": [], "skipped": []}
     if not LENS_DIR.is_dir() and not args.from_json:
         print(f"{LENS_DIR} not found")
