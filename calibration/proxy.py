@@ -357,8 +357,8 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         ``benchmarks/proxy.py --refresh`` measures what it costs).
     bounds : {"clip", "box"}
         DLS: how a step meets the ±``bound_factor`` box
-        (:func:`calibration.dls.damped_least_squares`; ``benchmarks/proxy.py
-        --bounds`` measures it).
+        (:func:`calibration.dls.damped_least_squares`; ``benchmarks/proxy.py``'s
+        method ``ours_box`` measures it).
     """
     from .sfr_model import ModelSettings, SfrModel
 
