@@ -47,7 +47,10 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
   - ``ours_box``: ``ours_shape`` whose steps are the damped model's
     minimiser inside the ±2-tolerance box (``bounds="box"``,
     :func:`calibration.dls.damped_least_squares`) instead of the clipped
-    step.
+    step;
+  - ``ours_prior``: ``ours_shape`` with a Gaussian prior of σ = 1/√3
+    tolerance on each perturbation (``fit_proxy(prior=...)``, a maximum a
+    posteriori fit).
 
 Per method, at FoV 0.1 / 0.5 / 0.9 (the observations whose normalised
 radius is within ±0.1 of it; the nearest radius where none is):
@@ -110,10 +113,12 @@ GRID = (5, 7)
 FOVS = (0.1, 0.5, 0.9)
 FOV_WINDOW = 0.1
 METHODS = ("nominal", "truth", "pixel", "scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape",
-           "ours_box")
+           "ours_box", "ours_prior")
 NYQUIST = 0.5
 #: residuals of the methods whose name does not end in them
-RESIDUALS = {"ours_box": "shape"}
+RESIDUALS = {"ours_box": "shape", "ours_prior": "shape"}
+#: ours_prior's Gaussian prior on each perturbation, tolerances: the spread of one uniform within ±1
+PRIOR_SIGMA = 1.0 / np.sqrt(3.0)
 #: every fit's box, in tolerances (fit_proxy's and fit_pixel_mse's ``bound_factor``)
 BOUND = 2.0
 
@@ -222,7 +227,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                                 workers=args.pixel_workers)
             fitted, evals, secs, u, stop = fit.lens, fit.evaluations, fit.seconds, fit.u, fit.message
             extra = {"pixel_mse_before": fit.mse_before, "pixel_mse_after": fit.mse_after}
-        elif m in ("scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape", "ours_box"):
+        elif m in ("scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape", "ours_box", "ours_prior"):
             iters = args.max_iter
             if m.startswith("scipy"):
                 # fit_proxy's scipy max_iter is scipy's max_nfev, which TRF counts without its
@@ -236,7 +241,8 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                             settings=settings, method="dls" if ours else "scipy",
                             workers=args.workers if ours else 1, max_iter=iters, progress=False,
                             jacobian_settings=fast, residuals=RESIDUALS.get(m, m.partition("_")[2] or "sfra"),
-                            refresh=args.refresh if ours else 1, bounds="box" if m == "ours_box" else "clip")
+                            refresh=args.refresh if ours else 1, bounds="box" if m == "ours_box" else "clip",
+                            prior=PRIOR_SIGMA if m == "ours_prior" else None)
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
             stop = fit.result.reason if fit.result is not None else ""
             if fit.result is not None:

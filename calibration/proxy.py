@@ -311,7 +311,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
               workers: int | None = None, max_iter: int = MAX_ITER, bound_factor: float = 2.0,
               progress: bool = True, x0=None, n_params: int | None = N_PARAMS,
               jacobian_settings=None, residuals: str = "auto", refresh: int = REFRESH,
-              bounds: str = "clip") -> ProxyFit:
+              bounds: str = "clip", prior: float | None = None) -> ProxyFit:
     """Fit a proxy camera to SFR observations (module docstring).
 
     Parameters
@@ -359,6 +359,13 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         DLS: how a step meets the ±``bound_factor`` box
         (:func:`calibration.dls.damped_least_squares`; ``benchmarks/proxy.py``'s
         method ``ours_box`` measures it).
+    prior : float, optional
+        A Gaussian prior on every fitted perturbation, its standard
+        deviation in tolerances (``1/√3``: a perturbation uniform within
+        its tolerance): the residuals gain ``u_j / prior``, a maximum a
+        posteriori fit that holds directions the measurement cannot see
+        near the nominal design instead of letting them drift to the
+        bounds. None (default): no prior.
     """
     from .sfr_model import ModelSettings, SfrModel
 
@@ -412,20 +419,28 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         if x0 is not None:
             jac0 = None   # screened at the nominal lens, not at x0
 
+        def with_prior(points, values):
+            if prior is None:
+                return values
+            return [np.concatenate([v, np.asarray(p, float) / prior]) for p, v in zip(points, values)]
+
         def fun(u):
-            return _residuals(model, space, bias, u)
+            return with_prior([u], [_residuals(model, space, bias, u)])[0]
 
         def fun_many(points):
             if pool is None or len(points) == 1:
                 return [fun(p) for p in points]
-            return on_pool(_residual_task, points)
+            return with_prior(points, on_pool(_residual_task, points))
 
         jac_many = None
         if jacobian_settings is not None:
             def jac_many(points):
                 if pool is None:
-                    return [_residuals(cheap_model, space, bias, p) for p in points]
-                return on_pool(_cheap_residual_task, points)
+                    return with_prior(points, [_residuals(cheap_model, space, bias, p) for p in points])
+                return with_prior(points, on_pool(_cheap_residual_task, points))
+
+        if prior is not None and jac0 is not None:
+            jac0 = np.vstack([jac0, np.eye(n) / prior])
 
         if progress:
             from tqdm import tqdm

@@ -90,3 +90,21 @@ def test_screened_fit_on_two_workers_starts_from_the_screening_secants(device_ob
     assert fit.result.history[0]["evaluations"] == 1
     e = fit.errors()
     assert e["after"]["sfra_rms"] < 0.5 * e["before"]["sfra_rms"]
+
+
+def test_a_tolerance_prior_adds_one_residual_per_parameter_and_holds_them_near_nominal(device_obs):
+    """fit_proxy(prior=σ): the residuals end with u/σ (a Gaussian prior,
+    MAP), the screening's secant Jacobian gains the prior's rows (the first
+    record still one evaluation), and a tight prior keeps the parameters
+    far closer to the nominal lens than the free fit puts them."""
+    from calibration.proxy import fit_proxy
+    from calibration.proxy_data import Observations
+
+    lens, obs_path = device_obs
+    obs = Observations.load(obs_path)
+    free = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False)
+    tight = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False, prior=0.005)
+    assert tight.result.residuals.size == free.result.residuals.size + 3
+    np.testing.assert_allclose(tight.result.residuals[-3:], tight.u / 0.005, rtol=1e-12)
+    assert tight.result.history[0]["evaluations"] == 1
+    assert np.linalg.norm(tight.u) < 0.5 * np.linalg.norm(free.u)
