@@ -54,3 +54,22 @@ def test_the_summary_counts_the_parameters_left_on_the_bounds():
     cases = [{"noise": 0.004, "methods": {"ours_shape": rec([2.0, -1.9999, 0.5])}},
              {"noise": 0.004, "methods": {"ours_shape": rec([1.99, 0.0, -2.0])}}]
     assert summarise(cases, ["ours_shape"])["0.004"]["ours_shape"]["at_bounds"] == [1, 2]
+
+
+def test_merits_are_compared_only_between_fits_of_the_same_residuals():
+    """merit_comparison: scipy_shape and ours_box minimise ours_shape's
+    residuals and are compared (devices where ours ends lower, geometric-mean
+    ratio); scipy (SFRA only), the pixel fit and ours_prior (its merit holds
+    the prior's terms) are not."""
+    from benchmarks.proxy import merit_comparison
+
+    merits = [{"ours_shape": 100.0, "scipy_shape": 90.0, "ours_box": 110.0, "scipy": 5.0, "pixel": 1.0,
+               "ours_prior": 120.0},
+              {"ours_shape": 100.0, "scipy_shape": 160.0, "ours_box": 110.0, "scipy": 5.0, "pixel": 1.0,
+               "ours_prior": 120.0}]
+    cases = [{"lens": "L", "device": d, "methods": {m: {"merit": v} for m, v in mm.items()}}
+             for d, mm in enumerate(merits)]
+    out = merit_comparison(cases, "ours_shape", list(merits[0]))
+    assert set(out) == {"scipy_shape", "ours_box"}
+    assert out["scipy_shape"]["ref_lower"] == 1 and out["ours_box"]["ref_lower"] == 2
+    assert out["scipy_shape"]["ratio"] == pytest.approx(np.sqrt(0.9 * 1.6))
