@@ -240,7 +240,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
             fit = fit_proxy(lens, obs, names=None if own else names, n_params=args.n_params,
                             settings=settings, method="dls" if ours else "scipy",
                             workers=args.workers if ours else 1, max_iter=iters, progress=False,
-                            jacobian_settings=fast, residuals=RESIDUALS.get(m, m.partition("_")[2] or "sfra"),
+                            jacobian_settings=fast, residuals=residuals_of(m),
                             refresh=args.refresh if ours else 1, bounds="box" if m == "ours_box" else "clip",
                             prior=PRIOR_SIGMA if m == "ours_prior" else None)
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
