@@ -174,6 +174,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--save-reference", metavar="NPZ", help="save the timed lenses' SFRs and PSFs")
     ap.add_argument("--reference", metavar="NPZ", help="compare with SFRs and PSFs saved by an earlier run")
     ap.add_argument("--profile", choices=("default", "fast", "defocus"), help="cProfile one call, print top 30")
+    ap.add_argument("--psf-n", type=int, default=ModelSettings.psf_n,
+                    help=f"the default model's PSF window, samples (default {ModelSettings.psf_n}; "
+                         "benchmarks/psf_window.py measures what it costs in accuracy)")
     args = ap.parse_args(argv)
 
     def log(msg):
@@ -182,9 +185,10 @@ def main(argv=None) -> dict:
     lens = read_lens(LENS)
     space = parameter_space(lens, default_names(lens))
     obs = observations(lens.sensor)
-    out = {"lens": LENS.stem, "grid": list(GRID), "observations": len(obs), "repeats": args.repeats}
+    out = {"lens": LENS.stem, "grid": list(GRID), "observations": len(obs), "repeats": args.repeats,
+           "psf_n": args.psf_n}
     t0 = time.process_time()
-    default = SfrModel(lens, obs, ModelSettings())
+    default = SfrModel(lens, obs, ModelSettings(psf_n=args.psf_n))
     fast = SfrModel(lens, obs, FAST_JACOBIAN)
     out["model_setup_cpu_s"] = round(time.process_time() - t0, 2)
     if args.profile:

@@ -227,7 +227,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                                 workers=args.pixel_workers)
             fitted, evals, secs, u, stop = fit.lens, fit.evaluations, fit.seconds, fit.u, fit.message
             extra = {"pixel_mse_before": fit.mse_before, "pixel_mse_after": fit.mse_after}
-        elif m in ("scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape", "ours_box", "ours_prior"):
+        elif m.startswith(("scipy", "ours")):
             iters = args.max_iter
             if m.startswith("scipy"):
                 # fit_proxy's scipy max_iter is scipy's max_nfev, which TRF counts without its

@@ -83,8 +83,10 @@ class ModelSettings:
     32 µm window on 1 µm pixels) was 32 until 2026-11-25: on the four
     phone lenses' devices (±1 tolerance) a 16 µm window dropped up to 30 %
     of a corner PSF and put the corner SFR up to 0.116 RMS off a 64 µm
-    reference; 32 µm keeps it within 0.018 for 1.4× the evaluation time
-    (48 µm: 0.003 for 2×; ``benchmarks/psf_window.py``). The window must
+    reference; 32 µm keeps it within 0.018 for 1.2–1.3× the evaluation time
+    (48 µm: 0.003 for 2.6–3×; ``benchmarks/psf_window.py``; at 15 × 20
+    regions on e9 a prediction went from 1.31 to 1.61 s CPU,
+    ``benchmarks/lens_eval.py --psf-n``). The window must
     stay inside the sampled pupil's replica period ≈ λ·N·``pupil_samples``
     (:func:`_check_window`).
     ``n_wavelengths``: Gauss nodes per channel. ``aiming``: "real" (the
