@@ -14,6 +14,8 @@ from pathlib import Path
 
 from isp.errors import ConfigError, IspError
 
+from .synth_optics import PSF_DEFAULTS
+
 #: the shared data folder beside the repository (``$ISP_DATA`` overrides)
 DATA = Path(os.environ.get("ISP_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
 
@@ -94,8 +96,9 @@ def make_parser() -> argparse.ArgumentParser:
     g.add_argument("--tone", choices=("none", "reinhard", "aces"), default="none",
                    help="the pipeline's luminance tone curve (default none)")
     g = p.add_argument_group("PSF maps")
-    g.add_argument("--psf-n", type=int, default=32,
-                   help="PSF window in samples of half a pixel (default 32; drawn lenses may need 48-64)")
+    g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
+                   help=f"PSF window in samples of half a pixel (default {PSF_DEFAULTS['n']}: a drawn lens's "
+                        "corner PSF keeps >= 95 %% of its light, against 68 %% at 32)")
     g.add_argument("--psf-grid", type=_grid, default=(15, 20), metavar="ROWS,COLS",
                    help="regions of the PSF map (default 15,20 as the paper; 30,40 cuts the blur's "
                         "interpolation error about 3x for 4x the PSFs)")

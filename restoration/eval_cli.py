@@ -17,6 +17,7 @@ from pathlib import Path
 from isp.errors import ConfigError, InputError
 
 from .cli import _grid
+from .synth_optics import PSF_DEFAULTS
 
 EPILOG = """\
 examples:
@@ -68,7 +69,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-noise", action="store_true", help="no sensor noise")
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
     g = p.add_argument_group("PSF maps (use the training set's settings)")
-    g.add_argument("--psf-n", type=int, default=32, help="PSF window in samples of half a pixel (default 32)")
+    g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
+                   help=f"PSF window in samples of half a pixel (default {PSF_DEFAULTS['n']})")
     g.add_argument("--psf-grid", type=_grid, default=(15, 20), metavar="ROWS,COLS",
                    help="regions of the PSF map (default 15,20)")
     g.add_argument("--psf-cache", metavar="DIR", help="PSF-map cache folder")

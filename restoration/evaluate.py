@@ -89,6 +89,8 @@ from .synth import (
     usable_latents,
 )
 from .synth_colour import draw_colour, process_after_slot, srgb_to_camera
+from .synth_optics import psf_options as _psf_options
+from .synth_optics import window_reach_px
 from .synth_sensor import capture_mosaic, develop, sensor_model
 
 __all__ = ["RINGS", "SCHEMA", "EvalSettings", "eval_plan", "evaluate", "evaluate_plan", "field_radius",
@@ -209,10 +211,7 @@ def ring_origin(full_size, work: int, radius: float, band: tuple[float, float], 
 # -- the test set ---------------------------------------------------------------------------
 
 def _margin_before_maps(lens, psf_options: dict) -> int:
-    n_psf = int(psf_options.get("n", 32))
-    pp = lens.nominal.sensor.pixel_pitch_um
-    reach = math.ceil(0.5 * n_psf * float(psf_options.get("pitch_um") or 0.5 * pp) / pp * math.sqrt(2.0)) + 1
-    return reach + 4
+    return window_reach_px(psf_options["n"], psf_options.get("pitch_um"), lens.nominal.sensor.pixel_pitch_um) + 4
 
 
 def eval_lenses(lens, samples: int, seed: int, *, tolerance_scale: float = 1.0, with_proxy: bool = False) -> list:
@@ -272,7 +271,7 @@ def eval_plan(lens, images_dir, *, samples: int = 4, seed: int = 0, settings: Ev
     if isinstance(lens, (str, os.PathLike)):
         lens_path = str(lens)
         lens = load_lens(lens)
-    opts = dict(psf_options or {})
+    opts = _psf_options(psf_options)
     files = find_latents(images_dir)
     latents = usable_latents(files, settings.work + 2 * _margin_before_maps(lens, opts), images_dir)
     cams = tuple(read_camera(p) for p in (cameras or [DATA / c for c in DEFAULT_CAMERAS]))

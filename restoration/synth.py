@@ -65,7 +65,8 @@ from .synth_colour import (
     draw_colour,
     srgb_to_camera,
 )
-from .synth_optics import CropBlur, map_margin_px
+from .synth_optics import CropBlur, map_margin_px, window_reach_px
+from .synth_optics import psf_options as _psf_options
 from .synth_sensor import (
     DEFAULT_NOISE_PROFILE,
     capture_mosaic,
@@ -408,11 +409,9 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
     if isinstance(lens, (str, os.PathLike)):
         lens_path = str(lens)
         lens = load_lens(lens)
-    opts = dict(psf_options or {})
+    opts = _psf_options(psf_options)
     # context of a crop, before the maps exist: the PSF window's reach (+ demosaic)
-    n_psf = int(opts.get("n", 32))
-    reach = math.ceil(0.5 * n_psf * float(opts.get("pitch_um") or 0.5 * lens.nominal.sensor.pixel_pitch_um)
-                      / lens.nominal.sensor.pixel_pitch_um * math.sqrt(2.0)) + 1
+    reach = window_reach_px(opts["n"], opts.get("pitch_um"), lens.nominal.sensor.pixel_pitch_um)
     latents = usable_latents(find_latents(latent_dir), settings.size + 2 * (reach + 4), latent_dir)
     cams = tuple(read_camera(p) for p in cameras)
     if not cams:

@@ -57,7 +57,7 @@ key                            default              meaning
 ``synth.blend``                ``"bilinear"``       PSF interpolation between regions
 ``synth.demosaic``             ``"malvar2004"``     the pipeline's demosaic
 ``synth.tone``                 ``"none"``           the luminance stage's tone curve
-``synth.psf_n``                32                   PSF window, half-pixel samples
+``synth.psf_n``                64                   PSF window, half-pixel samples
 ``synth.psf_grid``             [15, 20]             PSF-map regions (rows, cols)
 ``synth.shard_size``           100                  pairs per shard
 ``model.variant``              ``"doconv"``         :func:`restoration.network.build_model` name
@@ -173,7 +173,10 @@ def _synth_mismatch(manifest: dict, config: TrainConfig) -> list[str]:
             "blend": (st.get("blend"), s.blend), "noise": (st.get("noise"), s.noise),
             "exposure_ev": (list(st.get("exposure_ev", [])), list(map(float, s.exposure_ev))),
             "cct_k": (list(st.get("cct_k", [])), list(map(float, s.cct_k))),
-            "noise_scale": (list(st.get("noise_scale", [])), list(map(float, s.noise_scale)))}
+            "noise_scale": (list(st.get("noise_scale", [])), list(map(float, s.noise_scale))),
+            # a set blurred through another PSF window is another set (the window changed default)
+            "psf_n": (manifest.get("psf_map", {}).get("n"), s.psf_n),
+            "psf_grid": (list(manifest.get("psf_map", {}).get("grid", [])), list(map(int, s.psf_grid)))}
     return [f"{k} {have!r} ≠ {need!r}" for k, (have, need) in want.items() if have != need]
 
 

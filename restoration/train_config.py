@@ -20,6 +20,8 @@ from pathlib import Path
 
 from isp.errors import ConfigError, InputError
 
+from .synth_optics import PSF_DEFAULTS
+
 __all__ = ["SECTIONS", "TrainConfig", "load_config", "resolve_path"]
 
 LOSSES = ("l2", "l1")
@@ -56,7 +58,7 @@ class SynthConfig:
     blend: str = "bilinear"
     demosaic: str = "malvar2004"
     tone: str = "none"
-    psf_n: int = 32
+    psf_n: int = PSF_DEFAULTS["n"]
     psf_grid: list = field(default_factory=lambda: [15, 20])
     shard_size: int = 100
 

@@ -172,6 +172,22 @@ def test_input_is_what_the_pipeline_hands_the_slot(cameras, rng):
 
 # -- blur ---------------------------------------------------------------------------------
 
+def test_window_reach_is_the_half_diagonal_of_the_psf_window(rng):
+    """A crop's context before the maps exist equals the map's own margin,
+    and a point's blur stays inside it."""
+    from restoration.synth_optics import CropBlur, map_margin_px, window_reach_px
+
+    # 64 samples of 0.5 µm on 1 µm pixels: half-diagonal 16·√2 = 22.6 px (+1)
+    assert window_reach_px(64, None, 1.0) == 24 and window_reach_px(32, 0.5, 1.0) == 13
+    m = gaussian_map()
+    k = map_margin_px(m)
+    assert k == window_reach_px(m.n, m.pitch_um, m.sensor.pixel_pitch_um)
+    pt = np.zeros((60, 60, 3), np.float32)
+    pt[30, 30] = 1.0
+    lit = np.argwhere(np.abs(CropBlur(m)(pt, (20, 30))).max(axis=2) > 1e-6)
+    assert np.abs(lit - 30).max() <= k
+
+
 def test_fast_blur_matches_the_oracle_and_conserves(rng):
     from calibration.imaging import blur_image
     from restoration.synth_optics import CropBlur, map_margin_px

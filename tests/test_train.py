@@ -374,3 +374,23 @@ def test_a_model_without_field_encoding_trains(pairs, tmp_path):
     assert main(["train", "--config", str(write_toml(tmp_path / "cfg.toml", d)), "-q"]) == 0
     log = json.loads((tmp_path / "out" / "train_log.json").read_text())
     assert log["model"]["variant"] == "no_field" and np.isfinite(log["val"][-1]["psnr_db"])
+
+
+def test_a_set_blurred_through_another_psf_window_is_refused(tmp_path):
+    """ensure_data does not reuse a set whose PSF maps had another window
+    (the synthesis's default went from 32 to 64 samples)."""
+    from restoration.train import ensure_data
+    from restoration.train_config import load_config
+
+    cfg = load_config(write_toml(tmp_path / "c.toml", {
+        "synth": {"out": str(tmp_path / "set"), "lens": "x.zmx", "pairs": 10},
+        "run": {"out": str(tmp_path / "o")}}))
+    (tmp_path / "set").mkdir()
+    manifest = {"schema": "isp-synth/v1", "pairs": 10, "size": cfg.synth.size, "seed": 0,
+                "lens": {"samples": 1, "tolerance_scale": 1.0, "path": "x.zmx"},
+                "settings": {"tone": "none", "demosaic": "malvar2004", "blend": "bilinear", "noise": True,
+                             "exposure_ev": [0.0, 2.0], "cct_k": [2850.0, 7500.0], "noise_scale": [0.5, 2.0]},
+                "psf_map": {"n": 32, "grid": [15, 20]}, "shards": []}
+    (tmp_path / "set" / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ConfigError, match="psf_n 32 ≠ 64"):
+        ensure_data(cfg, progress=False, log=lambda *a: None)
