@@ -217,6 +217,23 @@ def bypass_input_qdq(model, nodes: list[str]) -> int:
     return count
 
 
+def prune_dead_nodes(model) -> int:
+    """Remove the nodes whose outputs nothing reads (not a graph output
+    either), repeatedly; returns how many. :func:`bypass_input_qdq` leaves
+    such ``QuantizeLinear`` → ``DequantizeLinear`` pairs behind where it
+    rewired their only reader, and ONNX Runtime runs them all the same."""
+    graph_outputs = {o.name for o in model.graph.output}
+    removed = 0
+    while True:
+        read = {i for n in model.graph.node for i in n.input} | graph_outputs
+        dead = [n for n in model.graph.node if not any(o in read for o in n.output)]
+        if not dead:
+            return removed
+        for n in dead:
+            model.graph.node.remove(n)
+        removed += len(dead)
+
+
 def dequantize_qdq(model):
     """The FP32 twin of a QDQ model: every ``DequantizeLinear`` of a constant
     (weights, biases) folded into a float initializer, every activation
@@ -360,10 +377,15 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
                         weight_type=QuantType.QInt8, nodes_to_exclude=exclude, reduce_range=reduce_range,
                         calibrate_method=(CalibrationMethod.Percentile if calibration == "percentile"
                                           else CalibrationMethod.MinMax),
-                        extra_options={"CalibPercentile": percentile} if calibration == "percentile" else {})
+                        # Relu stays in the file (ORT fuses it into the Q before it at load time: the
+                        # same kernels); dropped, the Q's zero point alone clamps at 0, and the FP32
+                        # twin (dequantize_qdq) lost every Relu of the network
+                        extra_options={"QDQKeepRemovableActivations": True,
+                                       **({"CalibPercentile": percentile} if calibration == "percentile" else {})})
         model = onnx.load(str(q))
     if exclude:
         bypass_input_qdq(model, exclude)
+        prune_dead_nodes(model)
     n = len(calibration_reader) if hasattr(calibration_reader, "__len__") else None
     set_metadata(model, {**meta, "precision": "int8",
                          "quantization": f"static QDQ, int8 weights ({'per channel' if per_channel else 'per tensor'}"

@@ -272,6 +272,46 @@ class DOConvUNet(nn.Module):
                               "(use restoration.network.forward_padded)")
 
 
+#: The exported head's output channels are padded to a multiple of this (zero
+#: filters, sliced off: the same function). ONNX Runtime's x86 QLinearConv
+#: ran the packed head, 16 → 12 channels, 3×3, in 36 ms on a 1,072² tile
+#: and the same conv padded to 16 outputs in 5.8 ms (one thread, AVX-512
+#: VNNI; ``benchmarks/correction.py --profile``): 12 outputs miss the
+#: kernel's 16-wide blocks.
+HEAD_CHANNEL_MULTIPLE = 16
+
+
+class PaddedConv(nn.Module):
+    """``conv`` with its output channels padded by zero filters to a
+    multiple of ``multiple``, the first ``conv.out_channels`` returned: the
+    same function, in the shape a quantised kernel runs fast.
+
+    Examples
+    --------
+    >>> conv = nn.Conv2d(4, 3, 1)
+    >>> padded = PaddedConv(conv, 8)
+    >>> padded.conv.out_channels, padded(torch.zeros(1, 4, 2, 2)).shape[1]
+    (8, 3)
+    """
+
+    def __init__(self, conv: nn.Conv2d, multiple: int):
+        super().__init__()
+        self.out_channels = conv.out_channels
+        padded = -(-conv.out_channels // multiple) * multiple
+        self.conv = nn.Conv2d(conv.in_channels, padded, conv.kernel_size, stride=conv.stride, padding=conv.padding,
+                              dilation=conv.dilation, groups=conv.groups, bias=conv.bias is not None)
+        with torch.no_grad():
+            self.conv.weight.zero_()
+            self.conv.weight[:conv.out_channels].copy_(conv.weight.detach())
+            if conv.bias is not None:
+                self.conv.bias.zero_()
+                self.conv.bias[:conv.out_channels].copy_(conv.bias.detach())
+
+    def forward(self, x: Tensor) -> Tensor:
+        y = self.conv(x)
+        return y if y.shape[1] == self.out_channels else y[:, :self.out_channels]
+
+
 class SpaceToDepthForm(nn.Module):
     """The same function as a :class:`DOConvUNet`, on its input packed
     ``s × s`` to depth (``s`` the model's ``scale``): what the export ships.
@@ -282,7 +322,9 @@ class SpaceToDepthForm(nn.Module):
     output channels reordered to the packing. The weights are reindexed,
     nothing is retrained; every other layer is the model's own
     (:meth:`DOConvUNet.run`). In ONNX Runtime this drops the strided stem's
-    im2col and the head's DepthToSpace at full resolution: on the e9 model,
+    im2col and the head's DepthToSpace at full resolution (and the head's
+    output channels are padded to :data:`HEAD_CHANNEL_MULTIPLE`,
+    :class:`PaddedConv`): on the e9 model,
     INT8 on a 1,072² tile, 0.67 → 0.60 s (FP32 1.02 → 0.99 s) on this
     project's 2-core machine; the stage packs and unpacks while it copies
     the tile anyway (:mod:`modules.tiling`).
@@ -309,10 +351,11 @@ class SpaceToDepthForm(nn.Module):
         conv = model.head[0]
         # PixelShuffle reads channel c·s² + dy·s + dx; the packing wants (dy·s + dx)·3 + c
         order = [c * s * s + d for d in range(s * s) for c in range(3)]
-        self.head = nn.Conv2d(conv.in_channels, 3 * s * s, conv.kernel_size, padding=conv.padding)
+        head = nn.Conv2d(conv.in_channels, 3 * s * s, conv.kernel_size, padding=conv.padding)
         with torch.no_grad():
-            self.head.weight.copy_(conv.weight.detach()[order])
-            self.head.bias.copy_(conv.bias.detach()[order])
+            head.weight.copy_(conv.weight.detach()[order])
+            head.bias.copy_(conv.bias.detach()[order])
+        self.head = PaddedConv(head, HEAD_CHANNEL_MULTIPLE)
 
     def forward(self, x: Tensor) -> Tensor:
         k = 3 * self.packing ** 2
