@@ -87,7 +87,8 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
     """Share of the model's kernel time per operator type (ONNX Runtime's
     profiler, the stage's session options) on one window of ``side``²
     pixels, the size of a 1,024-px tile with its context: ``{op: percent}``,
-    largest first, and ``ms`` per run."""
+    largest first, ``top_nodes`` (the eight slowest nodes, same unit) and
+    ``ms`` per run."""
     import onnxruntime as ort
 
     from modules.correction import model_info, pack_input, session_options
@@ -106,12 +107,18 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
             sess.run(None, feed)
         events = json.loads(Path(sess.end_profiling()).read_text())
     per_op: dict[str, float] = {}
+    per_node: dict[str, float] = {}
     for e in events:
         if e.get("cat") == "Node" and e["name"].endswith("_kernel_time"):
             per_op[e["args"]["op_name"]] = per_op.get(e["args"]["op_name"], 0.0) + e["dur"]
+            node = f"{e['name'][:-len('_kernel_time')]} ({e['args']['op_name']})"
+            per_node[node] = per_node.get(node, 0.0) + e["dur"]
     total = sum(per_op.values())
     shares = {k: round(100 * v / total, 1) for k, v in sorted(per_op.items(), key=lambda kv: -kv[1])}
-    return {"ms": round(total / 1000 / (runs + 1), 1), "percent": shares}
+    # the slowest nodes: one conv of an odd shape can cost more than all the others of its type
+    # (the packed head at 12 output channels took 28 % of the INT8 time, see restoration.network)
+    top = {k: round(100 * v / total, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])[:8]}
+    return {"ms": round(total / 1000 / (runs + 1), 1), "percent": shares, "top_nodes": top}
 
 
 def main(argv=None) -> dict:
@@ -178,6 +185,8 @@ def main(argv=None) -> dict:
         for name, p in profile.items():
             top = ", ".join(f"{k} {v} %" for k, v in list(p["percent"].items())[:5])
             print(f"  {name} operators on one 1,072² window ({p['ms']} ms): {top}")
+            nodes = ", ".join(f"{k} {v} %" for k, v in list(p["top_nodes"].items())[:4])
+            print(f"    slowest nodes: {nodes}")
     print(json.dumps(result))
     return result
 
