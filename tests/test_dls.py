@@ -65,7 +65,40 @@ def test_stops_at_the_noise_floor():
         return np.array([x[0] - 1.0, 1.0, 1.0])   # irreducible part: φ/M ≥ 2/3
 
     res = damped_least_squares(f, np.array([5.0]), lower=[-10.0], upper=[10.0], h=1e-4, target_chi2=0.7)
+    # stops where the χ² left to gain is below 1: (x − 1)² < 1 on top of φ/M ≤ 0.7
     assert res.reason == "noise floor" and res.merit / 3 <= 0.7 and abs(res.x[0] - 1.0) < 0.3
+
+
+def test_the_noise_floor_stop_lands_within_one_chi2_of_the_minimum():
+    """Property (statistics of least squares): a minimum's χ² is about
+    M − N, so φ/M ≤ 1 alone stops a fit with about N of χ² still to gain.
+    With the gain test the fit ends within 1 of the minimum that scipy
+    finds (the oracle), on every noise draw, and the stop that looked at
+    φ/M alone would have stopped earlier on most of them."""
+    from scipy.optimize import least_squares
+
+    t = np.linspace(0.0, 3.0, 120)
+    truth = np.array([40.0, 1.3, 5.0, -3.0, 2.0, 0.7])
+
+    def model(x):
+        return x[0] * np.exp(-x[1] * t) + x[2] * np.sin(x[3] * t) + x[4] * t + x[5] * t * t
+
+    early = 0
+    for seed in range(5):
+        y = model(truth) + np.random.default_rng(seed).standard_normal(t.size)   # σ = 1: φ is a χ²
+
+        def f(x, y=y):
+            return model(x) - y
+
+        x0 = truth * 0.8
+        lo, hi = np.full(6, -100.0), np.full(6, 100.0)
+        best = least_squares(f, x0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        phi_min = float(np.sum(best.fun ** 2))
+        res = damped_least_squares(f, x0, lower=lo, upper=hi, h=1e-6, target_chi2=1.0, max_iter=200)
+        assert res.merit - phi_min < 1.0, (seed, res.merit, phi_min, res.reason)
+        assert phi_min < t.size - 6 + 3 * np.sqrt(2 * (t.size - 6))   # a χ²(M − N) draw
+        early += any(h["merit"] / t.size <= 1.0 and h["merit"] - phi_min > 1.0 for h in res.history)
+    assert early >= 3
 
 
 def test_steps_stay_within_the_trust_radius():
