@@ -127,6 +127,12 @@ def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+def _is_case(token: str, lens_name: str, device: int) -> bool:
+    """``--only`` token ``LENS:DEVICE`` (LENS as in ``--lenses``) names this case."""
+    lens, _, dev = token.rpartition(":")
+    return dev == str(device) and (lens_name.split("-")[-1].lower() == lens.lower() or lens_name == lens)
+
+
 def pick_lenses(tokens) -> list[Path]:
     files = sorted(LENS_DIR.glob("*.zmx"))
     if not tokens:
@@ -451,6 +457,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--first-device", type=int, default=0,
                     help="index of the first device (seeded by lens, index): devices 3..5 of a lens are "
                          "`--first-device 3 --devices 3`, the same devices a `--devices 6` run draws")
+    ap.add_argument("--only", nargs="+", default=None, metavar="LENS:DEVICE",
+                    help="fit only these devices of the run the other options describe, seeded as in it "
+                         "(a device's seed is its lens's place in --lenses and its index), e.g. "
+                         "`--lenses e1 e2 e9 e11 --devices 6 --only e11:0 e1:4` re-runs two of its 24 devices")
     ap.add_argument("--from-json", nargs="+", type=Path, default=None, metavar="LOG",
                     help="no fits: summarise the cases of earlier runs (the JSON on each LOG's last line), "
                          "e.g. two shards of devices")
@@ -509,6 +519,8 @@ def main(argv=None) -> dict:
             result["skipped"].append({"lens": name, "reason": f"{type(exc).__name__}: {exc}"})
             continue
         for d in range(args.first_device, args.first_device + args.devices):
+            if args.only and not any(_is_case(t, name, d) for t in args.only):
+                continue
             rng = np.random.default_rng([args.seed, li, d])
             u_true = rng.uniform(-1.0, 1.0, len(all_names))
             try:

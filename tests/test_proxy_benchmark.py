@@ -73,3 +73,14 @@ def test_merits_are_compared_only_between_fits_of_the_same_residuals():
     assert set(out) == {"scipy_shape", "ours_box"}
     assert out["scipy_shape"]["ref_lower"] == 1 and out["ours_box"]["ref_lower"] == 2
     assert out["scipy_shape"]["ratio"] == pytest.approx(np.sqrt(0.9 * 1.6))
+
+
+def test_only_names_a_device_by_lens_token_and_index():
+    """``--only e11:3`` picks device 3 of the e11 lens and nothing else
+    (a token is the lens name's last part, as ``--lenses`` takes it)."""
+    from benchmarks.proxy import _is_case
+
+    assert _is_case("e11:3", "US-11933948-B2-e11", 3)
+    assert not _is_case("e11:3", "US-11933948-B2-e11", 0)
+    assert not _is_case("e1:3", "US-11933948-B2-e11", 3)
+    assert _is_case("US-11906710-B2-e1:4", "US-11906710-B2-e1", 4)
