@@ -99,7 +99,7 @@ def make_parser() -> argparse.ArgumentParser:
     g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
                    help=f"PSF window in samples of half a pixel (default {PSF_DEFAULTS['n']}: a drawn lens's "
                         "corner PSF keeps >= 95 %% of its light, against 68 %% at 32)")
-    g.add_argument("--psf-grid", type=_grid, default=(15, 20), metavar="ROWS,COLS",
+    g.add_argument("--psf-grid", type=_grid, default=PSF_DEFAULTS["grid"], metavar="ROWS,COLS",
                    help="regions of the PSF map (default 15,20 as the paper; 30,40 cuts the blur's "
                         "interpolation error about 3x for 4x the PSFs)")
     g.add_argument("--psf-cache", metavar="DIR", help="PSF-map cache folder")

@@ -71,7 +71,7 @@ def make_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("PSF maps (use the training set's settings)")
     g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
                    help=f"PSF window in samples of half a pixel (default {PSF_DEFAULTS['n']})")
-    g.add_argument("--psf-grid", type=_grid, default=(15, 20), metavar="ROWS,COLS",
+    g.add_argument("--psf-grid", type=_grid, default=PSF_DEFAULTS["grid"], metavar="ROWS,COLS",
                    help="regions of the PSF map (default 15,20)")
     g.add_argument("--psf-cache", metavar="DIR", help="PSF-map cache folder")
     g.add_argument("--workers", type=int, default=2, help="processes for the PSF maps (default 2)")

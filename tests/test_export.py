@@ -312,3 +312,23 @@ def test_dequantized_twin_is_the_fp32_graph(exported, quantized):
     s_ref = ort.InferenceSession(ref.SerializeToString(), providers=["CPUExecutionProvider"])
     assert np.abs(run_model(s_ref, x) - ytw).max() <= 1e-5
     assert np.abs(y8 - ytw).max() > 1e-3   # and the INT8 model, its activations rounded, is not it
+
+
+def test_dead_nodes_are_pruned_and_live_ones_kept():
+    """prune_dead_nodes removes chains nobody reads (a Q → DQ pair left by
+    bypass_input_qdq) and keeps everything on the way to an output."""
+    from onnx import TensorProto, helper
+
+    from export.quantize import prune_dead_nodes
+
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 4])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 4])
+    nodes = [helper.make_node("Relu", ["x"], ["a"], name="live1"),
+             helper.make_node("Neg", ["a"], ["y"], name="live2"),
+             helper.make_node("Abs", ["a"], ["d1"], name="dead1"),     # read only by dead2
+             helper.make_node("Sqrt", ["d1"], ["d2"], name="dead2")]   # read by nobody
+    model = helper.make_model(helper.make_graph(nodes, "g", [x], [y]))
+    assert prune_dead_nodes(model) == 2
+    assert [n.name for n in model.graph.node] == ["live1", "live2"]
+    onnx.checker.check_model(model)
+    assert prune_dead_nodes(model) == 0
