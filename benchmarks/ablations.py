@@ -25,8 +25,9 @@ static_sqrt         "static" with the √x encoding (against sqrt_input: the
                     dynamic convolution's gain on the packaged model's design)
 ==================  ==========================================================
 
-Run (about 8 minutes of training per entry at 1,500 steps, two at a time
-on the two cores; the evaluation of all entries a few minutes more)::
+Run (2.3–7 minutes of training per entry at 1,500 steps, 14–16 for the
+per-pixel spatial attention, two at a time on the two cores; all ten and
+their evaluation took 34 minutes on an idle 2-core AMD EPYC, 2026-11-26)::
 
     python -m benchmarks.ablations --steps 1500
     python -m benchmarks.ablations --steps 300 --only doconv static   # a quick look
