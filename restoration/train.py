@@ -36,6 +36,9 @@ key                            default              meaning
                                                     never trained on, validation uses them (0:
                                                     hold out the last ``val_pairs`` pairs)
 ``data.val_pairs``             32                   validation pairs (0: no validation)
+``data.split_seed``            -1                   seed of the held-out draw (-1: ``run.seed``;
+                                                    fix it to train a second seed on the same
+                                                    split)
 ``synth.out``                  (required)           where to synthesise pairs when the folder
                                                     has none yet (an existing set is checked
                                                     against this section and reused)
@@ -131,7 +134,7 @@ from isp.errors import ConfigError, InputError
 from .train_config import PLACEMENTS, TrainConfig, resolve_path
 
 __all__ = ["PairBank", "batch_plan", "ensure_data", "learning_rate", "process_batch", "split_pairs",
-           "synth_argv", "train"]
+           "split_seed", "synth_argv", "train"]
 
 #: domain and placement of the correction slot the pairs are made for
 DOMAIN, PLACEMENT = PLACEMENTS["pipeline"]
@@ -210,6 +213,12 @@ def ensure_data(config: TrainConfig, *, progress: bool = True, log=print) -> lis
     for d in dirs:
         read_manifest(d)  # InputError naming the folder
     return dirs
+
+
+def split_seed(config: TrainConfig) -> int:
+    """The seed of the held-out draw: ``data.split_seed``, or ``run.seed``
+    where it is -1 (the default, as before the key existed)."""
+    return config.data.split_seed if config.data.split_seed >= 0 else config.run.seed
 
 
 def split_pairs(dirs, val_latents: int, val_pairs: int, seed: int):
@@ -647,7 +656,7 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
 
     ckpt = load_checkpoint(resume) if resume is not None else None
     dirs = ensure_data(config, progress=progress, log=log)
-    train_ids, val_ids, held = split_pairs(dirs, d.val_latents, d.val_pairs, r.seed)
+    train_ids, val_ids, held = split_pairs(dirs, d.val_latents, d.val_pairs, split_seed(config))
     t0 = time.perf_counter()
     bank = PairBank.load(dirs, train_ids)
     vbank = PairBank.load(dirs, val_ids) if val_ids else None

@@ -36,6 +36,8 @@ class DataConfig:
     batch: int = 8
     val_latents: int = 4
     val_pairs: int = 32
+    #: seed of the held-out draw; -1: ``run.seed`` (so a second run seed can keep the test set)
+    split_seed: int = -1
 
 
 @dataclass(frozen=True)

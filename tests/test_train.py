@@ -394,3 +394,19 @@ def test_a_set_blurred_through_another_psf_window_is_refused(tmp_path):
     (tmp_path / "set" / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(ConfigError, match="psf_n 32 ≠ 64"):
         ensure_data(cfg, progress=False, log=lambda *a: None)
+
+
+def test_split_seed_is_fixed_or_follows_the_run_seed(pairs, tmp_path):
+    """data.split_seed fixes the seed of the held-out draw while run.seed
+    changes; -1 (the default) follows run.seed as before."""
+    from restoration.train import split_seed
+    from restoration.train_config import load_config
+
+    def cfg(run_seed, split=None):
+        data = {"dirs": [str(pairs)], "val_latents": 1}
+        if split is not None:
+            data["split_seed"] = split
+        return load_config(write_toml(tmp_path / f"c{run_seed}{split}.toml",
+                                      {"data": data, "run": {"seed": run_seed}}))
+
+    assert split_seed(cfg(3)) == 3 and split_seed(cfg(3, 0)) == 0 and split_seed(cfg(5, 0)) == 0
