@@ -127,10 +127,15 @@ def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+def _names_lens(token: str, stem: str) -> bool:
+    """A lens token (``e9``, or the file's whole stem) names exactly this lens."""
+    return stem.split("-")[-1].lower() == token.lower() or stem == token
+
+
 def _is_case(token: str, lens_name: str, device: int) -> bool:
     """``--only`` token ``LENS:DEVICE`` (LENS as in ``--lenses``) names this case."""
     lens, _, dev = token.rpartition(":")
-    return dev == str(device) and (lens_name.split("-")[-1].lower() == lens.lower() or lens_name == lens)
+    return dev == str(device) and _names_lens(lens, lens_name)
 
 
 def pick_lenses(tokens) -> list[Path]:
@@ -139,7 +144,7 @@ def pick_lenses(tokens) -> list[Path]:
         return files
     out = []
     for t in tokens:
-        exact = [f for f in files if f.stem.split("-")[-1].lower() == t.lower() or f.stem == t]
+        exact = [f for f in files if _names_lens(t, f.stem)]
         hits = exact or [f for f in files if t.lower() in f.name.lower()]
         if not hits:
             print(f"lens {t!r}: no .zmx in {LENS_DIR} matches; skipped")

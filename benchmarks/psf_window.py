@@ -87,9 +87,7 @@ def main(argv=None) -> dict:
         names = default_names(lens)
         space = parameter_space(lens, names)
         obs = observations(lens.sensor, GRID)
-        cx, cy = (lens.sensor.width_px - 1) / 2.0, (lens.sensor.height_px - 1) / 2.0
-        rad = np.hypot(obs.x_px - cx, obs.y_px - cy) / (0.5 * np.hypot(lens.sensor.width_px, lens.sensor.height_px))
-        corner = rad >= 0.8
+        corner = obs.radius >= 0.8
         band = obs.freq <= 0.5 + 1e-12
         lenses = [("nominal", lens)] + [
             (f"device {d}", space.apply(np.random.default_rng([args.seed, li, d]).uniform(-1, 1, len(names))

@@ -274,12 +274,9 @@ class DOConvUNet(nn.Module):
 
 #: The exported head's output channels are padded to a multiple of this (zero
 #: filters, sliced off: the same function). ONNX Runtime's x86 QLinearConv
-#: ran the packed head, 16 → 12 channels, 3×3, in 36 ms on a 1,072² tile
-#: and the same conv padded to 16 outputs in 5.8 ms (one thread, a training
-#: job on the other core, AVX-512 VNNI); on the idle machine with two
-#: threads the head fell from 11.9 % to 2.6 % of the tile's INT8 time, 79 →
-#: 69 ms (``benchmarks/correction.py --profile``): 12 outputs miss the
-#: kernel's 16-wide blocks.
+#: runs output channels in blocks of 16: the packed head, 16 → 12 channels,
+#: 3×3, took 11.9 % of a 1,072² tile's INT8 time with two threads, padded
+#: 2.6 %, the tile 79 → 69 ms (``benchmarks/correction.py --profile``).
 HEAD_CHANNEL_MULTIPLE = 16
 
 
