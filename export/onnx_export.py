@@ -71,7 +71,7 @@ METADATA_KEYS = ("domain", "placement", "lens", "fov_encoding", "tile_size", "ti
                  "input_multiple", "attention", "training_data", "precision", "producer")
 MIN_OPSET = 17
 #: margins tried by :func:`measure_tile_overlap` (px)
-OVERLAP_CANDIDATES = (16, 24, 32, 48, 64, 96, 128)
+OVERLAP_CANDIDATES = (16, 24, 32, 40, 48, 56, 64, 80, 96, 128)
 OVERLAP_TOLERANCE = 0.5 / 255
 #: torch ↔ ONNX FP32 parity required (max abs, linear camera RGB)
 PARITY_TOLERANCE = 1e-4

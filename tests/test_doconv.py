@@ -355,7 +355,8 @@ def test_sqrt_encoding_is_the_identity_without_a_correction():
 
 
 @pytest.mark.parametrize("kw", [{}, {"scale": 4, "depths": (1, 1, 1)}, {"encoding": "sqrt", "field": False},
-                                {"conv": "static"}])
+                                {"conv": "static"}, {"encoding": "sqrt", "highpass": 9},
+                                {"scale": 4, "highpass": 3}])
 def test_space_to_depth_form_is_the_same_function(kw):
     """The export's packed form (stem and head reindexed) equals the model on
     the packed input, to float rounding; built here with plain reshapes."""
@@ -376,3 +377,45 @@ def test_space_to_depth_form_is_the_same_function(kw):
         got = SpaceToDepthForm(model)(packed)
     unpacked = got.reshape(n, s, s, 3, h // s, w // s).permute(0, 3, 4, 1, 5, 2).reshape(n, 3, h, w)
     assert torch.abs(unpacked - ref).max() < 1e-5
+
+
+@pytest.mark.parametrize("encoding", ["linear", "sqrt"])
+def test_highpass_keeps_flat_fields(encoding):
+    """Physics: an energy-conserving blur leaves flat regions flat, so its
+    inverse must too. With ``highpass`` (and no field input, whose smooth
+    variation the box removes only to first order) the network returns a
+    flat field's level unchanged — its mean over every 4 × 4 block (the
+    period of the upsampling's phases), to float rounding, wherever neither
+    the frame's border nor the box's reach of it is seen — whatever its
+    weights; without it the same random network shifts the level (a tone
+    curve), by enough to see. With ``encoding="sqrt"`` the residual is
+    added to ``u = √(x + c)``, so the block means hold for ``u``."""
+    from restoration.network import SQRT_OFFSET, build_model, receptive_radius
+
+    def enc(v):
+        return torch.sqrt(v + SQRT_OFFSET) if encoding == "sqrt" else v
+
+    for highpass, flat in ((9, True), (0, False)):
+        torch.manual_seed(1)
+        model = build_model("doconv", widths=(8, 16), depths=(0, 1, 0), encoding=encoding, field=False,
+                            highpass=highpass).double().eval()
+        with torch.no_grad():
+            model.head[0].weight.mul_(10)  # not more: u + r must stay > 0 for √ to be read back
+            model.head[0].bias.uniform_(-0.05, 0.05)  # a level shift per channel
+        m = -(-receptive_radius(model, 160) // 4) * 4
+        model.double()  # receptive_radius hands the model back in float32
+        h = w = 2 * m + 16
+        with torch.no_grad():
+            y = model(torch.full((1, 3, h, w), 0.3, dtype=torch.float64))
+        err = float((F.avg_pool2d(enc(y[..., m:-m, m:-m]), 4) - enc(torch.tensor(0.3))).abs().max())
+        # the box's float32 weights (1/9) sum to 1 within 1e-7
+        assert (err < 1e-6) if flat else (err > 1e-3), (highpass, err)
+
+
+def test_highpass_rejects_other_windows():
+    from restoration.network import build_model
+
+    with pytest.raises(ConfigError, match="highpass"):
+        build_model("doconv", highpass=8)
+    with pytest.raises(ConfigError, match="highpass"):
+        build_model("doconv", highpass=5)
