@@ -157,6 +157,27 @@ def test_shipped_model_is_packaged_int8_and_small():
     assert convs and all(producers[c.input[1]].op_type == "DequantizeLinear" for c in convs)
 
 
+@pytest.mark.parametrize("level", [0.005, 0.05, 0.4, 0.9])
+def test_shipped_model_keeps_flat_fields(level):
+    """Physics: optical blur moves no light further than the PSF reaches, so
+    its correction leaves a flat field's level alone. The model packaged
+    until 2026-11-26 had learnt a tone curve: it darkened a flat 0.005 by
+    13 % and brightened 0.7 by 6 % (the demo's ColorChecker moved 0.85
+    ΔE00). Grey and a saturated colour, centre of a 384 × 512 frame, each
+    channel's mean within 1 %."""
+    from isp import CFA, CameraMeta, Domain, Frame
+    from modules.correction import Correction
+
+    h, w = 384, 512
+    meta = CameraMeta(cfa=CFA.RGGB, raw_size=(h, w), active_area=(0, 0, h, w))
+    st = Correction()
+    for colour in ((1.0, 1.0, 1.0), (1.0, 0.3, 0.2)):
+        img = np.full((h, w, 3), level, np.float32) * np.asarray(colour, np.float32)
+        out = st.process(Frame(img, Domain.CAMERA_RGB, meta)).data
+        got = out[h // 2 - 40:h // 2 + 40, w // 2 - 40:w // 2 + 40].reshape(-1, 3).mean(0)
+        assert np.all(np.abs(got / img[0, 0] - 1) < 0.01), (colour, got / img[0, 0])
+
+
 def test_process_corrects_by_default_and_no_correction_turns_it_off(capsys, tmp_path, raw_file):
     dng = str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng"))
     a, b = tmp_path / "a.png", tmp_path / "b.png"

@@ -332,3 +332,57 @@ def test_dead_nodes_are_pruned_and_live_ones_kept():
     assert [n.name for n in model.graph.node] == ["live1", "live2"]
     onnx.checker.check_model(model)
     assert prune_dead_nodes(model) == 0
+
+
+def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path):
+    """The residual high-pass (restoration.network.ResidualHighPass) exports
+    as Pad + dilated 3×3 box convs + Sub, every conv quantised, and its box
+    means get the residual's own quantisation range. Calibrated on their
+    own they get the narrow range natural crops give a local mean, and clip
+    on a flat field (8.7 % too bright at grey 0.7 on the e9 model,
+    2026-11-26). Checked: the scales are shared (and differ without the
+    overrides, so the check can fail), and a flat field brighter than any
+    calibration crop keeps the FP32 model's level in INT8."""
+    import onnx
+    import onnxruntime as ort
+
+    from export import quantize as q
+    from export.onnx_export import export_onnx
+    from modules.correction import run_model
+
+    torch.manual_seed(0)
+    kw = {**KW, "field": True, "highpass": 9}
+    model = build_model("doconv", **kw)
+    with torch.no_grad():
+        model.head[0].weight.mul_(30)   # a large residual, which on a flat field is near constant
+    ckpt = save_checkpoint(tmp_path / "hp.pt", model, variant="doconv", model_kwargs=kw, step=1, metadata=META)
+    export_onnx(ckpt, tmp_path / "hp.onnx", tile_size=256, measure_overlap=False)
+    chains = q.highpass_chains(onnx.load(str(tmp_path / "hp.onnx")))
+    assert len(chains) == 1 and len(chains[0][1]) == 3   # Pad and two box convs (9 = 3²)
+    r, chain = chains[0]
+
+    def scales(path):
+        m = onnx.load(str(path))
+        inits = {i.name: onnx.numpy_helper.to_array(i) for i in m.graph.initializer}
+        return {n.input[0]: float(inits[n.input[1]]) for n in m.graph.node if n.op_type == "QuantizeLinear"}
+
+    rep = q.quantize_int8(tmp_path / "hp.onnx", tmp_path / "hp.int8.onnx", _reader())
+    assert rep["int8_quantized_conv"] == rep["fp32_conv"] and rep["int8_float_conv"] == 0
+    s = scales(tmp_path / "hp.int8.onnx")
+    box = [t for t in chain if t in s]
+    assert box and all(np.isclose(s[t], s[r]) for t in box)
+    original = q.shared_range_overrides
+    try:
+        q.shared_range_overrides = lambda *a, **k: {}
+        q.quantize_int8(tmp_path / "hp.onnx", tmp_path / "hp_own.int8.onnx", _reader())
+    finally:
+        q.shared_range_overrides = original
+    own = scales(tmp_path / "hp_own.int8.onnx")
+    assert not all(np.isclose(own[t], own[r]) for t in box)
+
+    x = next(iter(_reader(1, 96, 3).it))["input"]
+    x[:, :-2] = 1.5        # a flat field (the packed RGB; field kept), brighter than any calibration crop
+    c = (slice(None), slice(None), slice(16, -16), slice(16, -16))
+    fp32, int8 = (run_model(ort.InferenceSession(str(p)), x)[c].mean()
+                  for p in (tmp_path / "hp.onnx", tmp_path / "hp.int8.onnx"))
+    assert abs(fp32 - 1.5) < 0.01 and abs(int8 - fp32) < 0.005
