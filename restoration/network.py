@@ -352,11 +352,11 @@ class ResidualHighPass(nn.Module):
     quantise to INT8 convs of the fast 3×3 kind. A single 33-tap depthwise
     pair had run 23 + 14 ms in INT8 on a 1,072² tile, more than half the
     network. The residual is first extended by ``window // 2`` pixels
-    replicating its edge (zero padding let a level shift through near the
-    frame's border: the demo's corner read 4.6 % brighter), so a constant
-    residual (a tone curve on a flat field) is removed exactly everywhere;
-    detail at scales under ``window`` passes. A tile's own border is
-    replicated too, inside the context the stage discards.
+    replicating its edge (with zero padding the mean leans to 0 within
+    ``window // 2`` of the border and a level shift gets through there), so
+    a constant residual (a tone curve on a flat field) is removed exactly
+    everywhere; detail at scales under ``window`` passes. A tile's own
+    border is replicated too, inside the context the stage discards.
 
     Examples
     --------
