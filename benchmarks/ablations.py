@@ -22,7 +22,14 @@ placement_raw       same position, trained raw → raw (loss in camera RGB)
 placement_srgb      at the end of the pipeline, sRGB → sRGB
 sqrt_input          ours with the slot input encoded as √x inside the network
 static_sqrt         "static" with the √x encoding (against sqrt_input: the
-                    dynamic convolution's gain on the packaged model's design)
+                    dynamic convolution's gain on the √x design)
+highpass            sqrt_input with the residual high-pass (``highpass=9``,
+                    restoration.network.ResidualHighPass): the packaged design
+static_highpass     "static" with √x and the high-pass (against highpass: the
+                    dynamic convolution's gain on the packaged design)
+srgb_highpass       placement_srgb with the high-pass (against highpass: the
+                    placement on the packaged design; linear input, as sRGB
+                    is gamma-encoded already)
 ==================  ==========================================================
 
 Run (2.3–7 minutes of training per entry at 1,500 steps, 14–16 for the
@@ -48,7 +55,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-#: entry → (variant, placement)
+#: entry → ("variant[:encoding[:highpass]]", placement)
 ENTRIES = {
     "doconv": ("doconv", "pipeline"),
     "static": ("static", "pipeline"),
@@ -60,6 +67,9 @@ ENTRIES = {
     "placement_srgb": ("doconv", "srgb"),
     "sqrt_input": ("doconv:sqrt", "pipeline"),
     "static_sqrt": ("static:sqrt", "pipeline"),
+    "highpass": ("doconv:sqrt:9", "pipeline"),
+    "static_highpass": ("static:sqrt:9", "pipeline"),
+    "srgb_highpass": ("doconv::9", "srgb"),
 }
 RINGS = ("0.1", "0.5", "0.9")
 
@@ -79,10 +89,12 @@ def _train_one(args) -> dict:
     from restoration.train import train
     from restoration.train_config import load_config
 
-    variant, placement = ENTRIES[name]
-    variant, _, enc = variant.partition(":")
+    spec, placement = ENTRIES[name]
+    variant, enc, highpass = (spec.split(":") + ["", ""])[:3]
+    kwargs = {**({"encoding": enc} if enc else {}), **({"highpass": int(highpass)} if highpass else {})}
     cfg = load_config(config_path)
-    cfg = cfg.replace("model", variant=variant, kwargs={"encoding": enc} if enc else {}, placement=placement)
+    # the kwargs replace the config's own (the default config's high-pass is an entry here, not a baseline)
+    cfg = cfg.replace("model", variant=variant, kwargs=kwargs, placement=placement)
     cfg = cfg.replace("run", steps=steps, out=str(out / name), checkpoint_every=steps, threads=1, seed=seed)
     t0 = time.perf_counter()
     info = train(cfg, progress=False, log=lambda m: None)
