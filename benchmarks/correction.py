@@ -10,9 +10,10 @@ peer in the same run is the FP32 model itself: ``speedup`` = FP32 / INT8.
 **Each model at its own best tile size.** The tile size moves the two
 models in opposite directions: FP32's activations are 4× larger and fall
 out of cache first, so FP32 is fastest on 448–640 px tiles and INT8 on
-1,024 px (measured 2026-11-26 on the packaged model: FP32 1.26 s at 640 px
-and 1.70 s at 1,024; INT8 1.00 s at 640 and 0.90 s at 1,024). Timing both
-at the INT8 model's tile flattered INT8 by a third (1.85× against 1.40×).
+1,024 px (the packaged model, 2026-11-26: FP32 1.51 s at 448 px and 1.94 s
+at 1,024; INT8 1.16 s at 640 and 1.07 s at 1,024). Timing both at the INT8
+model's tile had flattered INT8 by a third (the model before the
+high-pass: 1.85× against 1.40×).
 So every model is timed at each of ``--tile-sizes`` (default
 :data:`SWEEP`, plus the model's own ``tile_size``) and ``fp32_s``,
 ``int8_s`` and ``speedup`` are each model's best; ``speedup_same_tile``
