@@ -51,7 +51,8 @@ default 0, 4, 0; resolutions relative to the input)::
   than its own reach, so its inverse leaves every mean over a larger region
   unchanged. Without this constraint the e9 default (2026-11-26) had learnt
   part of its sharpening as a tone curve: on flat fields at the slot it
-  darkened 0.005 by 9 % and brightened 0.7 by 1.6 % (FP32), and it moved the
+  darkened 0.01 by 7.8 % and brightened 0.7 by 2.0 % (FP32,
+  ``benchmarks/flat_fields.py``), and it moved the
   demo's ColorChecker by 0.85 ΔE00 (``isp demo``). Its training pairs are
   unbiased to 0.1 % in the mean; the network found the curve a cheap
   stand-in for the contrast that blur takes from natural images.
