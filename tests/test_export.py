@@ -380,6 +380,14 @@ def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path)
     own = scales(tmp_path / "hp_own.int8.onnx")
     assert not all(np.isclose(own[t], own[r]) for t in box)
 
+    # the edge Pad runs on the uint8 residual (quantized_pads), and the FP32 twin undoes it
+    m = onnx.load(str(tmp_path / "hp.int8.onnx"))
+    prod = {o: n for n in m.graph.node for o in n.output}
+    pad = next(n for n in m.graph.node if n.op_type == "Pad")
+    assert prod[pad.input[0]].op_type == "QuantizeLinear"
+    twin = q.dequantize_qdq(m)
+    assert not any(n.op_type in ("QuantizeLinear", "DequantizeLinear") for n in twin.graph.node)
+
     x = next(iter(_reader(1, 96, 3).it))["input"]
     x[:, :-2] = 1.5        # a flat field (the packed RGB; field kept), brighter than any calibration crop
     c = (slice(None), slice(None), slice(16, -16), slice(16, -16))
