@@ -307,10 +307,10 @@ def quantized_pads(model) -> int:
     """Run each ``DequantizeLinear → Pad → QuantizeLinear`` whose two sides
     share one scale and zero point on the uint8 tensor itself, the pair
     removed; returns how many. An edge or reflect ``Pad`` copies values, so
-    this is exact; ONNX Runtime keeps such a Pad in float otherwise (for the
-    residual high-pass, whose ranges :func:`shared_range_overrides` makes
-    equal: 6 of its 85 ms per 1,072² window, 2026-11-26). A constant Pad
-    (whose 0 is not the zero point) is left alone."""
+    this is exact; ONNX Runtime keeps such a Pad in float otherwise, with a
+    DequantizeLinear before and a QuantizeLinear after it (for the residual
+    high-pass, whose ranges :func:`shared_range_overrides` makes equal). A
+    constant Pad (whose 0 is not the zero point) is left alone."""
     from onnx import helper, numpy_helper
 
     g = model.graph
