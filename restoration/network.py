@@ -353,9 +353,9 @@ class ResidualHighPass(nn.Module):
     ``box`` is the mean over a ``window × window`` square, ``window = 3^k``,
     computed as ``k`` depthwise 3×3 means with dilations 1, 3, …, 3^(k−1)
     (their taps cover the square once each): constant weights that
-    quantise to INT8 convs of the fast 3×3 kind. A single 33-tap depthwise
-    pair had run 23 + 14 ms in INT8 on a 1,072² tile, more than half the
-    network. The residual is first extended by ``window // 2`` pixels
+    quantise to INT8 convs of the fast 3×3 kind; a 33-tap depthwise pair
+    took more than half of an INT8 tile's time (``benchmarks/correction.py
+    --profile`` on such an export). The residual is first extended by ``window // 2`` pixels
     replicating its edge (with zero padding the mean leans to 0 within
     ``window // 2`` of the border and a level shift gets through there), so
     a constant residual (a tone curve on a flat field) is removed exactly
@@ -432,8 +432,8 @@ class SpaceToDepthForm(nn.Module):
         with torch.no_grad():
             head.weight.copy_(conv.weight.detach()[order])
             head.bias.copy_(conv.bias.detach()[order])
-        # the high-pass on the padded channels: its depthwise INT8 convs ran 2.3x faster on 16
-        # channels than on 12 (three 3x3 convs on 536², 6.1 against 14.3 ms)
+        # the high-pass on the padded channels: ONNX Runtime's x86 INT8 convs run channels in
+        # blocks of 16, as for the head itself (HEAD_CHANNEL_MULTIPLE)
         hp = model.highpass
         self.head = PaddedConv(head, HEAD_CHANNEL_MULTIPLE,
                                post=None if hp is None else ResidualHighPass(head.out_channels + (
