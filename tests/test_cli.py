@@ -163,8 +163,8 @@ def test_shipped_model_keeps_flat_fields(level):
     its correction leaves a flat field's level alone. The model packaged
     until 2026-11-26 had learnt a tone curve: it darkened a flat 0.01 by
     7.6 % and brightened 0.7 by 6.3 % (``benchmarks/flat_fields.py``; the
-    demo's ColorChecker moved 0.85 ΔE00). Grey and a saturated colour, centre of a 384 × 512 frame, each
-    channel's mean within 1 %."""
+    demo's ColorChecker moved 0.85 ΔE00). Grey and a saturated colour,
+    centre of a 384 × 512 frame, each channel's mean within 1 %."""
     from isp import CFA, CameraMeta, Domain, Frame
     from modules.correction import Correction
 
