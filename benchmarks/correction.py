@@ -190,8 +190,8 @@ def main(argv=None) -> dict:
         for t in sizes:
             sweep[t] = {"fp32": _time(fp32, frame, args.threads, args.runs, t),
                         "int8": _time(int8, frame, args.threads, args.runs, t)}
-            print(f"  tile {t} px: FP32 {sweep[t]['fp32']['median_s']:.2f} s, INT8 {sweep[t]['int8']['median_s']:.2f} s",
-                  flush=True)
+            print(f"  tile {t} px: FP32 {sweep[t]['fp32']['median_s']:.2f} s, "
+                  f"INT8 {sweep[t]['int8']['median_s']:.2f} s", flush=True)
         t32 = min(sizes, key=lambda t: sweep[t]["fp32"]["median_s"])
         t8 = min(sizes, key=lambda t: sweep[t]["int8"]["median_s"])
         r32, r8 = sweep[t32]["fp32"], sweep[t8]["int8"]
