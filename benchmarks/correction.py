@@ -10,8 +10,7 @@ peer in the same run is the FP32 model itself: ``speedup`` = FP32 / INT8.
 **Each model at its own best tile size.** The tile size moves the two
 models in opposite directions: FP32's activations are 4× larger and fall
 out of cache first, so FP32 is fastest on 448–640 px tiles and INT8 on
-1,024 px (the packaged model, 2026-11-26: FP32 1.51 s at 448 px and 1.94 s
-at 1,024; INT8 1.16 s at 640 and 1.07 s at 1,024). Timing both at the INT8
+1,024–1,536 px (the README's speed table). Timing both at the INT8
 model's tile had flattered INT8 by a third (the model before the
 high-pass: 1.85× against 1.40×).
 So every model is timed at each of ``--tile-sizes`` (default
@@ -101,6 +100,11 @@ def _time(path: Path, frame, threads: int, runs: int, tile_size: int | None = No
             "outside_model_s": round(statistics.median(secs) - model, 3)}
 
 
+def _peak_mb(*timings: dict) -> float:
+    """The largest peak-RSS growth of ``_time`` results, in MB (10⁶ bytes)."""
+    return round(max(t["peak_rss_delta_mib"] for t in timings) * 1.048576, 1)
+
+
 def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
     """Share of the model's kernel time per operator type (ONNX Runtime's
     profiler, the stage's session options) on one window of ``side``²
@@ -134,7 +138,7 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
     total = sum(per_op.values())
     shares = {k: round(100 * v / total, 1) for k, v in sorted(per_op.items(), key=lambda kv: -kv[1])}
     # the slowest nodes: one conv of an odd shape can cost more than all the others of its type
-    # (the packed head at 12 output channels took 28 % of the INT8 time, see restoration.network)
+    # (the packed head at 12 output channels, see restoration.network.HEAD_CHANNEL_MULTIPLE)
     top = {k: round(100 * v / total, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])[:8]}
     return {"ms": round(total / 1000 / (runs + 1), 1), "percent": shares, "top_nodes": top}
 
@@ -195,7 +199,8 @@ def main(argv=None) -> dict:
         t32 = min(sizes, key=lambda t: sweep[t]["fp32"]["median_s"])
         t8 = min(sizes, key=lambda t: sweep[t]["int8"]["median_s"])
         r32, r8 = sweep[t32]["fp32"], sweep[t8]["int8"]
-        same = sweep[own] if own in sweep else sweep[t8]
+        same_tile = own if own in sweep else sizes[0]   # --tile-size: the one tile timed
+        same = sweep[same_tile]
         profile = ({"fp32": op_shares(fp32, args.threads, 1072), "int8": op_shares(int8, args.threads, 1072)}
                    if args.profile else None)
     mp = w * h / 1e6
@@ -204,12 +209,10 @@ def main(argv=None) -> dict:
               "speedup": round(r32["median_s"] / r8["median_s"], 3), "tile_fp32": t32, "tile_int8": t8,
               "speedup_same_tile": round(same["fp32"]["median_s"] / same["int8"]["median_s"], 3),
               "sweep": {str(t): {"fp32_s": v["fp32"]["median_s"], "int8_s": v["int8"]["median_s"],
-                                 "peak_rss_mb": round(max(v["fp32"]["peak_rss_delta_mib"],
-                                                          v["int8"]["peak_rss_delta_mib"]) * 1.048576, 1)}
-                        for t, v in sweep.items()},
+                                 "peak_rss_mb": _peak_mb(v["fp32"], v["int8"])} for t, v in sweep.items()},
               "ms_per_mp_fp32": round(1000 * r32["median_s"] / mp, 1),
               "ms_per_mp_int8": round(1000 * r8["median_s"] / mp, 1),
-              "peak_rss_mb": round(max(r32["peak_rss_delta_mib"], r8["peak_rss_delta_mib"]) * 1.048576, 1),
+              "peak_rss_mb": _peak_mb(r32, r8),
               "fp32": r32, "int8": r8, "model": str(fp32) if args.fp32 or args.checkpoint else f"dequantized {int8}",
               "int8_model": str(int8)}
     if profile is not None:
@@ -217,7 +220,7 @@ def main(argv=None) -> dict:
     print(f"{w}×{h}, {args.threads} threads, median of {args.runs}, each at its best tile: FP32 "
           f"{result['fp32_s']:.2f} s ({t32} px), INT8 {result['int8_s']:.2f} s ({t8} px, "
           f"{result['ms_per_mp_int8']:.0f} ms/MP), speedup {result['speedup']:.2f}× "
-          f"({result['speedup_same_tile']:.2f}× both at {own if own in sweep else t8} px), "
+          f"({result['speedup_same_tile']:.2f}× both at {same_tile} px), "
           f"peak RSS +{result['peak_rss_mb']} MB")
     for name, r in (("FP32", r32), ("INT8", r8)):
         print(f"  {name}: {r['model_s']:.2f} s in the model ({r['model_ms_per_computed_mp']:.0f} ms per MP computed, "

@@ -11,7 +11,7 @@ high-pass changed a flat 0.005 by −13 % and 0.7 by +6 %.
 
 ``--synth DIR`` also checks that the training pairs themselves are unbiased:
 the mean of each pair's input, processed by the stages after the slot
-(``restoration.synth_colour.process_after_slot`` before the sRGB curve),
+(``restoration.synth_colour.process_after_slot`` with ``gamma=False``),
 against the mean of its target, per channel, over the first ``--pairs``.
 
 Run::
@@ -61,19 +61,19 @@ def flat_field_changes(model, levels=LEVELS, colours=COLOURS, size=(256, 320)) -
 def synth_mean_ratio(directory, pairs: int = 400, border: int = 16) -> dict:
     """Input (processed, linear sRGB) over target mean per channel, over the
     first ``pairs`` pairs of a synth folder, ``border`` px trimmed."""
-    from modules.ccm import apply_ccm
     from modules.gamma import srgb_eotf
-    from modules.luminance import adjust_luminance
+    from restoration.synth_colour import process_after_slot
 
+    lum = json.loads((Path(directory) / "manifest.json").read_text())["process"]["luminance"]
     ratios = []
     for f in sorted(glob.glob(str(Path(directory) / "shard-*.npz"))):
         z = np.load(f)
         for i in range(len(z["index"])):
             if len(ratios) >= pairs:
                 break
-            x = z["input"][i].astype(np.float32)
-            lin = apply_ccm(adjust_luminance(x, 2.0 ** float(z["exposure_ev"][i]), z["luma_weights"][i], "none", 4.0),
-                            z["ccm"][i])
+            lin = process_after_slot(z["input"][i].astype(np.float32), z["ccm"][i], float(z["exposure_ev"][i]),
+                                     luma_weights=z["luma_weights"][i], tone=lum["tone"], white=lum["white"],
+                                     gamma=False)
             t = srgb_eotf(z["target"][i].astype(np.float32) / 255.0)
             c = slice(border, -border)
             ratios.append(lin[c, c].reshape(-1, 3).mean(0) / t[c, c].reshape(-1, 3).mean(0))

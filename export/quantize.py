@@ -227,10 +227,10 @@ class ReplayReader:
         return len(self.feeds)
 
 
-def shared_range_overrides(model_path, calibration_reader, method, percentile: float) -> dict:
-    """``TensorQuantOverrides`` that give every tensor of a residual
-    high-pass (:func:`highpass_chains`) the calibrated range of the residual
-    it filters.
+def shared_range_overrides(model_path, chains, calibration_reader, method, percentile: float) -> dict:
+    """``TensorQuantOverrides`` that give every tensor of each residual
+    high-pass in ``chains`` (:func:`highpass_chains` of the model at
+    ``model_path``) the calibrated range of the residual it filters.
 
     Calibrated on their own, the box means get the narrow range that natural
     images give them (a residual's local mean is near 0 there) and clip
@@ -240,10 +240,8 @@ def shared_range_overrides(model_path, calibration_reader, method, percentile: f
     subtraction ``r − box(r)`` cannot clip beyond ``r`` itself. One extra
     calibration pass over the same crops: ``calibration_reader`` is rewound
     after it (a :class:`ReplayReader`, or one with ``rewind``)."""
-    import onnx
     from onnxruntime.quantization.calibrate import create_calibrator
 
-    chains = highpass_chains(onnx.load(str(model_path)))
     if not chains:
         return {}
     with tempfile.TemporaryDirectory() as d:
@@ -490,18 +488,19 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
     with tempfile.TemporaryDirectory() as d:
         pre, q = Path(d) / "pre.onnx", Path(d) / "q.onnx"
         quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
-        exclude = float_io_nodes(onnx.load(str(pre))) if float_output_add else []
+        pre_model = onnx.load(str(pre))
+        exclude = float_io_nodes(pre_model) if float_output_add else []
         method = CalibrationMethod.Percentile if calibration == "percentile" else CalibrationMethod.MinMax
+        chains = highpass_chains(pre_model)
         overrides = {}
-        if highpass_chains(onnx.load(str(pre))):   # two calibration passes: read the crops once
+        if chains:   # two calibration passes: read the crops once
             calibration_reader = ReplayReader(calibration_reader)
-            overrides = shared_range_overrides(pre, calibration_reader, method,
+            overrides = shared_range_overrides(pre, chains, calibration_reader, method,
                                                percentile if calibration == "percentile" else None)
         quantize_static(str(pre), str(q), calibration_reader, quant_format=QuantFormat.QDQ,
                         per_channel=per_channel, activation_type=QuantType.QUInt8,
                         weight_type=QuantType.QInt8, nodes_to_exclude=exclude, reduce_range=reduce_range,
-                        calibrate_method=(CalibrationMethod.Percentile if calibration == "percentile"
-                                          else CalibrationMethod.MinMax),
+                        calibrate_method=method,
                         # Relu stays in the file (ORT fuses it into the Q before it at load time: the
                         # same kernels); dropped, the Q's zero point alone clamps at 0, and the FP32
                         # twin (dequantize_qdq) lost every Relu of the network

@@ -212,8 +212,6 @@ class DOConvUNet(nn.Module):
                  kernel_size: int = 3, scale: int = 2, encoding: str = "linear", highpass: int = 0):
         super().__init__()
         _choose(encoding, ENCODINGS, "encoding")
-        if highpass and (highpass < 3 or 3 ** round(math.log(highpass, 3)) != highpass):
-            raise ConfigError(f"highpass must be 0 (off) or a box side that is a power of 3; got {highpass}")
         _choose(conv, CONV_KINDS, "conv")
         _choose(spatial, SPATIAL_MODES, "spatial")
         _choose(pool, POOL_MODES, "pool")
@@ -312,6 +310,15 @@ class DOConvUNet(nn.Module):
 HEAD_CHANNEL_MULTIPLE = 16
 
 
+def padded_channels(n: int, multiple: int) -> int:
+    """``n`` rounded up to a multiple of ``multiple``.
+
+    >>> padded_channels(12, 16), padded_channels(16, 16)
+    (16, 16)
+    """
+    return -(-n // multiple) * multiple
+
+
 class PaddedConv(nn.Module):
     """``conv`` with its output channels padded by zero filters to a
     multiple of ``multiple``, the first ``conv.out_channels`` returned: the
@@ -329,8 +336,7 @@ class PaddedConv(nn.Module):
         super().__init__()
         self.out_channels = conv.out_channels
         self.post = post  # a per-channel module run on the padded channels (zero stays zero)
-        padded = -(-conv.out_channels // multiple) * multiple
-        self.conv = nn.Conv2d(conv.in_channels, padded, conv.kernel_size, stride=conv.stride, padding=conv.padding,
+        self.conv = nn.Conv2d(conv.in_channels, padded_channels(conv.out_channels, multiple), conv.kernel_size, stride=conv.stride, padding=conv.padding,
                               dilation=conv.dilation, groups=conv.groups, bias=conv.bias is not None)
         with torch.no_grad():
             self.conv.weight.zero_()
@@ -371,9 +377,9 @@ class ResidualHighPass(nn.Module):
 
     def __init__(self, channels: int, window: int):
         super().__init__()
+        if window < 3 or 3 ** round(math.log(window, 3)) != window:
+            raise ConfigError(f"highpass must be 0 (off) or a box side that is a power of 3; got {window}")
         k = round(math.log(window, 3))
-        if window < 3 or 3 ** k != window:
-            raise ConfigError(f"the high-pass box side must be a power of 3; got {window}")
         self.window = window
         self.dilations = tuple(3 ** i for i in range(k))
         # persistent: exported as initializers, which INT8 quantisation needs (restoration.doconv);
@@ -436,8 +442,8 @@ class SpaceToDepthForm(nn.Module):
         # blocks of 16, as for the head itself (HEAD_CHANNEL_MULTIPLE)
         hp = model.highpass
         self.head = PaddedConv(head, HEAD_CHANNEL_MULTIPLE,
-                               post=None if hp is None else ResidualHighPass(head.out_channels + (
-                                   -head.out_channels % HEAD_CHANNEL_MULTIPLE), hp.window))
+                               post=None if hp is None else ResidualHighPass(
+                                   padded_channels(head.out_channels, HEAD_CHANNEL_MULTIPLE), hp.window))
 
     def forward(self, x: Tensor) -> Tensor:
         k = 3 * self.packing ** 2

@@ -278,7 +278,7 @@ def srgb_to_camera(srgb, colour: PairColour, *, tone: str = "none", white: float
 
 
 def process_after_slot(x, ccm, exposure_ev: float, *, luma_weights=BT709_Y, tone: str = "none",
-                       white: float = 4.0, channel_axis: int = -1):
+                       white: float = 4.0, channel_axis: int = -1, gamma: bool = True):
     """``Process`` of the paper's loss (eq. 24, label "loss function"): the pipeline's stages after
     the correction slot — luminance, ccm, gamma (sRGB) — on numpy or torch.
 
@@ -292,14 +292,17 @@ def process_after_slot(x, ccm, exposure_ev: float, *, luma_weights=BT709_Y, tone
         Total exposure of the luminance stage.
     luma_weights, tone, white
         The luminance stage's settings (weights used only with a tone curve).
+    gamma : bool
+        False: stop before the sRGB curve (linear sRGB, not clipped).
 
     Returns
     -------
-    array like x, display sRGB in [0, 1].
+    array like x, display sRGB in [0, 1] (linear sRGB with ``gamma=False``).
     """
     gain = float(2.0 ** exposure_ev)
-    y = adjust_luminance(x, gain, luma_weights, tone, white, channel_axis=channel_axis)
-    return srgb_oetf(apply_ccm(y, ccm, channel_axis=channel_axis))
+    y = apply_ccm(adjust_luminance(x, gain, luma_weights, tone, white, channel_axis=channel_axis), ccm,
+                  channel_axis=channel_axis)
+    return srgb_oetf(y) if gamma else y
 
 
 

@@ -61,7 +61,7 @@ class SynthConfig:
     demosaic: str = "malvar2004"
     tone: str = "none"
     psf_n: int = PSF_DEFAULTS["n"]
-    psf_grid: list = field(default_factory=lambda: [15, 20])
+    psf_grid: list = field(default_factory=lambda: list(PSF_DEFAULTS["grid"]))
     shard_size: int = 100
 
 
