@@ -55,7 +55,12 @@ default 0, 4, 0; resolutions relative to the input)::
   ``benchmarks/flat_fields.py``), and it moved the
   demo's ColorChecker by 0.85 ΔE00 (``isp demo``). Its training pairs are
   unbiased to 0.1 % in the mean; the network found the curve a cheap
-  stand-in for the contrast that blur takes from natural images.
+  stand-in for the contrast that blur takes from natural images. The light
+  a PSF keeps is linear, so the means to keep are linear:
+  ``highpass_domain="linear"`` filters the residual the network makes in
+  linear RGB, ``r (r + 2u)`` with ``u = √x`` (the default config's
+  choice since 2026-11-26); ``"encoded"`` filters ``r`` itself, which keeps
+  the means of ``u`` only.
 
 Input ``(N, 5, H, W)`` (``(N, 3, H, W)`` without field encoding), ``H`` and
 ``W`` multiples of :attr:`DOConvUNet.input_multiple` (4); other sizes go
@@ -103,6 +108,9 @@ FIELD_FEATURES = 3
 #: the output decoded as ``u² − SQRT_OFFSET`` (negative inputs clip to 0)
 ENCODINGS = ("linear", "sqrt")
 SQRT_OFFSET = 1e-3
+#: ``highpass_domain`` choices: the high-pass filters the residual in the
+#: network's own domain (``u``), or the residual it makes in linear RGB
+HIGHPASS_DOMAINS = ("encoded", "linear")
 
 
 def field_features(field: Tensor, factor: int) -> Tensor:
@@ -193,6 +201,18 @@ class DOConvUNet(nn.Module):
         its level less: on the e9 default 9 (18 px at full resolution)
         beat 27 in PSNR, on flat fields and in speed (README, "Local
         means").
+    highpass_domain : {"encoded", "linear"}
+        What the high-pass filters. ``"encoded"`` (what models trained
+        before 2026-11-26 used): the residual ``r`` added to ``u = √x``;
+        it keeps the local means of ``u``, and squaring back adds ``r``'s
+        local variance to the linear means (small ColorChecker patches
+        moved by 1.26 ΔE00 on a 400 × 300 demo) and lifts a noisy black
+        (the encoding clips negatives: a mean-0 field came out at +0.4 σ).
+        ``"linear"``: the residual in linear RGB that ``r`` makes,
+        ``d = (u + r)² − u² = r (r + 2u)``, exact for ``x ≥ 0``, and the
+        output ``x + HP(d)``: linear local means are kept whatever ``x`` is,
+        negatives included (the input passes untouched, not decoded). The
+        same for ``encoding="linear"``.
 
     Attributes
     ----------
@@ -209,9 +229,11 @@ class DOConvUNet(nn.Module):
     def __init__(self, *, widths: tuple[int, int] = (16, 64), depths: tuple[int, int, int] = (0, 4, 0),
                  expansion: int = 2, conv: str = "doconv", dilations: tuple[int, ...] = (1, 2, 3, 4),
                  spatial: str = "none", pool: str = "local", window: int = 7, field: bool = True,
-                 kernel_size: int = 3, scale: int = 2, encoding: str = "linear", highpass: int = 0):
+                 kernel_size: int = 3, scale: int = 2, encoding: str = "linear", highpass: int = 0,
+                 highpass_domain: str = "encoded"):
         super().__init__()
         _choose(encoding, ENCODINGS, "encoding")
+        _choose(highpass_domain, HIGHPASS_DOMAINS, "highpass_domain")
         _choose(conv, CONV_KINDS, "conv")
         _choose(spatial, SPATIAL_MODES, "spatial")
         _choose(pool, POOL_MODES, "pool")
@@ -222,8 +244,10 @@ class DOConvUNet(nn.Module):
         self.config = {"widths": tuple(widths), "depths": tuple(depths), "expansion": expansion,
                        "conv": conv, "dilations": tuple(dilations), "spatial": spatial, "pool": pool,
                        "window": window, "field": field, "kernel_size": kernel_size, "scale": scale,
-                       "encoding": encoding, "highpass": highpass}
+                       "encoding": encoding, "highpass": highpass, "highpass_domain": highpass_domain}
         self.encoding = encoding
+        # the linear residual differs from the encoded one only when there is an encoding
+        self.linear_residual = bool(highpass) and highpass_domain == "linear" and encoding == "sqrt"
         self.field = field
         self.scale = scale
         self.input_multiple = 2 * scale
@@ -254,29 +278,32 @@ class DOConvUNet(nn.Module):
         # emits the same channels reordered, applies the same function: the filter is per channel
         self.highpass = ResidualHighPass(3 * scale * scale, highpass) if highpass else None
 
-    def _head(self, h: Tensor) -> Tensor:
-        """The model's own head: conv, the high-pass if any, PixelShuffle."""
-        if self.highpass is None:
-            return self.head(h)
-        return self.head[1](self.highpass(self.head[0](h)))
-
     def forward(self, x: Tensor) -> Tensor:
         """``x`` (N, 5, H, W): linear camera RGB and the field ``(x, y)`` in
         [-1, 1] (N, 3, H, W without field encoding) → corrected RGB (N, 3, H, W)."""
         if not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
             self._check(x)
-        return self.run(x[:, :3], x[:, 3:5] if self.field else None, self.stem, self._head, self.scale)
+        s = self.scale
+        return self.run(x[:, :3], x[:, 3:5] if self.field else None, self.stem, self.head[0], s,
+                        highpass=self.highpass, pack=lambda u: 2 * F.pixel_unshuffle(u, s),
+                        unpack=self.head[1])
 
-    def run(self, rgb: Tensor, field: Tensor | None, stem: nn.Module, head, factor: int) -> Tensor:
-        """The network between a given stem and head: the model's own
+    def run(self, rgb: Tensor, field: Tensor | None, stem: nn.Module, head: nn.Module, factor: int, *,
+            highpass: nn.Module | None, pack: Callable[[Tensor], Tensor],
+            unpack: Callable[[Tensor], Tensor]) -> Tensor:
+        """The network between a given stem and head conv: the model's own
         (``forward``: full-resolution RGB, ``factor = scale``), or their
         space-to-depth forms (:class:`SpaceToDepthForm`: RGB packed to ½
         resolution, the field given there, ``factor = 1``); ``field`` is
-        averaged by ``factor`` and ``2·factor`` for the two scales."""
-        if self.encoding == "sqrt":  # the network works on u = √(max(x, 0) + c), decoded at the end
-            rgb = torch.sqrt(F.relu(rgb) + SQRT_OFFSET)
+        averaged by ``factor`` and ``2·factor`` for the two scales. The
+        head conv's output is packed (``3·scale²`` channels or more), and
+        ``highpass`` filters it (:class:`ResidualHighPass` of as many
+        channels, or None); ``pack`` maps the encoded input to ``2u`` in the
+        same packing (for the linear residual), ``unpack`` a packed residual
+        back to the input's layout."""
+        u0 = torch.sqrt(F.relu(rgb) + SQRT_OFFSET) if self.encoding == "sqrt" else rgb
         f1 = f2 = None
-        h = stem(rgb)
+        h = stem(u0)
         if self.field:
             f1, f2 = field_features(field, factor), field_features(field, 2 * factor)
             h = h + self.stem_field(f1)
@@ -289,7 +316,10 @@ class DOConvUNet(nn.Module):
         h = self.up(h) + skip
         for b in self.dec:
             h = b(h, f1)
-        u = rgb + head(h)
+        r = head(h)
+        if self.linear_residual:  # (u + r)² − u² = r (r + 2u): no u² − c, no cancellation
+            return rgb + unpack(highpass(r * (r + pack(u0))))
+        u = u0 + unpack(r if highpass is None else highpass(r))
         return u * u - SQRT_OFFSET if self.encoding == "sqrt" else u
 
     def _check(self, x: Tensor) -> None:
@@ -319,37 +349,28 @@ def padded_channels(n: int, multiple: int) -> int:
     return -(-n // multiple) * multiple
 
 
-class PaddedConv(nn.Module):
-    """``conv`` with its output channels padded by zero filters to a
-    multiple of ``multiple``, the first ``conv.out_channels`` returned: the
-    same function, in the shape a quantised kernel runs fast.
+def padded_conv(conv: nn.Conv2d, multiple: int) -> nn.Conv2d:
+    """A copy of ``conv`` with its output channels padded by zero filters to
+    a multiple of ``multiple``: the first ``conv.out_channels`` are the same
+    function, in the shape a quantised kernel runs fast.
 
     Examples
     --------
     >>> conv = nn.Conv2d(4, 3, 1)
-    >>> padded = PaddedConv(conv, 8)
-    >>> padded.conv.out_channels, padded(torch.zeros(1, 4, 2, 2)).shape[1]
-    (8, 3)
+    >>> padded = padded_conv(conv, 8)
+    >>> padded.out_channels, bool((padded(torch.ones(1, 4, 2, 2))[:, :3] == conv(torch.ones(1, 4, 2, 2))).all())
+    (8, True)
     """
-
-    def __init__(self, conv: nn.Conv2d, multiple: int, post: nn.Module | None = None):
-        super().__init__()
-        self.out_channels = conv.out_channels
-        self.post = post  # a per-channel module run on the padded channels (zero stays zero)
-        self.conv = nn.Conv2d(conv.in_channels, padded_channels(conv.out_channels, multiple), conv.kernel_size, stride=conv.stride, padding=conv.padding,
-                              dilation=conv.dilation, groups=conv.groups, bias=conv.bias is not None)
-        with torch.no_grad():
-            self.conv.weight.zero_()
-            self.conv.weight[:conv.out_channels].copy_(conv.weight.detach())
-            if conv.bias is not None:
-                self.conv.bias.zero_()
-                self.conv.bias[:conv.out_channels].copy_(conv.bias.detach())
-
-    def forward(self, x: Tensor) -> Tensor:
-        y = self.conv(x)
-        if self.post is not None:
-            y = self.post(y)
-        return y if y.shape[1] == self.out_channels else y[:, :self.out_channels]
+    out = nn.Conv2d(conv.in_channels, padded_channels(conv.out_channels, multiple), conv.kernel_size,
+                    stride=conv.stride, padding=conv.padding, dilation=conv.dilation, groups=conv.groups,
+                    bias=conv.bias is not None)
+    with torch.no_grad():
+        out.weight.zero_()
+        out.weight[:conv.out_channels].copy_(conv.weight.detach())
+        if conv.bias is not None:
+            out.bias.zero_()
+            out.bias[:conv.out_channels].copy_(conv.bias.detach())
+    return out
 
 
 class ResidualHighPass(nn.Module):
@@ -407,7 +428,7 @@ class SpaceToDepthForm(nn.Module):
     (:meth:`DOConvUNet.run`). In ONNX Runtime this drops the strided stem's
     im2col and the head's DepthToSpace at full resolution (and the head's
     output channels are padded to :data:`HEAD_CHANNEL_MULTIPLE`,
-    :class:`PaddedConv`): on the e9 model,
+    :func:`padded_conv`): on the e9 model,
     INT8 on a 1,072² tile, 0.67 → 0.60 s (FP32 1.02 → 0.99 s) on this
     project's 2-core machine; the stage packs and unpacks while it copies
     the tile anyway (:mod:`modules.tiling`).
@@ -438,16 +459,24 @@ class SpaceToDepthForm(nn.Module):
         with torch.no_grad():
             head.weight.copy_(conv.weight.detach()[order])
             head.bias.copy_(conv.bias.detach()[order])
-        # the high-pass on the padded channels: ONNX Runtime's x86 INT8 convs run channels in
-        # blocks of 16, as for the head itself (HEAD_CHANNEL_MULTIPLE)
+        # the head's output channels padded, and the high-pass run on all of them: ONNX Runtime's
+        # x86 INT8 convs run channels in blocks of 16 (HEAD_CHANNEL_MULTIPLE); the pad is sliced off
+        self.head = padded_conv(head, HEAD_CHANNEL_MULTIPLE)
+        self.channels = head.out_channels
         hp = model.highpass
-        self.head = PaddedConv(head, HEAD_CHANNEL_MULTIPLE,
-                               post=None if hp is None else ResidualHighPass(
-                                   padded_channels(head.out_channels, HEAD_CHANNEL_MULTIPLE), hp.window))
+        self.highpass = None if hp is None else ResidualHighPass(self.head.out_channels, hp.window)
+        # 2u in the padded packing, for the linear residual: a 1×1 conv of constant weights (the
+        # packed input has 3s² channels, the head's output more), which quantises with the rest
+        twice = torch.zeros(self.head.out_channels, head.out_channels, 1, 1)
+        twice[:head.out_channels, :, 0, 0] = 2 * torch.eye(head.out_channels)
+        self.register_buffer("twice", twice)
 
     def forward(self, x: Tensor) -> Tensor:
         k = 3 * self.packing ** 2
-        return self.model.run(x[:, :k], x[:, k:k + 2] if self.model.field else None, self.stem, self.head, 1)
+        m = self.model
+        return m.run(x[:, :k], x[:, k:k + 2] if m.field else None, self.stem, self.head, 1,
+                     highpass=self.highpass, pack=lambda u: F.conv2d(u, self.twice),
+                     unpack=lambda y: y[:, :self.channels])
 
 
 def pad_to_multiple(x: Tensor, multiple: int = 4, n_field: int = 2) -> tuple[Tensor, tuple[int, int]]:

@@ -356,7 +356,9 @@ def test_sqrt_encoding_is_the_identity_without_a_correction():
 
 @pytest.mark.parametrize("kw", [{}, {"scale": 4, "depths": (1, 1, 1)}, {"encoding": "sqrt", "field": False},
                                 {"conv": "static"}, {"encoding": "sqrt", "highpass": 9},
-                                {"scale": 4, "highpass": 3}])
+                                {"scale": 4, "highpass": 3},
+                                {"encoding": "sqrt", "highpass": 9, "highpass_domain": "linear"},
+                                {"encoding": "sqrt", "scale": 4, "highpass": 3, "highpass_domain": "linear"}])
 def test_space_to_depth_form_is_the_same_function(kw):
     """The export's packed form (stem and head reindexed) equals the model on
     the packed input, to float rounding; built here with plain reshapes."""
@@ -410,6 +412,74 @@ def test_highpass_keeps_flat_fields(encoding):
         err = float((F.avg_pool2d(enc(y[..., m:-m, m:-m]), 4) - enc(torch.tensor(0.3))).abs().max())
         # the box's float32 weights (1/9) sum to 1 within 1e-7
         assert (err < 1e-6) if flat else (err > 1e-3), (highpass, err)
+
+
+def _block_means(v, m):
+    """Means over 4 × 4 blocks (the upsampling's phase period) inside a margin ``m``."""
+    return F.avg_pool2d(v[..., m:-m, m:-m], 4)
+
+
+def _random_highpass_model(**kw):
+    from restoration.network import build_model, receptive_radius
+
+    torch.manual_seed(1)
+    model = build_model("doconv", widths=(8, 16), depths=(0, 1, 0), field=False, highpass=9,
+                        encoding="sqrt", **kw).double().eval()
+    with torch.no_grad():
+        model.head[0].weight.mul_(10)
+        model.head[0].bias.uniform_(-0.05, 0.05)
+    m = -(-receptive_radius(model, 160) // 4) * 4
+    return model.double(), m
+
+
+def test_linear_highpass_keeps_linear_means_of_texture_and_noisy_black():
+    """Physics: a PSF that sums to 1 keeps the *linear* local means. With
+    ``highpass_domain="linear"`` the residual is filtered after it is made
+    linear, ``d = r (r + 2u)``, so the output's means over the box equal the
+    input's for any weights, on texture (where the √x-domain high-pass moves
+    them by the residual's local variance) and on a noisy black whose
+    negatives the encoding clips (where the √x-domain one lifts the mean
+    towards that of a clipped Gaussian, 0.4 σ). The reference is the input
+    itself: a 9 × 9 box at ½ resolution removes what is constant over it,
+    so the 18 × 18 px means agree to what varies within one box."""
+    torch.manual_seed(2)
+    errs = {}
+    for domain in ("linear", "encoded"):
+        model, m = _random_highpass_model(highpass_domain=domain)
+        h = 2 * m + 72
+        # texture: fine random detail on a level (its 18-px means are the level, to ~1 %)
+        x = (0.3 + 0.2 * (torch.rand(1, 3, h, h, dtype=torch.float64) - 0.5)).clamp(min=0)
+        black = 0.002 * torch.randn(1, 3, h, h, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
+        with torch.no_grad():
+            errs[domain] = [float((_block_means(model(v), m) - _block_means(v, m)).mean().abs())
+                            for v in (x, black)]
+    # linear: the texture's means kept to 0.07 % of its level, the black's to σ / 100
+    # (measured 3.5e-5 and 4.5e-6); the √x-domain high-pass moves them 30× and 200× more
+    assert errs["linear"][0] < 2e-4 and errs["linear"][1] < 2e-5, errs
+    assert errs["encoded"][0] > 1e-3 and errs["encoded"][1] > 1e-3, errs
+
+
+def test_linear_highpass_keeps_flat_fields_and_negatives():
+    """A flat field, at any level, comes back exactly; a negative input
+    (noise below black) passes through unclipped where the residual is 0."""
+    from restoration.network import build_model
+
+    model, m = _random_highpass_model(highpass_domain="linear")
+    h = 2 * m + 16
+    for level in (0.0, 0.01, 0.3, 0.9):
+        with torch.no_grad():
+            y = model(torch.full((1, 3, h, h), level, dtype=torch.float64))
+        # the box's float32 weights (1/9) sum to 1 within 1e-7
+        assert float((_block_means(y, m) - level).abs().max()) < 1e-6 * max(level, 0.1), level
+    zero = build_model("doconv", widths=(8, 16), depths=(0, 1, 0), field=False, highpass=9,
+                       encoding="sqrt", highpass_domain="linear").eval()
+    with torch.no_grad():
+        zero.head[0].weight.zero_()
+        zero.head[0].bias.zero_()
+        x = torch.randn(1, 3, 16, 16) * 0.01
+        assert torch.equal(zero(x), x)
+    with pytest.raises(ConfigError, match="highpass_domain"):
+        build_model("doconv", highpass=9, highpass_domain="srgb")
 
 
 def test_highpass_rejects_other_windows():

@@ -334,7 +334,9 @@ def test_dead_nodes_are_pruned_and_live_ones_kept():
     assert prune_dead_nodes(model) == 0
 
 
-def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path):
+@pytest.mark.parametrize("kw, gain", [({"highpass": 9}, 30),
+                                     ({"highpass": 9, "encoding": "sqrt", "highpass_domain": "linear"}, 3)])
+def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path, kw, gain):
     """The residual high-pass (restoration.network.ResidualHighPass) exports
     as Pad + dilated 3×3 box convs + Sub, every conv quantised, and its box
     means get the residual's own quantisation range. Calibrated on their
@@ -342,7 +344,11 @@ def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path)
     on a flat field (8.7 % too bright at grey 0.7 on the e9 model,
     2026-11-26). Checked: the scales are shared (and differ without the
     overrides, so the check can fail), and a flat field brighter than any
-    calibration crop keeps the FP32 model's level in INT8."""
+    calibration crop keeps the FP32 model's level in INT8. The high-pass of
+    the linear residual (``highpass_domain="linear"``) filters ``r (r + 2u)``,
+    made in the graph; its ``2u`` is a 1×1 conv, quantised like the rest.
+    (Its head is scaled less: a flat field's residual varies with the field
+    position, and squared the variation outgrows what a 9 × 9 box removes.)"""
     import onnx
     import onnxruntime as ort
 
@@ -351,10 +357,10 @@ def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path)
     from modules.correction import run_model
 
     torch.manual_seed(0)
-    kw = {**KW, "field": True, "highpass": 9}
+    kw = {**KW, "field": True, **kw}
     model = build_model("doconv", **kw)
     with torch.no_grad():
-        model.head[0].weight.mul_(30)   # a large residual, which on a flat field is near constant
+        model.head[0].weight.mul_(gain)   # a large residual, which on a flat field is near constant
     ckpt = save_checkpoint(tmp_path / "hp.pt", model, variant="doconv", model_kwargs=kw, step=1, metadata=META)
     export_onnx(ckpt, tmp_path / "hp.onnx", tile_size=256, measure_overlap=False)
     chains = q.highpass_chains(onnx.load(str(tmp_path / "hp.onnx")))
