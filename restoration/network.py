@@ -403,6 +403,7 @@ class ResidualHighPass(nn.Module):
         k = round(math.log(window, 3))
         self.window = window
         self.dilations = tuple(3 ** i for i in range(k))
+        self.removed: Tensor | None = None
         # persistent: exported as initializers, which INT8 quantisation needs (restoration.doconv);
         # one per stage, so that each conv has its own weight to quantise
         for i in range(k):
@@ -413,7 +414,26 @@ class ResidualHighPass(nn.Module):
         m = F.pad(r, (p, p, p, p), mode="replicate")
         for i, d in enumerate(self.dilations):  # each shrinks the extent by 2·d; Σ 2·d = 2·p
             m = F.conv2d(m, getattr(self, f"box{i}"), dilation=d, groups=r.shape[1])
+        # kept while training, for highpass_removed_power (not in eval: no graph to hold on to)
+        self.removed = m if self.training and torch.is_grad_enabled() else None
         return r - m
+
+
+def highpass_removed_power(model: nn.Module) -> Tensor | float:
+    """Mean square of what the model's :class:`ResidualHighPass` removed in
+    its last training forward (0. without one): a penalty for the loss
+    (``optim.highpass_penalty``).
+
+    Whatever the network puts into its residual's local means, the
+    high-pass takes out again: a null space the output never sees. The e9
+    default (2026-11-26, linear domain) used it freely; on a flat 0.9 its
+    linear residual reached 0.2 before the high-pass, which sets the range,
+    and so the step, of that tensor's INT8 quantisation. The penalty costs
+    the output nothing and keeps the range for detail.
+    """
+    hp = getattr(model, "highpass", None)
+    removed = getattr(hp, "removed", None)
+    return 0.0 if removed is None else (removed * removed).mean()
 
 
 class SpaceToDepthForm(nn.Module):

@@ -81,6 +81,10 @@ key                            default              meaning
 ``optim.gamma``                0.5                  factor of each step
 ``optim.warmup_steps``         0                    linear warm-up steps
 ``optim.grad_clip``            0.0                  max gradient norm (0: off)
+``optim.highpass_penalty``     0.0                  weight of the mean square of what the
+                                                    residual high-pass removes (the model's
+                                                    ``highpass``; :func:`~restoration.network.
+                                                    highpass_removed_power`), added to the loss
 ``temperature.start``          30.0                 attention temperature at step 0
 ``temperature.end``            1.0                  ... after the annealing (validation and
                                                     :func:`~restoration.checkpoint.load_model`
@@ -643,7 +647,7 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
     from .checkpoint import load_checkpoint, save_checkpoint
     from .doconv import set_temperature
     from .macs import macs_per_pixel, n_parameters
-    from .network import build_model, receptive_radius
+    from .network import build_model, highpass_removed_power, receptive_radius
 
     r, d = config.run, config.data
     placement = config.model.placement  # checked by TrainConfig
@@ -775,8 +779,9 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
             x, y, meta = bank.batch(idx, crop_plan(step, bank, idx, d.crop, mult, r.seed), d.crop)
             x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
             loss = placed_loss(loss_of, model, x, y, meta, placement)
+            objective = loss + o.highpass_penalty * highpass_removed_power(model) if o.highpass_penalty else loss
             opt.zero_grad(set_to_none=True)
-            loss.backward()
+            objective.backward()
             if o.grad_clip:
                 torch.nn.utils.clip_grad_norm_(model.parameters(), o.grad_clip)
             opt.step()

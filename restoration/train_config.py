@@ -97,6 +97,7 @@ class OptimConfig:
     gamma: float = 0.5
     warmup_steps: int = 0
     grad_clip: float = 0.0
+    highpass_penalty: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -196,8 +197,9 @@ class TrainConfig:
             raise ConfigError(f"optim.lr must be > 0; got {o.lr}")
         if len(o.betas) != 2 or not all(0 <= float(b) < 1 for b in o.betas):
             raise ConfigError(f"optim.betas must be two numbers in [0, 1); got {o.betas!r}")
-        if not o.eps > 0 or o.weight_decay < 0 or o.grad_clip < 0 or o.warmup_steps < 0:
-            raise ConfigError("optim.eps must be > 0 and optim.weight_decay, grad_clip, warmup_steps ≥ 0")
+        if not o.eps > 0 or min(o.weight_decay, o.grad_clip, o.warmup_steps, o.highpass_penalty) < 0:
+            raise ConfigError("optim.eps must be > 0 and optim.weight_decay, grad_clip, warmup_steps, "
+                              "highpass_penalty ≥ 0")
         if not o.step_epochs > 0 or not 0 < o.gamma <= 1:
             raise ConfigError(f"optim.step_epochs must be > 0 and optim.gamma in (0, 1]; "
                               f"got {o.step_epochs}, {o.gamma}")

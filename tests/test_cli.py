@@ -178,6 +178,20 @@ def test_shipped_model_keeps_flat_fields(level):
         assert np.all(np.abs(got / img[0, 0] - 1) < 0.01), (colour, got / img[0, 0])
 
 
+def test_shipped_model_keeps_the_means_of_noise_and_texture():
+    """Physics: the means an optical correction keeps are linear. The model
+    packaged until 2026-11-26 filtered its residual in the √x domain, whose
+    encoding clips negatives: a noisy black (mean 0, σ 0.002) came out 0.40 σ
+    bright, and a fine texture around grey 0.3 0.46 % bright
+    (``benchmarks/flat_fields.py``). Within 0.1 σ and 0.2 %."""
+    from benchmarks.flat_fields import noisy_field_changes, texture_mean_change
+
+    noisy = noisy_field_changes("default", levels=(0.0, 0.005), size=(192, 256))
+    assert noisy["worst_sigma"] < 0.1, noisy
+    texture = texture_mean_change("default", size=(192, 256))
+    assert texture["worst_percent"] < 0.2, texture
+
+
 def test_process_corrects_by_default_and_no_correction_turns_it_off(capsys, tmp_path, raw_file):
     dng = str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng"))
     a, b = tmp_path / "a.png", tmp_path / "b.png"

@@ -393,6 +393,10 @@ def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path,
     assert prod[pad.input[0]].op_type == "QuantizeLinear"
     twin = q.dequantize_qdq(m)
     assert not any(n.op_type in ("QuantizeLinear", "DequantizeLinear") for n in twin.graph.node)
+    # the linear residual, made by a float Mul, reaches the output's Sub unrounded (highpass_reads_float)
+    if "highpass_domain" in kw:
+        assert prod[r].op_type == "Mul"
+        assert any(n.op_type == "Sub" and n.input[0] == r for n in m.graph.node)
 
     x = next(iter(_reader(1, 96, 3).it))["input"]
     x[:, :-2] = 1.5        # a flat field (the packed RGB; field kept), brighter than any calibration crop
