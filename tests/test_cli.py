@@ -164,7 +164,11 @@ def test_shipped_model_keeps_flat_fields(level):
     until 2026-11-26 had learnt a tone curve: it darkened a flat 0.01 by
     7.6 % and brightened 0.7 by 6.3 % (``benchmarks/flat_fields.py``; the
     demo's ColorChecker moved 0.85 ΔE00). Grey and a saturated colour,
-    centre of a 384 × 512 frame, each channel's mean within 1 %."""
+    centre of a 384 × 512 frame, each channel's mean within 1 %, or 0.0006
+    in the darks: the packaged model quantises its residual in linear RGB
+    (``highpass_domain="linear"``), in steps of 0.0011, and a noise-free
+    flat field has no noise to dither the rounding (worst 0.0005 over
+    ``benchmarks/flat_fields.py``'s 48 fields; noisy ones move ≤ 0.08 σ)."""
     from isp import CFA, CameraMeta, Domain, Frame
     from modules.correction import Correction
 
@@ -175,7 +179,7 @@ def test_shipped_model_keeps_flat_fields(level):
         img = np.full((h, w, 3), level, np.float32) * np.asarray(colour, np.float32)
         out = st.process(Frame(img, Domain.CAMERA_RGB, meta)).data
         got = out[h // 2 - 40:h // 2 + 40, w // 2 - 40:w // 2 + 40].reshape(-1, 3).mean(0)
-        assert np.all(np.abs(got / img[0, 0] - 1) < 0.01), (colour, got / img[0, 0])
+        assert np.all(np.abs(got - img[0, 0]) < np.maximum(0.01 * img[0, 0], 0.0006)), (colour, got / img[0, 0])
 
 
 def test_shipped_model_keeps_the_means_of_noise_and_texture():
