@@ -30,6 +30,12 @@ static_highpass     "static" with √x and the high-pass (against highpass: the
 srgb_highpass       placement_srgb with the high-pass (against highpass: the
                     placement on the packaged design; linear input, as sRGB
                     is gamma-encoded already)
+linear_highpass     highpass with the high-pass on the residual made linear
+                    (``highpass_domain="linear"``): the packaged design
+                    since 2026-11-26 (with the config's
+                    ``optim.highpass_penalty``)
+static_linear_hp    "static" with √x and the linear high-pass (against
+                    linear_highpass: the dynamic convolution's gain on it)
 ==================  ==========================================================
 
 Run (2.3–7 minutes of training per entry at 1,500 steps, 14–16 for the
@@ -56,7 +62,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-#: entry → ("variant[:encoding[:highpass]]", placement)
+#: entry → ("variant[:encoding[:highpass[:highpass_domain]]]", placement)
 ENTRIES = {
     "doconv": ("doconv", "pipeline"),
     "static": ("static", "pipeline"),
@@ -71,6 +77,8 @@ ENTRIES = {
     "highpass": ("doconv:sqrt:9", "pipeline"),
     "static_highpass": ("static:sqrt:9", "pipeline"),
     "srgb_highpass": ("doconv::9", "srgb"),
+    "linear_highpass": ("doconv:sqrt:9:linear", "pipeline"),
+    "static_linear_hp": ("static:sqrt:9:linear", "pipeline"),
 }
 RINGS = ("0.1", "0.5", "0.9")
 
@@ -91,8 +99,9 @@ def _train_one(args) -> dict:
     from restoration.train_config import load_config
 
     spec, placement = ENTRIES[name]
-    variant, enc, highpass = (spec.split(":") + ["", ""])[:3]
-    kwargs = {**({"encoding": enc} if enc else {}), **({"highpass": int(highpass)} if highpass else {})}
+    variant, enc, highpass, domain = (spec.split(":") + ["", "", ""])[:4]
+    kwargs = {**({"encoding": enc} if enc else {}), **({"highpass": int(highpass)} if highpass else {}),
+              **({"highpass_domain": domain} if domain else {})}
     cfg = load_config(config_path)
     # the kwargs replace the config's own (the default config's high-pass is an entry here, not a baseline)
     cfg = cfg.replace("model", variant=variant, kwargs=kwargs, placement=placement)
