@@ -41,7 +41,7 @@ static_linear_hp    "static" with √x and the linear high-pass (against
 Run (2.3–7 minutes of training per entry at 1,500 steps, 14–16 for the
 per-pixel spatial attention, two at a time on the two cores; the first ten
 and their evaluation took 34 minutes on an idle 2-core AMD EPYC, the three
-high-pass entries 10 more, 2026-11-26)::
+high-pass entries 10 more, the two linear ones 8, 2026-11-26)::
 
     python -m benchmarks.ablations --steps 1500
     python -m benchmarks.ablations --steps 300 --only doconv static   # a quick look

@@ -309,16 +309,20 @@ def test_cli_errors_are_one_line_exit_2(tmp_path, capsys, pairs):
         assert err.startswith("isp: error:") and msg in err and "\n" not in err
 
 
-def test_default_config_is_valid():
-    """configs/e9_default.toml parses, trains the default variant and
+@pytest.mark.parametrize("name, samples", [("e9_default.toml", 3), ("e9_lenses9.toml", 9)])
+def test_default_config_is_valid(name, samples):
+    """configs/e9_default.toml (and its nine-camera twin) parses, trains the
+    default variant with the linear high-pass and its penalty, and
     synthesises from the e9 lens."""
     from pathlib import Path
 
     from restoration.train_config import load_config, resolve_path
 
-    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "e9_default.toml")
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / name)
     assert cfg.synth is not None and resolve_path(cfg.synth.lens).name == "US-12210142-B2-e9.zmx"
+    assert cfg.synth.samples == samples
     assert cfg.model.variant == "doconv" and cfg.optim.betas == [0.9, 0.999] and cfg.optim.eps == 1e-8
+    assert cfg.model.kwargs["highpass_domain"] == "linear" and cfg.optim.highpass_penalty == 1.0
 
 
 @pytest.mark.parametrize("placement", ["raw", "srgb"])
