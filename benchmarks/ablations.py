@@ -36,6 +36,10 @@ linear_highpass     highpass with the high-pass on the residual made linear
                     ``optim.highpass_penalty``)
 static_linear_hp    "static" with √x and the linear high-pass (against
                     linear_highpass: the dynamic convolution's gain on it)
+linear_srgb_hp      linear_highpass placed between the colour matrix and
+                    the gamma (linear sRGB at display exposure; against
+                    linear_highpass and srgb_highpass: what the colour
+                    matrix and exposure give, without the gamma's)
 ==================  ==========================================================
 
 Run (2.3–7 minutes of training per entry at 1,500 steps, 14–16 for the
@@ -79,6 +83,7 @@ ENTRIES = {
     "srgb_highpass": ("doconv::9", "srgb"),
     "linear_highpass": ("doconv:sqrt:9:linear", "pipeline"),
     "static_linear_hp": ("static:sqrt:9:linear", "pipeline"),
+    "linear_srgb_hp": ("doconv:sqrt:9:linear", "linear"),
 }
 RINGS = ("0.1", "0.5", "0.9")
 

@@ -77,6 +77,8 @@ import numpy as np
 
 from isp.errors import ConfigError, InputError
 
+from modules.gamma import srgb_oetf
+
 from .baseline import BASELINES, deconvolve, noise_variance, quantisation_step
 from .synth import (
     SynthPlan,
@@ -429,7 +431,9 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
         raise ConfigError(f"the plan synthesises {st.size}-px crops; these settings need {settings.work} "
                           f"(size {settings.size} + 2 × border {settings.border})")
     variants = VARIANTS if settings.baseline != "none" else VARIANTS[:2]
-    at_end = (getattr(runner, "meta", None) or {}).get("domain") == "display_rgb"
+    domain = (getattr(runner, "meta", None) or {}).get("domain")
+    at_end = domain == "display_rgb"
+    linear_srgb = domain == "linear_rgb"  # between the colour matrix and the gamma
     full = plan.full_size
     m, work = plan.margin, settings.work
     inner = slice(settings.border, settings.border + settings.size)
@@ -450,10 +454,10 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
             s0, o0 = plan.noise_profile
             profile = (k_noise * s0, k_noise * k_noise * o0)
 
-            def process(x, colour=colour):
+            def process(x, colour=colour, gamma=True):
                 return np.asarray(process_after_slot(x, colour.ccm, colour.exposure_ev,
                                                      luma_weights=colour.luma_weights, tone=st.tone,
-                                                     white=st.white), dtype=np.float32)
+                                                     white=st.white, gamma=gamma), dtype=np.float32)
 
             for j, ring in enumerate(ring_names):
                 lo_r, hi_r = settings.rings[ring]
@@ -471,6 +475,9 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
                         if at_end:  # an sRGB → sRGB model: fed the processed input, scored as it is
                             corrected = np.clip(np.asarray(runner(process(J), origin, full), dtype=np.float32),
                                                 0.0, 1.0)
+                        elif linear_srgb:  # fed linear sRGB, its output encoded by the gamma stage
+                            corrected = np.asarray(srgb_oetf(np.asarray(
+                                runner(process(J, gamma=False), origin, full), dtype=np.float32)), dtype=np.float32)
                         else:
                             corrected = np.asarray(runner(J, origin, full), dtype=np.float32)
                         if corrected.shape != J.shape:
@@ -488,7 +495,8 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
                                     sigma2=sigma2, blend=st.blend)
                                 balance = rec.balance
                         t3 = time.perf_counter()
-                        scores = {v: _scores(outs[v] if (at_end and v == "corrected") else process(outs[v]),
+                        scores = {v: _scores(outs[v] if ((at_end or linear_srgb) and v == "corrected")
+                                             else process(outs[v]),
                                              target, inner, radius, settings) for v in variants}
                         t4 = time.perf_counter()
                         timing["synth"] += t1 - t0

@@ -32,10 +32,11 @@ __all__ = ["OnnxRunner", "Runner", "TorchRunner", "load_runner"]
 
 #: domain every runner here is evaluated in (the synthesised slot input)
 DOMAIN = "camera_rgb"
-#: domains a runner may take: the slot's, or the end of the pipeline (a
-#: model trained sRGB → sRGB, the placement ablation; the evaluation feeds it
-#: the processed input)
-DOMAINS = (DOMAIN, "display_rgb")
+#: domains a runner may take: the slot's, the end of the pipeline (a model
+#: trained sRGB → sRGB, the placement ablation; the evaluation feeds it the
+#: processed input) or linear sRGB after the colour matrix (the placement
+#: ablation's "linear"; fed the input through luminance and ccm)
+DOMAINS = (DOMAIN, "display_rgb", "linear_rgb")
 
 
 class Runner(Protocol):

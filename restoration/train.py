@@ -66,7 +66,8 @@ key                            default              meaning
 ``model.variant``              ``"doconv"``         :func:`restoration.network.build_model` name
 ``model.kwargs``               {}                   its overrides, e.g. ``{depths = [1, 2, 1]}``
 ``model.placement``            ``"pipeline"``       where the model runs and what the loss sees:
-                                                    ``"pipeline"``, ``"raw"``, ``"srgb"``
+                                                    ``"pipeline"``, ``"raw"``, ``"srgb"``,
+                                                    ``"linear"``
                                                     (:data:`PLACEMENTS`; the placement ablation)
 ``optim.loss``                 ``"l2"``             ``"l2"`` (paper, eq. 24) or ``"l1"``
 ``optim.lr``                   1e-4                 initial learning rate (paper: 1e-4)
@@ -418,25 +419,26 @@ def crop_plan(step: int, bank: PairBank, idx, crop: int, multiple: int, seed: in
 
 # -- loss ---------------------------------------------------------------------------------
 
-def _per_pair(fn, y, meta: list[dict]):
+def _per_pair(fn, y, meta: list[dict], **kw):
     """``fn`` (:func:`~restoration.synth_colour.process_after_slot` or its
     inverse) on each pair of a batch ``(B, 3, H, W)`` with its own colour
     matrix, exposure and tone settings."""
     import torch
 
     return torch.cat([fn(y[n:n + 1], m["ccm"], m["exposure_ev"], luma_weights=m["luma_weights"],
-                         tone=m["tone"], white=m["white"], channel_axis=-3)
+                         tone=m["tone"], white=m["white"], channel_axis=-3, **kw)
                       for n, m in enumerate(meta)])
 
 
-def process_batch(y, meta: list[dict]):
+def process_batch(y, meta: list[dict], gamma: bool = True):
     """``Process`` of the loss on a batch ``(B, 3, H, W)``: the pipeline's
     stages after the slot (:func:`restoration.synth_colour.process_after_slot`,
     i.e. the luminance, ccm and gamma stages' own functions), one call per
-    pair with its colour matrix and exposure. Returns sRGB ``(B, 3, H, W)``."""
+    pair with its colour matrix and exposure. Returns sRGB ``(B, 3, H, W)``
+    (linear sRGB, before the gamma stage, with ``gamma=False``)."""
     from .synth_colour import process_after_slot
 
-    return _per_pair(process_after_slot, y, meta)
+    return _per_pair(process_after_slot, y, meta, gamma=gamma)
 
 
 def unprocess_batch(y, meta: list[dict]):
@@ -456,12 +458,17 @@ def model_input(model, x):
 
 def predict_srgb(model, x, meta: list[dict], placement: str = "pipeline"):
     """The pipeline's sRGB output with the model at ``placement``: Process(Model(J))
-    ("pipeline", "raw") or Model(Process(J)) ("srgb"; the field channels pass through)."""
+    ("pipeline", "raw"), Model(Process(J)) ("srgb"; the field channels pass
+    through) or gamma(Model(Lum+CCM(J))) ("linear")."""
     import torch
+
+    from modules.gamma import srgb_oetf
 
     x = model_input(model, x)
     if placement == "srgb":
         return model(torch.cat([process_batch(x[:, :3], meta), x[:, 3:]], dim=1))
+    if placement == "linear":
+        return srgb_oetf(model(torch.cat([process_batch(x[:, :3], meta, gamma=False), x[:, 3:]], dim=1)))
     return process_batch(model(x), meta)
 
 

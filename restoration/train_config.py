@@ -71,10 +71,13 @@ class SynthConfig:
 #: sRGB target; "raw": same position, trained without the stages that
 #: follow, loss on Model(J) against the target taken back to camera RGB
 #: (:func:`restoration.synth_colour.unprocess_after_slot`); "srgb": at the
-#: end of the pipeline, Model(Process(J)) against the sRGB target.
+#: end of the pipeline, Model(Process(J)) against the sRGB target; "linear":
+#: between the colour matrix and the gamma (linear sRGB at display
+#: exposure), gamma(Model(Lum+CCM(J))) against the sRGB target.
 PLACEMENTS = {"pipeline": ("camera_rgb", "camera_rgb after demosaic"),
               "raw": ("camera_rgb", "camera_rgb after demosaic (trained raw to raw, without the following stages)"),
-              "srgb": ("display_rgb", "display_rgb after gamma")}
+              "srgb": ("display_rgb", "display_rgb after gamma"),
+              "linear": ("linear_rgb", "linear_rgb after ccm")}
 
 
 @dataclass(frozen=True)

@@ -241,13 +241,30 @@ def test_onnx_identity_through_the_correction_stage(make, tmp_path):
         assert ring["psnr_corrected"] == pytest.approx(ring["psnr_uncorrected"], abs=1e-6)
 
 
+@pytest.mark.parametrize("domain", ["display_rgb", "linear_rgb"])
+def test_identity_at_the_other_placements_scores_as_uncorrected(make, tmp_path, domain):
+    """The placement ablation's models run where they were trained: at the
+    end of the pipeline (fed the processed input, scored as they return it)
+    or between the colour matrix and the gamma (fed linear sRGB, their
+    output encoded by the gamma): an identity model scores as the
+    uncorrected pipeline at either."""
+    from restoration.evaluate import evaluate_plan
+    from restoration.runner import load_runner
+
+    runner = load_runner(onnx_select_rgb(tmp_path / "sel.onnx", {"domain": domain}))
+    plan, es = make([psf_map()], baseline="none")
+    res = evaluate_plan(plan, runner, es, progress=False)
+    for ring in res["rings"].values():
+        assert ring["psnr_corrected"] == pytest.approx(ring["psnr_uncorrected"], abs=1e-4)
+
+
 def test_onnx_for_another_domain_is_refused(tmp_path):
     from isp.errors import PlacementError
     from restoration.runner import load_runner
 
-    # camera_rgb (the slot) and display_rgb (the end: the placement ablation) run; not others
-    with pytest.raises(PlacementError, match="linear_rgb"):
-        load_runner(onnx_select_rgb(tmp_path / "d.onnx", {"domain": "linear_rgb"}))
+    # camera_rgb (the slot), linear_rgb and display_rgb (the placement ablation) run; not others
+    with pytest.raises(PlacementError, match="raw_linear"):
+        load_runner(onnx_select_rgb(tmp_path / "d.onnx", {"domain": "raw_linear"}))
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")     # the TorchScript exporter (no onnxscript here)

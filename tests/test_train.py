@@ -325,22 +325,28 @@ def test_default_config_is_valid(name, samples):
     assert cfg.model.kwargs["highpass_domain"] == "linear" and cfg.optim.highpass_penalty == 1.0
 
 
-@pytest.mark.parametrize("placement", ["raw", "srgb"])
+@pytest.mark.parametrize("placement", ["raw", "srgb", "linear"])
 def test_placement_ablation_losses(pairs, tmp_path, placement):
-    """The placement ablation's other two models. "raw": the loss is on
+    """The placement ablation's other models. "raw": the loss is on
     Model(J) against the target taken back to camera RGB (which round-trips
     through Process where nothing clipped); "srgb": on Model(Process(J)), the
-    field channels passed through, against the sRGB target. Step 0's logged
-    loss is recomputed by hand from the seeded model and the step's batch."""
+    field channels passed through, against the sRGB target; "linear": on
+    gamma(Model(Lum+CCM(J))), the sRGB curve written out here (IEC
+    61966-2-1). Step 0's logged loss is recomputed by hand from the seeded
+    model and the step's batch."""
     from restoration.doconv import set_temperature
     from restoration.network import build_model
     from restoration.synth_colour import process_after_slot, unprocess_after_slot
     from restoration.train import PairBank, batch_plan, crop_plan, split_pairs
 
-    def proc(t, meta, inverse=False):
+    def proc(t, meta, inverse=False, **kw):
         f = unprocess_after_slot if inverse else process_after_slot
         return torch.cat([f(t[n:n + 1], m["ccm"], m["exposure_ev"], luma_weights=m["luma_weights"],
-                            tone=m["tone"], white=m["white"], channel_axis=-3) for n, m in enumerate(meta)])
+                            tone=m["tone"], white=m["white"], channel_axis=-3, **kw) for n, m in enumerate(meta)])
+
+    def srgb(v):  # IEC 61966-2-1 encoding, clipped to [0, 1]
+        v = v.clamp(0, 1)
+        return torch.where(v <= 0.0031308, 12.92 * v, 1.055 * v.clamp(min=0.0031308) ** (1 / 2.4) - 0.055)
 
     assert unprocess_after_slot(np.full((1, 1, 3), 0.5), np.eye(3), 0.0)[0, 0, 0] == pytest.approx(0.21404, abs=1e-5)
     d = config_dict(pairs, tmp_path / "out")
@@ -362,11 +368,14 @@ def test_placement_ablation_losses(pairs, tmp_path, placement):
             inside = (y > 0.01) & (y < 0.99)
             assert torch.allclose(proc(target, meta)[inside], y[inside], atol=1e-4)
             by_hand = float(((model(x) - target) ** 2).mean())
+        elif placement == "linear":
+            lin = proc(x[:, :3], meta, gamma=False)
+            by_hand = float((((srgb(model(torch.cat([lin, x[:, 3:]], 1)))) - y) ** 2).mean())
         else:
             by_hand = float(((model(torch.cat([proc(x[:, :3], meta), x[:, 3:]], 1)) - y) ** 2).mean())
     assert log["history"]["loss"][0] == pytest.approx(by_hand, rel=1e-5)
     ck = torch.load(tmp_path / "out" / "model.pt", weights_only=False)
-    assert ck["metadata"]["domain"] == ("display_rgb" if placement == "srgb" else "camera_rgb")
+    assert ck["metadata"]["domain"] == {"srgb": "display_rgb", "linear": "linear_rgb"}.get(placement, "camera_rgb")
     assert ck["metadata"]["training_placement"] == placement
 
 
