@@ -76,7 +76,6 @@ from pathlib import Path
 import numpy as np
 
 from isp.errors import ConfigError, InputError
-
 from modules.gamma import srgb_oetf
 
 from .baseline import BASELINES, deconvolve, noise_variance, quantisation_step
