@@ -47,38 +47,34 @@ LEVELS = (0.003, 0.01, 0.03, 0.1, 0.2, 0.3, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 def flat_field_changes(model, levels=LEVELS, colours=COLOURS, size=(256, 320)) -> dict:
     """Per level and colour, the relative change (%) of each channel's mean
     over the central 80 × 80 pixels, through the correction stage."""
-    from isp import CFA, CameraMeta, Domain, Frame
-    from modules.correction import Correction
-
     h, w = size
-    meta = CameraMeta(cfa=CFA.RGGB, raw_size=(h, w), active_area=(0, 0, h, w))
-    stage = Correction(model=model, progress=False)
+    keys = [(lvl, col) for lvl in levels for col in colours]
+    wants = [np.float32(lvl) * np.asarray(col, np.float32) for lvl, col in keys]
+    means = _centre_means(model, [np.broadcast_to(v, (h, w, 3)) for v in wants], size, side=80)
     table, worst, at = {}, 0.0, None
-    for lvl in levels:
-        for col in colours:
-            want = np.float32(lvl) * np.asarray(col, np.float32)
-            out = stage.process(Frame(np.broadcast_to(want, (h, w, 3)).copy(), Domain.CAMERA_RGB, meta)).data
-            got = out[h // 2 - 40:h // 2 + 40, w // 2 - 40:w // 2 + 40].reshape(-1, 3).mean(0)
-            change = 100 * (got - want) / np.maximum(want, 0.01)
-            table[f"{lvl:g} {col}"] = [round(float(v), 3) for v in change]
-            if np.abs(change).max() > worst:
-                worst, at = float(np.abs(change).max()), {"level": lvl, "colour": col}
+    for (lvl, col), want, (got, _) in zip(keys, wants, means):
+        change = 100 * (got - want) / np.maximum(want, 0.01)
+        table[f"{lvl:g} {col}"] = [round(float(v), 3) for v in change]
+        if np.abs(change).max() > worst:
+            worst, at = float(np.abs(change).max()), {"level": lvl, "colour": col}
     return {"worst_percent": round(worst, 3), "at": at, "table": table}
 
 
-def _centre_means(model, frames, size) -> np.ndarray:
+def _centre_means(model, frames, size, side: int | None = None) -> np.ndarray:
     """Each frame (H, W, 3) through the correction stage; the per-channel
-    means over its central half, and those of the input, (n, 2, 3)."""
+    means over its central ``side × side`` pixels (default: its central
+    half), and those of the input, (n, 2, 3)."""
     from isp import CFA, CameraMeta, Domain, Frame
     from modules.correction import Correction
 
     h, w = size
     meta = CameraMeta(cfa=CFA.RGGB, raw_size=(h, w), active_area=(0, 0, h, w))
     stage = Correction(model=model, progress=False)
-    c = (slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4))
+    c = ((slice(h // 4, 3 * h // 4), slice(w // 4, 3 * w // 4)) if side is None else
+         (slice(h // 2 - side // 2, h // 2 + side // 2), slice(w // 2 - side // 2, w // 2 + side // 2)))
     out = []
     for f in frames:
-        y = stage.process(Frame(f.copy(), Domain.CAMERA_RGB, meta)).data
+        y = stage.process(Frame(np.array(f, np.float32), Domain.CAMERA_RGB, meta)).data
         out.append([y[c].reshape(-1, 3).mean(0), f[c].reshape(-1, 3).mean(0)])
     return np.asarray(out, np.float64)
 

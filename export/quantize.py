@@ -35,6 +35,7 @@ import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -192,10 +193,18 @@ def float_io_nodes(model) -> list[str]:
             and (n.name not in below or (n.name not in above and not fed_by_conv(n)))]
 
 
-def highpass_chains(model) -> list[tuple[str, list[str]]]:
+class HighPass(NamedTuple):
+    """One residual high-pass of a graph (:func:`highpass_chains`)."""
+
+    residual: str  #: the tensor ``r`` it filters
+    chain: list  #: the tensors from ``r`` to ``box(r)`` (Pad and Conv outputs, ``box(r)`` included)
+    sub: str  #: the name of the node ``Sub(r, box(r))`` (kept by the quantiser)
+
+
+def highpass_chains(model) -> list[HighPass]:
     """The residual high-passes of a graph (:class:`restoration.network.ResidualHighPass`):
-    for each ``Sub(r, m)`` whose ``m`` comes from ``r`` through ``Pad`` and
-    ``Conv`` nodes only, ``(r, [tensors on that path, m included])``."""
+    each ``Sub(r, m)`` whose ``m`` comes from ``r`` through ``Pad`` and
+    ``Conv`` nodes only."""
     producer = {o: n for n in model.graph.node for o in n.output}
     out = []
     for sub in (n for n in model.graph.node if n.op_type == "Sub"):
@@ -204,7 +213,7 @@ def highpass_chains(model) -> list[tuple[str, list[str]]]:
             chain.append(t)
             t = producer[t].input[0]
         if chain and t == r and any(producer[c].op_type == "Conv" for c in chain):
-            out.append((r, chain))
+            out.append(HighPass(r, chain, sub.name))
     return out
 
 
@@ -252,7 +261,7 @@ def shared_range_overrides(model_path, chains, calibration_reader, method, perce
         ranges = cal.compute_data()
     calibration_reader.rewind()
     overrides = {}
-    for r, chain in chains:
+    for r, chain, _ in chains:
         lo, hi = (float(v) for v in ranges[r].range_value)
         for t in chain:
             overrides[t] = [{"rmin": np.float32(lo), "rmax": np.float32(hi)}]
@@ -273,29 +282,15 @@ def highpass_reads_float(model, chains) -> int:
     drop 0.186 dB with the rounded ``r``, 0.138 dB with this, every conv
     still quantised."""
     prod = {o: n for n in model.graph.node for o in n.output}
+    float_made = {hp.sub: hp.residual for hp in chains
+                  if hp.residual in prod and prod[hp.residual].op_type not in ("Conv", "QuantizeLinear")}
     count = 0
-    for r, chain in chains:
-        if r not in prod or prod[r].op_type in ("Conv", "QuantizeLinear", "DequantizeLinear"):
-            continue
-        for sub in (n for n in model.graph.node if n.op_type == "Sub"):
-            dq = prod.get(sub.input[0])
-            q = prod.get(dq.input[0]) if dq is not None and dq.op_type == "DequantizeLinear" else None
-            m = prod.get(sub.input[1])
-            if (q is not None and q.op_type == "QuantizeLinear" and q.input[0] == r and m is not None
-                    and any(o in chain for o in _through_dq(m, prod))):
-                sub.input[0] = r
-                count += 1
+    for sub in (n for n in model.graph.node if n.name in float_made):
+        sub.input[0] = float_made[sub.name]
+        count += 1
     if count:
         prune_dead_nodes(model)
     return count
-
-
-def _through_dq(node, prod) -> list[str]:
-    """The float tensor a DequantizeLinear (after its QuantizeLinear) stands
-    for, or the node's own outputs."""
-    if node.op_type == "DequantizeLinear" and node.input[0] in prod and prod[node.input[0]].op_type == "QuantizeLinear":
-        return [prod[node.input[0]].input[0]]
-    return list(node.output)
 
 
 def bypass_input_qdq(model, nodes: list[str]) -> int:

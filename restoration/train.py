@@ -462,12 +462,12 @@ def predict_srgb(model, x, meta: list[dict], placement: str = "pipeline"):
     through) or gamma(Model(Lum+CCM(J))) ("linear")."""
     import torch
 
-    from modules.gamma import srgb_oetf
-
     x = model_input(model, x)
     if placement == "srgb":
         return model(torch.cat([process_batch(x[:, :3], meta), x[:, 3:]], dim=1))
     if placement == "linear":
+        from modules.gamma import srgb_oetf
+
         return srgb_oetf(model(torch.cat([process_batch(x[:, :3], meta, gamma=False), x[:, 3:]], dim=1)))
     return process_batch(model(x), meta)
 

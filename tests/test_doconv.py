@@ -381,6 +381,28 @@ def test_space_to_depth_form_is_the_same_function(kw):
     assert torch.abs(unpacked - ref).max() < 1e-5
 
 
+def _block_means(v, m):
+    """Means over 4 × 4 blocks (the upsampling's phase period) inside a margin ``m``."""
+    return F.avg_pool2d(v[..., m:-m, m:-m], 4)
+
+
+def _random_highpass_model(**kw):
+    """A small random network without field input (whose smooth variation
+    the box removes only to first order), its residual made large, and the
+    margin (a multiple of 4) past which its output no longer sees the
+    frame's border; float64, eval mode."""
+    from restoration.network import build_model, receptive_radius
+
+    torch.manual_seed(1)
+    model = build_model("doconv", widths=(8, 16), depths=(0, 1, 0), field=False,
+                        **{"highpass": 9, "encoding": "sqrt", **kw}).double().eval()
+    with torch.no_grad():
+        model.head[0].weight.mul_(10)  # not more: u + r must stay > 0 for √ to be read back
+        model.head[0].bias.uniform_(-0.05, 0.05)  # a level shift per channel
+    m = -(-receptive_radius(model, 160) // 4) * 4
+    return model.double(), m  # receptive_radius hands the model back in float32
+
+
 @pytest.mark.parametrize("encoding", ["linear", "sqrt"])
 def test_highpass_keeps_flat_fields(encoding):
     """Physics: an energy-conserving blur leaves flat regions flat, so its
@@ -392,44 +414,19 @@ def test_highpass_keeps_flat_fields(encoding):
     weights; without it the same random network shifts the level (a tone
     curve), by enough to see. With ``encoding="sqrt"`` the residual is
     added to ``u = √(x + c)``, so the block means hold for ``u``."""
-    from restoration.network import SQRT_OFFSET, build_model, receptive_radius
+    from restoration.network import SQRT_OFFSET
 
     def enc(v):
         return torch.sqrt(v + SQRT_OFFSET) if encoding == "sqrt" else v
 
     for highpass, flat in ((9, True), (0, False)):
-        torch.manual_seed(1)
-        model = build_model("doconv", widths=(8, 16), depths=(0, 1, 0), encoding=encoding, field=False,
-                            highpass=highpass).double().eval()
-        with torch.no_grad():
-            model.head[0].weight.mul_(10)  # not more: u + r must stay > 0 for √ to be read back
-            model.head[0].bias.uniform_(-0.05, 0.05)  # a level shift per channel
-        m = -(-receptive_radius(model, 160) // 4) * 4
-        model.double()  # receptive_radius hands the model back in float32
+        model, m = _random_highpass_model(encoding=encoding, highpass=highpass)
         h = w = 2 * m + 16
         with torch.no_grad():
             y = model(torch.full((1, 3, h, w), 0.3, dtype=torch.float64))
         err = float((F.avg_pool2d(enc(y[..., m:-m, m:-m]), 4) - enc(torch.tensor(0.3))).abs().max())
         # the box's float32 weights (1/9) sum to 1 within 1e-7
         assert (err < 1e-6) if flat else (err > 1e-3), (highpass, err)
-
-
-def _block_means(v, m):
-    """Means over 4 × 4 blocks (the upsampling's phase period) inside a margin ``m``."""
-    return F.avg_pool2d(v[..., m:-m, m:-m], 4)
-
-
-def _random_highpass_model(**kw):
-    from restoration.network import build_model, receptive_radius
-
-    torch.manual_seed(1)
-    model = build_model("doconv", widths=(8, 16), depths=(0, 1, 0), field=False, highpass=9,
-                        encoding="sqrt", **kw).double().eval()
-    with torch.no_grad():
-        model.head[0].weight.mul_(10)
-        model.head[0].bias.uniform_(-0.05, 0.05)
-    m = -(-receptive_radius(model, 160) // 4) * 4
-    return model.double(), m
 
 
 def test_linear_highpass_keeps_linear_means_of_texture_and_noisy_black():

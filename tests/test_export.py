@@ -365,7 +365,7 @@ def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path,
     export_onnx(ckpt, tmp_path / "hp.onnx", tile_size=256, measure_overlap=False)
     chains = q.highpass_chains(onnx.load(str(tmp_path / "hp.onnx")))
     assert len(chains) == 1 and len(chains[0][1]) == 3   # Pad and two box convs (9 = 3²)
-    r, chain = chains[0]
+    r, chain = chains[0].residual, chains[0].chain
 
     def scales(path):
         m = onnx.load(str(path))
