@@ -32,7 +32,7 @@ from .perturb import ParameterSpace
 from .proxy import FittedLens, default_names, parameter_space
 from .proxy_data import Observations
 
-__all__ = ["PixelFit", "fit_pixel_mse", "pixel_residuals", "render_edges"]
+__all__ = ["PixelFit", "edge_offset", "fit_pixel_mse", "pixel_residuals", "register_edge", "render_edges"]
 
 _WORKER: dict = {}
 
@@ -73,6 +73,56 @@ def render_edges(model, lens, edges) -> list[np.ndarray]:
     if len(psfs) != len(edges):
         raise ValueError(f"{len(edges)} edge images for {len(psfs)} observations")
     return [e.render(psfs[i], model.pitch_um) for i, e in enumerate(edges)]
+
+
+def edge_offset(simulated, measured) -> tuple[float, int]:
+    """Where the ``measured`` edge lies relative to the ``simulated`` one,
+    pixels along the edge normal, and the axis that normal runs along (1:
+    columns, a near-vertical edge; 0: rows, a near-horizontal one).
+
+    Both ROIs are located as ISO 12233 locates an edge (windowed
+    derivative centroids per line, a straight-line fit;
+    :func:`calibration.sfr.measure_sfr`), and the offset is the difference
+    of the two lines at the ROI's middle line. A chart capture fixes an
+    edge's position only to the chart's registration, not to the
+    0.1-pixel level at which a PSF's centroid moves with the lens, so a
+    comparison of edge images that is meant to judge the blur, not the
+    position, aligns them first (:func:`register_edge`).
+
+    Examples
+    --------
+    >>> from calibration.sfr_synth import render_slanted_edge
+    >>> a = render_slanted_edge((48, 64), 5.0, 1.2)
+    >>> b = render_slanted_edge((48, 64), 5.0, 1.2, center=(31.5 + 0.3, 23.5))
+    >>> off, axis = edge_offset(a, b)
+    >>> round(off, 2), axis
+    (0.3, 1)
+    """
+    from .sfr import measure_sfr
+
+    a = np.asarray(simulated, dtype=np.float64)
+    b = np.asarray(measured, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 2:
+        raise ValueError(f"edge_offset needs two ROIs of one 2-D shape; got {a.shape} and {b.shape}")
+    fa, fb = measure_sfr(a), measure_sfr(b)
+    if fa.orientation != fb.orientation:
+        raise ValueError(f"the edges differ in orientation ({fa.orientation} against {fb.orientation})")
+    axis = 1 if fa.orientation == "vertical" else 0
+    mid = (a.shape[0 if axis == 1 else 1] - 1) / 2.0   # the middle line, across the normal
+    line = np.polynomial.polynomial.polyval
+    return float(line(mid, fb.edge_fit_linear) - line(mid, fa.edge_fit_linear)), axis
+
+
+def register_edge(simulated, measured) -> tuple[np.ndarray, float]:
+    """``simulated`` moved along the edge normal onto ``measured``'s edge
+    (:func:`edge_offset`; cubic spline, edge values repeated at the
+    border), and the offset applied, pixels."""
+    from scipy.ndimage import shift
+
+    off, axis = edge_offset(simulated, measured)
+    step = [0.0, 0.0]
+    step[axis] = off
+    return shift(np.asarray(simulated, dtype=np.float64), step, order=3, mode="nearest"), off
 
 
 def pixel_residuals(model, space: ParameterSpace, edges, u) -> np.ndarray:

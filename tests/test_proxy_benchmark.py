@@ -37,6 +37,13 @@ def test_the_interval_is_students_t_over_devices_and_the_verdicts_follow_it():
     # SSIM: higher is better; ref − other = 0.01·(d + 1) > 0 everywhere, and −0.01 against pixel
     assert comp["ssim"]["L"]["0.9"]["scipy"]["verdict"] == "better"
     assert comp["ssim"]["L"]["0.9"]["pixel"]["verdict"] == "worse"
+    # logs from before the registered SSIM: no such comparison rather than a KeyError
+    assert "ssim_registered" not in comp
+    for c in cases:
+        for m, r in c["methods"].items():
+            r["ssim_registered"] = dict(r["ssim"], **{"0.9": r["ssim"]["0.9"] + (0.02 if m == "ours_shape" else 0)})
+    reg = paired(cases, "ours_shape", ["pixel", "ours_shape"])["ssim_registered"]["L"]
+    assert reg["0.9"]["pixel"]["verdict"] == "better" and reg["0.5"]["pixel"]["verdict"] == "worse"
 
 
 def test_runs_of_the_same_devices_merge_into_one_case(tmp_path):

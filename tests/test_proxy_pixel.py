@@ -82,3 +82,55 @@ def test_steps_stay_in_bounds():
     lo, hi = np.full(3, -2.0), np.full(3, 2.0)
     h = _steps(np.array([0.0, -1.5, 1.95]), lo, hi, 0.1)
     np.testing.assert_allclose(h, [0.1, -0.15, -0.195])
+
+
+@pytest.mark.parametrize("horizontal", [False, True])
+@pytest.mark.parametrize("low, high", [(0.2, 0.8), (0.8, 0.2)])
+def test_edge_offset_finds_a_known_shift(horizontal, low, high):
+    """A Gaussian edge moved by 0.37 px along its normal is found 0.37 px
+    away (ISO 12233 locates both), and moving it back restores the first
+    one; the sign says which way, whatever the polarity."""
+    from calibration.proxy_pixel import edge_offset, register_edge
+    from calibration.sfr_synth import render_slanted_edge
+
+    shape = (64, 96) if not horizontal else (96, 64)
+    c = ((shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0)
+    moved = (c[0], c[1] + 0.37) if horizontal else (c[0] + 0.37, c[1])
+    a = render_slanted_edge(shape, 5.0, 1.3, low=low, high=high, horizontal=horizontal)
+    b = render_slanted_edge(shape, 5.0, 1.3, low=low, high=high, horizontal=horizontal, center=moved)
+    off, axis = edge_offset(a, b)
+    assert axis == (0 if horizontal else 1)
+    assert off == pytest.approx(0.37, abs=0.01)
+    back, applied = register_edge(a, b)
+    assert applied == off
+    assert np.max(np.abs(back - b)) < 2e-3 * abs(high - low)     # cubic spline on a 1.3 px blur
+    assert np.max(np.abs(a - b)) > 0.05                         # the shift was visible before
+
+
+def test_registered_ssim_keeps_blur_differences():
+    """Registration takes a pure shift out of the SSIM, not a blur: a wider
+    edge scores the same against the measurement registered or not, while
+    the same edge merely shifted goes back to SSIM ≈ 1."""
+    from skimage.metrics import structural_similarity as ssim
+
+    from calibration.proxy_pixel import register_edge
+    from calibration.sfr_synth import render_slanted_edge
+
+    meas = render_slanted_edge((64, 96), 5.0, 1.0, center=(47.5 + 0.3, 31.5))
+    shifted = render_slanted_edge((64, 96), 5.0, 1.0)
+    wider = render_slanted_edge((64, 96), 5.0, 1.6, center=(47.5 + 0.3, 31.5))
+    assert ssim(shifted, meas, data_range=1.0) < 0.998             # 0.3 px costs 3e-3 on this ROI
+    assert ssim(register_edge(shifted, meas)[0], meas, data_range=1.0) > 0.99999
+    plain, reg = ssim(wider, meas, data_range=1.0), ssim(register_edge(wider, meas)[0], meas, data_range=1.0)
+    assert plain < 0.992 and reg == pytest.approx(plain, abs=1e-5)
+
+
+def test_edge_offset_refuses_mismatched_rois():
+    from calibration.proxy_pixel import edge_offset
+    from calibration.sfr_synth import render_slanted_edge
+
+    a = render_slanted_edge((64, 96), 5.0, 1.0)
+    with pytest.raises(ValueError, match="one 2-D shape"):
+        edge_offset(a, a[:, :90])
+    with pytest.raises(ValueError, match="orientation"):
+        edge_offset(a, render_slanted_edge((64, 96), 5.0, 1.0, horizontal=True))
