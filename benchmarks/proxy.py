@@ -44,6 +44,10 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
   - ``ours_odd``: the same with ``residuals="odd"`` (SFRA plus the LSF's
     asymmetry in four bands, :mod:`calibration.sfr_asym`);
   - ``ours_shape``: SFRA, the four SFR bands and the four asymmetry bands;
+    every ``ours`` fit that ends above ``RESTART_CHI2`` χ² per residual
+    tries ``--restarts`` other starts (``fit_proxy(restarts=...)``, seeded
+    by the device; logged as ``restarts``); the baselines run as their
+    libraries give them, from the nominal lens only;
   - ``ours_box``: ``ours_shape`` whose steps are the damped model's
     minimiser inside the ±2-tolerance box (``bounds="box"``,
     :func:`calibration.dls.damped_least_squares`) instead of the clipped
@@ -118,7 +122,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration.lens_io import read_lens  # noqa: E402
-from calibration.proxy import (N_PARAMS, default_names, fit_proxy, parameter_space,  # noqa: E402
+from calibration.proxy import (N_PARAMS, RESTART_CHI2, RESTARTS, default_names, fit_proxy, parameter_space,  # noqa: E402
                                residual_bias, screen_parameters)
 from calibration.proxy_pixel import fit_pixel_mse, register_edge, render_edges  # noqa: E402
 from calibration.proxy_synth import synthetic_observations  # noqa: E402
@@ -337,8 +341,12 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                             workers=args.workers if ours else 1, max_iter=iters, progress=False,
                             jacobian_settings=fast, residuals=residuals_of(m),
                             refresh=args.refresh if ours else 1, bounds="box" if m == "ours_box" else "clip",
-                            prior=PRIOR_SIGMA if m == "ours_prior" else None)
+                            prior=PRIOR_SIGMA if m == "ours_prior" else None,
+                            restarts=args.restarts if ours else 0,
+                            seed=int(np.random.SeedSequence(seed).generate_state(1)[0]))
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
+            if fit.restarts:
+                extra["restarts"] = fit.restarts
             stop = fit.result.reason if fit.result is not None else ""
             if fit.result is not None:
                 extra["merit"] = round(fit.result.merit, 3)   # the fit's own objective, on its residuals
@@ -577,6 +585,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--scipy-max-iter", type=int, default=None,
                     help="fit_proxy max_iter for scipy (its max_nfev: about this many TRF iterations); "
                          "default --max-iter, as the others")
+    ap.add_argument("--restarts", type=int, default=RESTARTS,
+                    help=f"ours: starts tried when a fit ends above {RESTART_CHI2:g} χ² per residual "
+                         f"(fit_proxy's restarts; default {RESTARTS}, 0: none; the baselines run without)")
     ap.add_argument("--workers", type=int, default=2, help="processes for ours' Jacobian and the screening")
     ap.add_argument("--pixel-workers", type=int, default=1,
                     help="processes for the pixel fit's Jacobian (1: scipy's own, as the scipy baseline)")

@@ -44,6 +44,8 @@ def cmd_fit(args) -> int:
         raise IspError(f"--max-iter {args.max_iter}: at least 1")
     if args.n_params < 1:
         raise IspError(f"--n-params {args.n_params}: at least 1")
+    if args.restarts < 0:
+        raise IspError(f"--restarts {args.restarts}: 0 or more")
     out = Path(args.output)
     _check_out(out)
     nominal = _load(args.lens)                  # a bad lens file fails before any measurement
@@ -57,7 +59,7 @@ def cmd_fit(args) -> int:
     fit = fit_proxy(nominal, obs, method=args.method, workers=args.workers, max_iter=args.max_iter,
                     n_params=args.n_params, residuals=args.residuals,
                     jacobian_settings=FAST_JACOBIAN if args.fast_jacobian else None,
-                    refresh=args.refresh)
+                    refresh=args.refresh, restarts=args.restarts)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
@@ -67,6 +69,10 @@ def cmd_fit(args) -> int:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     e = fit.errors()
+    if fit.restarts:
+        won = [t for t in fit.restarts if t.get("kept")]
+        print(f"the fit ended far above the noise floor; {len(fit.restarts)} other starts tried: "
+              + (f"start {won[0]['start']} reached a lower merit and was kept" if won else "none did better"))
     print(f"SFRA RMS {e['before']['sfra_rms']:.4f} → {e['after']['sfra_rms']:.4f} cycles/pixel, "
           f"χ²/obs {e['before']['chi2_per_obs']:.1f} → {e['after']['chi2_per_obs']:.2f}; "
           f"{fit.evaluations} lens evaluations, {fit.seconds:.0f} s")
@@ -81,7 +87,7 @@ def cmd_fit(args) -> int:
 
 def add_parser(sub) -> None:
     """Register ``fit`` on the ``isp calib`` sub-parsers."""
-    from .proxy import MAX_ITER, N_PARAMS, REFRESH
+    from .proxy import MAX_ITER, N_PARAMS, REFRESH, RESTART_CHI2, RESTARTS
 
     sp = sub.add_parser("fit", help="fit a proxy camera (lens perturbations) to a measured SFR",
                         description=__doc__.split("\n\n")[0].replace("``", "`"), epilog=EPILOG,
@@ -103,6 +109,10 @@ def add_parser(sub) -> None:
     sp.add_argument("--refresh", type=int, default=REFRESH,
                     help="a finite-difference Jacobian every REFRESH accepted steps, Broyden secant updates "
                          f"in between (default {REFRESH}; 1: every step)")
+    sp.add_argument("--restarts", type=int, default=RESTARTS,
+                    help=f"when the fit ends above {RESTART_CHI2:g} χ² per residual (a local minimum far above "
+                         f"the noise floor), this many other starts within ±1 tolerance, the best continued "
+                         f"(default {RESTARTS}; 0: none; only DLS)")
     sp.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
     sp.add_argument("--fast-jacobian", action=argparse.BooleanOptionalAction, default=True,
                     help="Jacobian from a cheaper model (32 pupil samples, a 24 µm PSF window), steps judged on the full model "

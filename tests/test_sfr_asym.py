@@ -152,9 +152,11 @@ def test_asymmetry_residuals_resolve_the_mirror_ambiguity(e9_device):
     lens, true, _, obs, _ = e9_device
     names = list(true)
     u_true = np.array([true[n] for n in names]) / parameter_space(lens, names).tolerance
-    odd = fit_proxy(lens, obs, names=names, residuals="odd", x0=-u_true, workers=1, max_iter=8, progress=False)
+    odd = fit_proxy(lens, obs, names=names, residuals="odd", x0=-u_true, workers=1, max_iter=8, progress=False,
+                    restarts=0)
     np.testing.assert_allclose(odd.u, u_true, atol=0.15)
-    sfra = fit_proxy(lens, obs, names=names, residuals="sfra", x0=-u_true, workers=1, max_iter=8, progress=False)
+    sfra = fit_proxy(lens, obs, names=names, residuals="sfra", x0=-u_true, workers=1, max_iter=8, progress=False,
+                     restarts=0)
     assert np.max(np.abs(sfra.u - u_true)) > 0.5
     assert odd.errors()["after"]["sfra_rms"] < 0.5 * sfra.errors()["after"]["sfra_rms"]
 
