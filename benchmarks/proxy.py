@@ -47,7 +47,10 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
     every ``ours`` fit that ends above ``RESTART_CHI2`` χ² per residual
     tries ``--restarts`` other starts (``fit_proxy(restarts=...)``, seeded
     by the device; logged as ``restarts``); the baselines run as their
-    libraries give them, from the nominal lens only;
+    libraries give them, from the nominal lens only, except
+  - ``scipy_restart``: ``scipy_shape`` with the same restarts as ours (the
+    multistart is not tied to the optimiser: this compares the two local
+    optimisers on equal terms);
   - ``ours_box``: ``ours_shape`` whose steps are the damped model's
     minimiser inside the ±2-tolerance box (``bounds="box"``,
     :func:`calibration.dls.damped_least_squares`) instead of the clipped
@@ -133,11 +136,11 @@ LENS_DIR = ROOT.parent / "shared" / "data" / "lenses" / "phone"
 GRID = (5, 7)
 FOVS = (0.1, 0.5, 0.9)
 FOV_WINDOW = 0.1
-METHODS = ("nominal", "truth", "pixel", "scipy", "scipy_shape", "ours", "ours_bands", "ours_odd", "ours_shape",
-           "ours_box", "ours_prior")
+METHODS = ("nominal", "truth", "pixel", "scipy", "scipy_shape", "scipy_restart", "ours", "ours_bands", "ours_odd",
+           "ours_shape", "ours_box", "ours_prior")
 NYQUIST = 0.5
 #: residuals of the methods whose name does not end in them
-RESIDUALS = {"ours_box": "shape", "ours_prior": "shape"}
+RESIDUALS = {"ours_box": "shape", "ours_prior": "shape", "scipy_restart": "shape"}
 #: ours_prior's Gaussian prior on each perturbation, tolerances: the spread of one uniform within ±1
 PRIOR_SIGMA = 1.0 / np.sqrt(3.0)
 #: every fit's box, in tolerances (fit_proxy's and fit_pixel_mse's ``bound_factor``)
@@ -342,7 +345,7 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                             jacobian_settings=fast, residuals=residuals_of(m),
                             refresh=args.refresh if ours else 1, bounds="box" if m == "ours_box" else "clip",
                             prior=PRIOR_SIGMA if m == "ours_prior" else None,
-                            restarts=args.restarts if ours else 0,
+                            restarts=args.restarts if (ours or m == "scipy_restart") else 0,
                             seed=int(np.random.SeedSequence(seed).generate_state(1)[0]))
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
             if fit.restarts:

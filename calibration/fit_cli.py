@@ -112,7 +112,7 @@ def add_parser(sub) -> None:
     sp.add_argument("--restarts", type=int, default=RESTARTS,
                     help=f"when the fit ends above {RESTART_CHI2:g} χ² per residual (a local minimum far above "
                          f"the noise floor), this many other starts within ±1 tolerance, the best continued "
-                         f"(default {RESTARTS}; 0: none; only DLS)")
+                         f"(default {RESTARTS}; 0: none)")
     sp.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
     sp.add_argument("--fast-jacobian", action=argparse.BooleanOptionalAction, default=True,
                     help="Jacobian from a cheaper model (32 pupil samples, a 24 µm PSF window), steps judged on the full model "

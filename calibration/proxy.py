@@ -382,7 +382,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         ``benchmarks/proxy.py`` (method ``ours_prior``) the data outweighed
         it: SFR error tied with no prior (1.05× / 1.03× / 1.01×).
     restarts : int
-        DLS: when the fit ends with a merit above :data:`RESTART_CHI2` per
+        When the fit ends with a merit above :data:`RESTART_CHI2` per
         residual (far above the noise floor: a local minimum, or a model
         that cannot fit), try this many other starts (:func:`restart`,
         seeded by ``seed``); 0: none. A fit that reaches the floor from the
@@ -483,33 +483,32 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
                 return damped_least_squares(fun, start, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
                                             max_iter=iters, target_chi2=1.0, trials=workers, jac_many=jac_many,
                                             refresh=refresh, progress=report, jac0=first_jacobian, bounds=bounds)
-
-            res = local(u0, max_iter, jac0)
-            if restarts > 0 and res.merit > RESTART_CHI2 * res.residuals.size:
-                if bar is not None:
-                    bar.total += restarts * min(PROBE_ITER, max_iter) + max(max_iter - PROBE_ITER, 0)
-                    bar.set_description(f"proxy fit ({n} parameters, {restarts} restarts)")
-                res, tried = restart(local, res, n, restarts, max_iter, seed)
-            u, evals = res.x, res.evaluations
         elif method == "scipy":
             from scipy.optimize import least_squares
 
-            calls = {"n": 0}
+            def local(start, iters, first_jacobian=None):
+                calls = {"n": 0}
 
-            def counted(u):
-                calls["n"] += 1
-                return fun(u)
+                def counted(u):
+                    calls["n"] += 1
+                    return fun(u)
 
-            # TRF counts in max_nfev neither its finite differences nor the Jacobians, so
-            # max_iter here is about max_iter iterations: the same budget as DLS's Jacobians
-            ls = least_squares(counted, u0, bounds=(lower, upper), method="trf", diff_step=DLS_STEP,
-                               x_scale=1.0, max_nfev=max_iter)
-            u, evals = ls.x, calls["n"]
-            jtj = ls.jac.T @ ls.jac
-            res = DlsResult(ls.x, ls.fun, ls.jac, np.linalg.pinv(jtj) * max(1.0, 2 * ls.cost / max(len(ls.fun) - n, 1)),
-                            [], evals, ls.message)
+                # TRF counts in max_nfev neither its finite differences nor the Jacobians, so
+                # max_iter here is about max_iter iterations: the same budget as DLS's Jacobians
+                ls = least_squares(counted, start, bounds=(lower, upper), method="trf", diff_step=DLS_STEP,
+                                   x_scale=1.0, max_nfev=iters)
+                jtj = ls.jac.T @ ls.jac
+                cov = np.linalg.pinv(jtj) * max(1.0, 2 * ls.cost / max(len(ls.fun) - n, 1))
+                return DlsResult(ls.x, ls.fun, ls.jac, cov, [], calls["n"], ls.message)
         else:
             raise ValueError(f"unknown method {method!r}; valid: 'dls', 'scipy'")
+        res = local(u0, max_iter, jac0)
+        if restarts > 0 and res.merit > RESTART_CHI2 * res.residuals.size:
+            if bar is not None:
+                bar.total += restarts * min(PROBE_ITER, max_iter) + max(max_iter - PROBE_ITER, 0)
+                bar.set_description(f"proxy fit ({n} parameters, {restarts} restarts)")
+            res, tried = restart(local, res, n, restarts, max_iter, seed)
+        u, evals = res.x, res.evaluations
     finally:
         if pool is not None:
             pool.shutdown()
