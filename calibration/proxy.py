@@ -72,7 +72,7 @@ N_PARAMS = 24   # 16 left the pixel-level fit ahead on e9; 24 put ours ahead of 
 REFRESH = 3
 MAX_ITER = 20
 
-#: restarts of a DLS fit that ends far above the noise floor (merit per residual above
+#: restarts of a fit (DLS or TRF) that ends far above the noise floor (merit per residual above
 #: RESTART_CHI2; at the floor it is about 1): that many Latin-hypercube starts within ±1
 #: tolerance, each PROBE_ITER iterations, the best continued for the rest of the budget
 #: (:func:`restart`). Measured on benchmarks/proxy.py's 24 devices (README, "Restarts").
