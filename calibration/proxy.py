@@ -462,12 +462,12 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
                 return [fun(p) for p in points]
             return with_prior(points, on_pool(_residual_task, points))
 
-        jac_many = None
-        if jacobian_settings is not None:
-            def jac_many(points):
-                if pool is None:
-                    return with_prior(points, [_residuals(cheap_model, space, bias, p) for p in points])
-                return with_prior(points, on_pool(_cheap_residual_task, points))
+        def cheap_many(points):
+            if pool is None:
+                return with_prior(points, [_residuals(cheap_model, space, bias, p) for p in points])
+            return with_prior(points, on_pool(_cheap_residual_task, points))
+
+        jac_many = cheap_many if jacobian_settings is not None else None
 
         if prior is not None and jac0 is not None:
             jac0 = np.vstack([jac0, np.eye(n) / prior])
