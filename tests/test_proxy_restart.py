@@ -73,3 +73,18 @@ def test_restart_drops_a_continued_probe_that_ends_worse():
 
     best, tried = restart(local, _fake(1.0), 2, 4, 15)
     assert best.merit == 1.0 and tried[1]["final_merit"] == 2.0 and tried[1]["kept"] is False
+
+
+def test_a_probe_near_the_first_fit_is_continued():
+    """After five iterations a probe is still falling: one within
+    CONTINUE_WITHIN of the first fit's merit is continued, and kept when it
+    ends lower; one beyond it is not continued at all."""
+    from calibration.proxy import CONTINUE_WITHIN
+
+    merits = iter([1.2, 3.0, 4.0, 6.0, 0.8])
+    best, tried = restart(lambda start, iters: _fake(next(merits)), _fake(1.0), 2, 4, 15)
+    assert 1.2 < CONTINUE_WITHIN
+    assert best.merit == pytest.approx(0.8) and tried[0]["kept"] is True
+    far = iter([CONTINUE_WITHIN * 1.01, 3.0, 4.0, 6.0])
+    best, tried = restart(lambda start, iters: _fake(next(far)), _fake(1.0), 2, 4, 15)
+    assert best.merit == 1.0 and all("final_merit" not in t for t in tried)
