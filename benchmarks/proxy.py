@@ -589,8 +589,9 @@ def main(argv=None) -> dict:
                     help="fit_proxy max_iter for scipy (its max_nfev: about this many TRF iterations); "
                          "default --max-iter, as the others")
     ap.add_argument("--restarts", type=int, default=RESTARTS,
-                    help=f"ours: starts tried when a fit ends above {RESTART_CHI2:g} χ² per residual "
-                         f"(fit_proxy's restarts; default {RESTARTS}, 0: none; the baselines run without)")
+                    help=f"ours and scipy_restart: starts tried when a fit ends above {RESTART_CHI2:g} χ² per "
+                         f"residual (fit_proxy's restarts; default {RESTARTS}, 0: none; the other baselines "
+                         f"run without)")
     ap.add_argument("--workers", type=int, default=2, help="processes for ours' Jacobian and the screening")
     ap.add_argument("--pixel-workers", type=int, default=1,
                     help="processes for the pixel fit's Jacobian (1: scipy's own, as the scipy baseline)")

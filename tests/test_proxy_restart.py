@@ -24,7 +24,7 @@ def _local(start, iters):
 def test_restart_leaves_a_local_minimum_for_the_global_one():
     first = _local(np.zeros(1), 20)
     assert first.x[0] == pytest.approx(0.02, abs=0.02) and first.merit > 0.4     # stuck next to the start
-    best, tried = restart(_local, first, 1, 4, 20, seed=3)
+    best, tried = restart(_local, first, 4, 20, seed=3)
     # the global minimum of (x − 0.7)² + 9 sin²(4x), by a dense grid: the oracle
     grid = np.linspace(-2, 2, 400001)
     g = grid[np.argmin((grid - 0.7) ** 2 + 9 * np.sin(4 * grid) ** 2)]
@@ -33,7 +33,7 @@ def test_restart_leaves_a_local_minimum_for_the_global_one():
     assert len(tried) == 4 and [t.get("kept") for t in tried].count(True) == 1
     assert best.evaluations > first.evaluations            # every run counted
     assert len(best.history) > len(first.history)          # the path that won, after the first
-    again, tried_again = restart(_local, first, 1, 4, 20, seed=3)
+    again, tried_again = restart(_local, first, 4, 20, seed=3)
     assert tried_again == tried and again.x[0] == best.x[0]   # seeded
 
 
@@ -53,7 +53,7 @@ def test_restart_keeps_the_first_fit_when_no_start_does_better():
         return _fake(5.0)
 
     first = _fake(1.0, evaluations=7)
-    best, tried = restart(local, first, 2, 4, 15, seed=0)
+    best, tried = restart(local, first, 4, 15, seed=0)
     assert best.merit == first.merit and best.evaluations == 7 + 4 * 10
     assert [it for _, it in seen] == [PROBE_ITER] * 4                       # probes only
     assert all("final_merit" not in t for t in tried)
@@ -71,7 +71,7 @@ def test_restart_drops_a_continued_probe_that_ends_worse():
     def local(start, iters):
         return _fake(next(merits))
 
-    best, tried = restart(local, _fake(1.0), 2, 4, 15)
+    best, tried = restart(local, _fake(1.0), 4, 15)
     assert best.merit == 1.0 and tried[1]["final_merit"] == 2.0 and tried[1]["kept"] is False
 
 
@@ -82,9 +82,9 @@ def test_a_probe_near_the_first_fit_is_continued():
     from calibration.proxy import CONTINUE_WITHIN
 
     merits = iter([1.2, 3.0, 4.0, 6.0, 0.8])
-    best, tried = restart(lambda start, iters: _fake(next(merits)), _fake(1.0), 2, 4, 15)
+    best, tried = restart(lambda start, iters: _fake(next(merits)), _fake(1.0), 4, 15)
     assert 1.2 < CONTINUE_WITHIN
     assert best.merit == pytest.approx(0.8) and tried[0]["kept"] is True
     far = iter([CONTINUE_WITHIN * 1.01, 3.0, 4.0, 6.0])
-    best, tried = restart(lambda start, iters: _fake(next(far)), _fake(1.0), 2, 4, 15)
+    best, tried = restart(lambda start, iters: _fake(next(far)), _fake(1.0), 4, 15)
     assert best.merit == 1.0 and all("final_merit" not in t for t in tried)
