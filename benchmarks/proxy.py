@@ -125,7 +125,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration.lens_io import read_lens  # noqa: E402
-from calibration.proxy import (N_PARAMS, RESTART_CHI2, RESTARTS, default_names, fit_proxy, parameter_space,  # noqa: E402
+from calibration.proxy import (COARSE_GRID, N_PARAMS, RESTART_CHI2, RESTARTS, default_names, fit_proxy, parameter_space,  # noqa: E402
                                residual_bias, screen_parameters)
 from calibration.proxy_pixel import fit_pixel_mse, register_edge, render_edges  # noqa: E402
 from calibration.proxy_synth import synthetic_observations  # noqa: E402
@@ -346,10 +346,13 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
                             refresh=args.refresh if ours else 1, bounds="box" if m == "ours_box" else "clip",
                             prior=PRIOR_SIGMA if m == "ours_prior" else None,
                             restarts=args.restarts if (ours or m == "scipy_restart") else 0,
+                            coarse=args.coarse if (ours or m == "scipy_restart") and args.coarse[0] > 0 else None,
                             seed=int(np.random.SeedSequence(seed).generate_state(1)[0]))
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
             if fit.restarts:
                 extra["restarts"] = fit.restarts
+            if fit.coarse:
+                extra["coarse"] = fit.coarse
             stop = fit.result.reason if fit.result is not None else ""
             if fit.result is not None:
                 extra["merit"] = round(fit.result.merit, 3)   # the fit's own objective, on its residuals
@@ -592,6 +595,10 @@ def main(argv=None) -> dict:
                     help=f"ours and scipy_restart: starts tried when a fit ends above {RESTART_CHI2:g} χ² per "
                          f"residual (fit_proxy's restarts; default {RESTARTS}, 0: none; the other baselines "
                          f"run without)")
+    ap.add_argument("--coarse", type=int, nargs=2, default=list(COARSE_GRID), metavar=("R", "C"),
+                    help=f"ours and scipy_restart: fit first on an R × C sub-grid of the regions, then refine on "
+                         f"all (fit_proxy's coarse; default {COARSE_GRID[0]} {COARSE_GRID[1]}, only where it at "
+                         f"least halves the observations: not at 5 × 7; 0 0: off)")
     ap.add_argument("--workers", type=int, default=2, help="processes for ours' Jacobian and the screening")
     ap.add_argument("--pixel-workers", type=int, default=1,
                     help="processes for the pixel fit's Jacobian (1: scipy's own, as the scipy baseline)")

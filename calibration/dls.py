@@ -114,7 +114,11 @@ parameters. φ/M ≤ 1 alone stops short: a least-squares minimum has
 about N to gain, and its parameters are off by about their 1-σ
 uncertainty. On the synthetic devices of ``benchmarks/proxy.py`` where
 the fit stopped there (φ/M ≤ 1 only, until 2026-11-26), scipy's TRF went
-on to a merit 4–10 % lower.
+on to a merit 4–10 % lower. The unit is φ/(M − N) where that is above 1
+(a model that cannot reach the noise; its parameters' uncertainty is
+scaled the same way), so that ``target_chi2=inf`` stops a fit once what
+is left to gain is within the parameters' uncertainty, whatever χ² the
+model leaves.
 """
 
 from __future__ import annotations
@@ -248,6 +252,13 @@ def _damped_step(jtj: np.ndarray, g: np.ndarray, idx: np.ndarray, eps: np.ndarra
     return dx
 
 
+def _unit(phi: float, m: int, n: int) -> float:
+    """One unit of χ² at the scale of the parameters' uncertainty: 1, or
+    φ/(M − N) where the model's own error leaves more than 1 per degree of
+    freedom (the covariance is scaled the same way)."""
+    return max(1.0, phi / max(m - n, 1))
+
+
 def _gain_left(a: np.ndarray, f: np.ndarray) -> float:
     """``‖f‖² − min_δ ‖f + a δ‖²``: what the Gauss–Newton model of the
     residuals ``f`` with Jacobian ``a`` can still remove (≥ 0)."""
@@ -287,7 +298,8 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
         With ``refresh`` > 1 the gradient test uses a fresh Jacobian.
     target_chi2 : float, optional
         The noise floor: stop once φ/M ≤ this and the linearised model
-        offers less than 1 (χ² units) to gain (module notes).
+        offers less than one unit of χ² to gain (module notes); ``inf``:
+        on the gain left alone.
     radius : float or None
         Initial trust radius Δ (2-norm of a step, parameter units); None:
         no radius (plain LM).
@@ -389,7 +401,7 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
             A = A_fd = jacobian_at(x, f)   # a secant Jacobian's gradient is not proof of a minimum
             fresh, since_fd = True, 0
             continue
-        if target_chi2 is not None and phi / m <= target_chi2 and _gain_left(A[:, free], f) < 1.0:
+        if target_chi2 is not None and phi / m <= target_chi2 and _gain_left(A[:, free], f) < _unit(phi, m, n):
             reason = "noise floor"
             break
         jtj = A.T @ A

@@ -11,7 +11,7 @@ temporary folder and renamed, so a failed fit leaves nothing):
   perturbations; :func:`calibration.proxy.load_proxy` reads it back, and
   ``isp synth --lens proxy.json`` makes training data from it);
 * ``fit.json``: parameters with 1σ uncertainty, errors before/after, merit
-  per iteration, lens evaluations, time;
+  per iteration, lens evaluations, time, restarts, the coarse stage;
 * ``merit.png``, ``sfra_maps.png``, ``parameters.png``.
 """
 
@@ -46,6 +46,8 @@ def cmd_fit(args) -> int:
         raise IspError(f"--n-params {args.n_params}: at least 1")
     if args.restarts < 0:
         raise IspError(f"--restarts {args.restarts}: 0 or more")
+    if min(args.coarse) < 0 or (0 in args.coarse and any(args.coarse)):
+        raise IspError(f"--coarse {args.coarse[0]} {args.coarse[1]}: two positive counts, or 0 0 (off)")
     out = Path(args.output)
     _check_out(out)
     nominal = _load(args.lens)                  # a bad lens file fails before any measurement
@@ -59,7 +61,8 @@ def cmd_fit(args) -> int:
     fit = fit_proxy(nominal, obs, method=args.method, workers=args.workers, max_iter=args.max_iter,
                     n_params=args.n_params, residuals=args.residuals,
                     jacobian_settings=FAST_JACOBIAN if args.fast_jacobian else None,
-                    refresh=args.refresh, restarts=args.restarts)
+                    refresh=args.refresh, restarts=args.restarts,
+                    coarse=tuple(args.coarse) if args.coarse[0] > 0 else None)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
@@ -69,6 +72,9 @@ def cmd_fit(args) -> int:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     e = fit.errors()
+    if fit.coarse:
+        print(f"coarse to fine: fitted first on {fit.coarse['observations']} of {len(obs)} observations "
+              f"(a sub-grid of the regions, {fit.coarse['seconds']:.0f} s), then refined on all")
     if fit.restarts:
         won = [t for t in fit.restarts if t.get("kept")]
         print(f"the fit ended far above the noise floor; {len(fit.restarts)} other starts tried: "
@@ -87,7 +93,7 @@ def cmd_fit(args) -> int:
 
 def add_parser(sub) -> None:
     """Register ``fit`` on the ``isp calib`` sub-parsers."""
-    from .proxy import MAX_ITER, N_PARAMS, REFRESH, RESTART_CHI2, RESTARTS
+    from .proxy import COARSE_GRID, MAX_ITER, N_PARAMS, REFRESH, RESTART_CHI2, RESTARTS
 
     sp = sub.add_parser("fit", help="fit a proxy camera (lens perturbations) to a measured SFR",
                         description=__doc__.split("\n\n")[0].replace("``", "`"), epilog=EPILOG,
@@ -113,6 +119,11 @@ def add_parser(sub) -> None:
                     help=f"when the fit ends above {RESTART_CHI2:g} χ² per residual (a local minimum far above "
                          f"the noise floor), this many other starts within ±1 tolerance, the best continued "
                          f"(default {RESTARTS}; 0: none)")
+    sp.add_argument("--coarse", type=int, nargs=2, default=list(COARSE_GRID), metavar=("R", "C"),
+                    help="fit first (screening and restarts included) on the edges of an R × C sub-grid of the "
+                         "regions, spread edge to edge, then refine on all; only where that at least halves the "
+                         f"edges (default {COARSE_GRID[0]} {COARSE_GRID[1]}: on the paper's 15 × 20 regions, "
+                         "35 of 300; 0 0: off)")
     sp.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
     sp.add_argument("--fast-jacobian", action=argparse.BooleanOptionalAction, default=True,
                     help="Jacobian from a cheaper model (32 pupil samples, a 24 µm PSF window), steps judged on the full model "

@@ -101,6 +101,41 @@ def test_the_noise_floor_stop_lands_within_one_chi2_of_the_minimum():
     assert early >= 3
 
 
+def test_with_no_chi2_target_it_stops_within_one_scaled_unit_of_the_minimum():
+    """A model that cannot reach the noise (residuals 3× their stated σ: χ²
+    per degree of freedom about 9): ``target_chi2=inf`` stops on the gain
+    left alone, in units of φ/(M − N), and ends within one such unit of
+    scipy's minimum (the oracle), its parameters within their (scaled) 1-σ
+    uncertainty of it; and on most draws further than one plain unit of χ²
+    from it, where a stop in plain units would have gone on."""
+    from scipy.optimize import least_squares
+
+    t = np.linspace(0.0, 3.0, 120)
+    truth = np.array([40.0, 1.3, 5.0, -3.0, 2.0, 0.7])
+
+    def model(x):
+        return x[0] * np.exp(-x[1] * t) + x[2] * np.sin(x[3] * t) + x[4] * t + x[5] * t * t
+
+    sooner = 0
+    for seed in range(4):
+        y = model(truth) + 3.0 * np.random.default_rng(seed).standard_normal(t.size)
+
+        def f(x, y=y):
+            return model(x) - y
+
+        x0 = truth * 0.8
+        best = least_squares(f, x0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        phi_min = float(np.sum(best.fun ** 2))
+        unit = phi_min / (t.size - 6)
+        assert unit > 5.0
+        res = damped_least_squares(f, x0, lower=np.full(6, -100.0), upper=np.full(6, 100.0), h=1e-6,
+                                   target_chi2=np.inf, max_iter=200)
+        assert res.reason == "noise floor" and res.merit - phi_min < unit, (seed, res.merit, phi_min)
+        assert np.all(np.abs(res.x - best.x) < res.std), (seed, res.x - best.x, res.std)
+        sooner += res.merit - phi_min > 1.0
+    assert sooner >= 2
+
+
 def test_steps_stay_within_the_trust_radius():
     # the Gauss–Newton step is 7.07 long; the first step must respect Δ = 0.1 (and keep GN's direction)
     y = np.array([5.0, -4.0, 3.0])
