@@ -18,7 +18,10 @@ machine does not inflate, and wall seconds):
   (``FAST_JACOBIAN``: 32 pupil samples, a 24 µm window);
 * ``node_psfs(lens, defocus_mm=dz)`` with a per-node defocus (±5 µm, the
   loop's focus/tilt/curvature effects), on the lens whose rays are already
-  traced (the loop's case: the trace is reused, the PSFs recomputed).
+  traced (the loop's case: the trace is reused, the PSFs recomputed);
+* ``predict`` at both settings on the coarse stage's observations only
+  (:func:`calibration.proxy.coarse_subset`: the 70 edges of a 5 × 7
+  sub-grid), what a coarse-to-fine fit's first stage pays per evaluation.
 
 Accuracy: with ``--reference FILE`` the predicted SFR of every timed lens is
 compared with the one saved by an earlier run (``--save-reference FILE``,
@@ -74,7 +77,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration.lens_io import read_lens  # noqa: E402
-from calibration.proxy import default_names, parameter_space  # noqa: E402
+from calibration.proxy import COARSE_GRID, coarse_subset, default_names, parameter_space  # noqa: E402
 from calibration.proxy_data import FREQ, Observations  # noqa: E402
 from calibration.proxy_synth import edge_sites  # noqa: E402
 from calibration.sfr_chart import classify_orientation  # noqa: E402
@@ -213,6 +216,13 @@ def main(argv=None) -> dict:
     out["predict_fast"], sfr_f = run_predict(fast, space, args.seed, 100, args.repeats, log)
     log("node_psfs with a per-node defocus (traced lens)")
     out["node_psfs_defocus"], psf_z = run_defocus(default, space, args.seed, 200, args.repeats, log)
+    sub = obs.subset(coarse_subset(obs, COARSE_GRID))
+    log(f"predict on the coarse sub-grid ({len(sub)} observations), default and fast settings")
+    out["coarse_observations"] = len(sub)
+    out["predict_default_coarse"], _ = run_predict(SfrModel(lens, sub, ModelSettings(psf_n=args.psf_n)), space,
+                                                   args.seed, 300, args.repeats, log)
+    out["predict_fast_coarse"], _ = run_predict(SfrModel(lens, sub, FAST_JACOBIAN), space, args.seed, 400,
+                                                args.repeats, log)
     sfr_z = [default.predict(perturbed(space, args.seed, 200 + r),
                              defocus_mm=np.random.default_rng([args.seed, 999]).uniform(-1, 1, len(default.regions))
                              * DEFOCUS_UM * 1e-3).sfr for r in range(args.repeats)]
@@ -228,7 +238,8 @@ def main(argv=None) -> dict:
             "psf_defocus_max_rel": float(max(np.max(np.abs(a - b)) / np.max(np.abs(b))
                                              for a, b in zip(psf_z, ref["psf_defocus"]))),
         }
-    for k in ("predict_default", "predict_fast", "node_psfs_defocus"):
+    for k in ("predict_default", "predict_fast", "node_psfs_defocus", "predict_default_coarse",
+              "predict_fast_coarse"):
         print(f"{k:<20} {out[k]['cpu_s']:7.2f} s CPU (fastest {out[k]['cpu_min_s']:.2f}) "
               f"{out[k]['wall_s']:7.2f} s wall")
     if "accuracy_vs_reference" in out:

@@ -32,6 +32,12 @@ about a third of perturbed phone lenses in a minimum far above the noise
 floor. A fit that ends above :data:`RESTART_CHI2` χ² per residual
 therefore tries :data:`RESTARTS` other starts within the tolerance box and
 keeps the best (:func:`restart`).
+
+On many regions (the paper's 15 × 20) the screening, the fit and any
+restarts run first on a :data:`COARSE_GRID` sub-grid of them, and all the
+observations refine that fit (``coarse``): the basin shows on 35 regions
+at a tenth of the cost of 300 (an evaluation of e9: 0.17 against 1.74 s
+CPU, ``benchmarks/lens_eval.py``).
 """
 
 from __future__ import annotations
@@ -86,8 +92,9 @@ CONTINUE_WITHIN = 1.5
 #: coarse-to-fine: with many more regions than this (rows, cols), the fit, its screening and any
 #: restarts run first on the observations of a sub-grid of regions spread over the whole field
 #: (:func:`coarse_subset`), and the full set refines that fit. Why: a lens evaluation costs about
-#: in proportion to the observations (e9: 1.36 s for 600, 0.20 s for 70, one core), and which
-#: basin a fit ends in shows on a 5 × 7 sub-grid already (README, "Coarse to fine").
+#: in proportion to the observations (e9: 1.74 s CPU for 600, 0.17 s for the 70 of the sub-grid,
+#: ``benchmarks/lens_eval.py``), and which basin a fit ends in shows on a 5 × 7 sub-grid already
+#: (README, "Coarse to fine").
 COARSE_GRID = (5, 7)
 
 #: what :func:`fit_proxy` can fit to
@@ -518,10 +525,17 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         bias_sfra = bias.sfra
         before = model.predict(nominal).sfra + bias_sfra
         if method == "dls":
+            # central differences cure forward ones' O(h) bias, not a cheaper model's error: at a
+            # fitted e9 device (15 × 20 regions) the cheap model's Jacobian is 7.9 % off the full
+            # model's central one forward, 7.5 % central (the full model forward: 2.8 %), and the
+            # two central iterations that ended the fit bought 0.1 χ² for 42 s
+            scheme = "auto" if jacobian_settings is None else "forward"
+
             def local(start, iters, first_jacobian=None):
                 return damped_least_squares(fun, start, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
                                             max_iter=iters, target_chi2=floor_chi2, trials=workers, jac_many=jac_many,
-                                            refresh=refresh, progress=report, jac0=first_jacobian, bounds=bounds)
+                                            refresh=refresh, progress=report, jac0=first_jacobian, bounds=bounds,
+                                            jacobian=scheme)
         elif method == "scipy":
             from scipy.optimize import least_squares
 
