@@ -91,3 +91,26 @@ def test_only_names_a_device_by_lens_token_and_index():
     assert not _is_case("e11:3", "US-11933948-B2-e11", 0)
     assert not _is_case("e1:3", "US-11933948-B2-e11", 3)
     assert _is_case("US-11906710-B2-e1:4", "US-11906710-B2-e1", 4)
+
+
+def test_the_truth_lens_rendered_as_a_device_gives_back_its_own_clean_edges():
+    """``ssim_device``'s renderer is the devices' own: the truth lens through
+    it reproduces the noise-free edges the measurement was made from (to
+    rounding), and a perturbed lens does not."""
+    from benchmarks.proxy import device_map, render_as_device
+    from calibration.lens_io import read_lens
+    from calibration.proxy import default_names, parameter_space
+    from calibration.proxy_synth import synthetic_observations
+    from tests.helpers import data_file
+
+    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    space = parameter_space(lens, default_names(lens))
+    truth = space.apply(np.random.default_rng(4).uniform(-1, 1, len(space.names)) * space.tolerance)
+    grid = (2, 3)
+    _, edges = synthetic_observations(device_map(truth, grid), noise=0.004, rng=2, return_edges=True)
+    back = render_as_device(truth, edges, grid)
+    assert len(back) == len(edges) == 12
+    for b, e in zip(back, edges):
+        np.testing.assert_allclose(b, e.clean, rtol=0, atol=1e-12)
+    other = render_as_device(lens, edges, grid)
+    assert max(np.abs(o - e.clean).max() for o, e in zip(other, edges)) > 1e-3
