@@ -178,7 +178,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--reference", metavar="NPZ", help="compare with SFRs and PSFs saved by an earlier run")
     ap.add_argument("--profile", choices=("default", "fast", "defocus"), help="cProfile one call, print top 30")
     ap.add_argument("--psf-n", type=int, default=ModelSettings.psf_n,
-                    help=f"the default model's PSF window, samples (default {ModelSettings.psf_n}; "
+                    help=f"the default model's PSF window, samples (default: {ModelSettings.window_um:g} µm, 64 "
+                         "samples on these 1 µm pixels; "
                          "benchmarks/psf_window.py measures what it costs in accuracy)")
     args = ap.parse_args(argv)
 

@@ -84,8 +84,8 @@ def cmd_fit(args) -> int:
           f"{fit.evaluations} lens evaluations, {fit.seconds:.0f} s")
     if fit.window_energy < WINDOW_ENERGY_WARN:
         print(f"note: the fitted lens throws {1 - fit.window_energy:.0%} of some region's light outside the model's "
-              f"{fit.settings.get('psf_n')}-sample PSF window; its SFR there is too high at low frequencies "
-              "(a wider window: ModelSettings.psf_n, benchmarks/psf_window.py)")
+              f"{fit.settings.get('window_um')} µm PSF window; its SFR there is too high at low frequencies "
+              "(a wider window: ModelSettings.window_um, benchmarks/psf_window.py)")
     print(f"wrote {out}/proxy.json, fit.json, merit.png, sfra_maps.png, parameters.png "
           f"({time.perf_counter() - t0:.0f} s)")
     return 0

@@ -76,11 +76,14 @@ CHANNELS = ("R", "G", "B")
 class ModelSettings:
     """Accuracy/speed settings of :class:`SfrModel`.
 
-``pupil_samples``: pupil grid across the stop. ``psf_n``,
-    ``psf_pitch_um``: PSF window (default pitch: half the pixel pitch).
+``pupil_samples``: pupil grid across the stop. ``window_um``: the PSF
+    window's side, µm (a lens's PSF is as wide in µm whatever the pixel),
+    sampled at ``psf_pitch_um`` (default half the pixel pitch): an even
+    number of samples at least that wide; ``psf_n`` sets the samples
+    instead.
     The PSF is normalised inside its window, so the light a window drops
     is missing from the SFR's fall at low frequencies. The default 64 (a
-    32 µm window on 1 µm pixels) was 32 until 2026-11-25: on the four
+    32 µm window on 1 µm pixels) was 32 samples until 2026-11-25: on the four
     phone lenses' devices (±1 tolerance) a 16 µm window dropped up to 30 %
     of a corner PSF and put the corner SFR up to 0.116 RMS off a 64 µm
     reference; 32 µm keeps it within 0.018 for 1.2–1.3× the evaluation time
@@ -99,7 +102,8 @@ class ModelSettings:
     """
 
     pupil_samples: int = 48
-    psf_n: int = 64
+    window_um: float = 32.0
+    psf_n: int | None = None
     psf_pitch_um: float | None = None
     n_wavelengths: int = 2
     aiming: str = "real"
@@ -113,7 +117,7 @@ class ModelSettings:
 
 #: the cheaper model a fit may take its Jacobian from (``--fast-jacobian``): fewer pupil samples, and so a
 #: window inside their shorter replica period (:func:`_check_window`)
-FAST_JACOBIAN = ModelSettings(pupil_samples=32, psf_n=48)
+FAST_JACOBIAN = ModelSettings(pupil_samples=32, window_um=24.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -212,13 +216,16 @@ class SfrModel:
         self.fields = chief_ray_fields(nominal(nominal_lens), self.node_mm)
         self.pitch_um = 0.5 * sen.pixel_pitch_um if s.psf_pitch_um is None else float(s.psf_pitch_um)
         self.pitch_px = self.pitch_um / sen.pixel_pitch_um
+        # until 2026-11-26 the window was 64 samples whatever the pixel: 2.8 µm pixels made it 90 µm,
+        # past the pupil sampling's replica period, and `isp calib loop` stopped with an internal error
+        self.psf_n = int(s.psf_n) if s.psf_n is not None else 2 * math.ceil(s.window_um / (2.0 * self.pitch_um) - 1e-9)
         used = set(np.asarray(obs.channel).tolist())
         self.channels = tuple(c for c in CHANNELS if c in used or "L" in used)
         if not self.channels:
             raise ValueError(f"observations have no R, G, B or L channel (got {sorted(used)})")
         self.wavelengths, self.wl_weights = _wavelength_plan(self.channels, s.n_wavelengths, s.camera,
                                                              s.illuminant)
-        _check_window(nominal_lens, s, self.pitch_um, float(np.min(self.wavelengths)))
+        _check_window(nominal_lens, s, self.psf_n, self.pitch_um, float(np.min(self.wavelengths)))
         self.mix = self._channel_mix()
         self._aim = _real_aim(nominal(nominal_lens), self.fields, s.pupil_samples) if s.aiming == "real" else None
         self._traced_key = None
@@ -273,11 +280,11 @@ class SfrModel:
         traced = self._trace(pl)
         k = len(self.regions)
         dz = np.broadcast_to(np.asarray(0.0 if defocus_mm is None else defocus_mm, float), (k,))
-        o = _grid_offsets_mm(s.psf_n, self.pitch_um)
+        o = _grid_offsets_mm(self.psf_n, self.pitch_um)
         ref = int(np.argmin(np.abs(self.wavelengths - pl.nominal.primary_nm)))
         z = traced[ref].z_image + dz
         centre = traced[ref].chief_image_points(z)
-        out = np.zeros((k, len(self.channels), s.psf_n, s.psf_n))
+        out = np.zeros((k, len(self.channels), self.psf_n, self.psf_n))
         energy = np.zeros((k, len(self.channels)))
         for j, tn in enumerate(traced):
             if not np.any(self.wl_weights[:, j]):
@@ -451,7 +458,7 @@ class MeasurementBias(NamedTuple):
     odd: np.ndarray
 
 
-def _check_window(lens, s: ModelSettings, pitch_um: float, lam_min_nm: float) -> None:
+def _check_window(lens, s: ModelSettings, psf_n: int, pitch_um: float, lam_min_nm: float) -> None:
     """Refuse a PSF window wider than the replica period of the sampled
     pupil: ``pupil_samples`` samples across a pupil of image-space
     numerical aperture 1/(2N) (N the working F-number) make the diffracted
@@ -464,12 +471,12 @@ def _check_window(lens, s: ModelSettings, pitch_um: float, lam_min_nm: float) ->
     if not (math.isfinite(n_w) and n_w > 0):
         return
     period_um = lam_min_nm * 1e-3 * n_w * s.pupil_samples
-    window_um = s.psf_n * pitch_um
+    window_um = psf_n * pitch_um
     if window_um > period_um:
         need = math.ceil(window_um / (lam_min_nm * 1e-3 * n_w))
-        raise ValueError(f"the PSF window ({window_um:.3g} µm: psf_n {s.psf_n} × {pitch_um:.3g} µm) exceeds the "
+        raise ValueError(f"the PSF window ({window_um:.3g} µm: {psf_n} samples × {pitch_um:.3g} µm) exceeds the "
                          f"pupil sampling's replica period (≈ {period_um:.3g} µm at {lam_min_nm:.0f} nm, "
-                         f"N = {n_w:.2f}, {s.pupil_samples} samples): use pupil_samples ≥ {need} or a smaller psf_n")
+                         f"N = {n_w:.2f}, {s.pupil_samples} samples): use pupil_samples ≥ {need} or a smaller window_um")
 
 
 def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.ndarray]:

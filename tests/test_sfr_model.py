@@ -71,10 +71,10 @@ def _node_psfs_per_field(model, lens, defocus_mm=None, method="debye"):
     pupil, z_pupil = _pupil_points(s.pupil_samples), _exit_pupil_z(pl)
     k = len(model.fields)
     dz = np.zeros(k) if defocus_mm is None else np.broadcast_to(defocus_mm, (k,))
-    o = _grid_offsets_mm(s.psf_n, model.pitch_um)
+    o = _grid_offsets_mm(model.psf_n, model.pitch_um)
     ref = int(np.argmin(np.abs(model.wavelengths - pl.nominal.primary_nm)))
     ep, status = model._aim
-    out = np.zeros((k, len(model.channels), s.psf_n, s.psf_n))
+    out = np.zeros((k, len(model.channels), model.psf_n, model.psf_n))
     for i, f in enumerate(model.fields):
         fd = (float(f[0]), float(f[1]))
         trs = []
@@ -174,3 +174,32 @@ def test_window_energy_matches_the_psf_map_and_grows_with_the_window(device):
     small = SfrModel(lens, obs, ModelSettings(psf_n=12)).window_energy(pl)
     assert np.all(wide > 0.97) and np.all(wide >= e - 1e-9) and np.all(e > small)
     assert small.min() < 0.8
+
+
+def test_the_psf_window_is_as_wide_in_micrometres_whatever_the_pixel(device):
+    """The window is set in µm (``window_um``): 64 samples at half of a 1 µm
+    pixel, 24 at half of a 2.8 µm one, about 32 µm both times and inside the
+    pupil sampling's replica period (≈ 45 µm here). A 64-sample window on
+    2.8 µm pixels would be 90 µm, past it (`isp calib loop` on such a
+    capture stopped with an internal error)."""
+    from calibration.lens import Sensor
+    from calibration.proxy_data import Observations
+
+    lens, pl, obs = device
+    fine = SfrModel(lens, obs)
+    assert fine.psf_n == 64 and fine.psf_n * fine.pitch_um == pytest.approx(32.0)
+    d = obs.to_dict()
+    scale = 2000 / obs.sensor.width_px
+    pitch = obs.sensor.pixel_pitch_um / scale
+    d["sensor"].update(width_px=2000, height_px=1500, pixel_pitch_um=pitch)
+    for o in d["observations"]:
+        o["x_px"] *= scale
+        o["y_px"] *= scale
+    coarse_obs = Observations.from_dict(d)
+    coarse_lens = lens.replace(sensor=Sensor(pixel_pitch_um=pitch, width_px=2000, height_px=1500))
+    coarse = SfrModel(coarse_lens, coarse_obs)
+    assert coarse.psf_n == 24 and 32.0 <= coarse.psf_n * coarse.pitch_um < 32.0 + 2 * coarse.pitch_um
+    with pytest.raises(ValueError, match="replica period"):
+        SfrModel(coarse_lens, coarse_obs, ModelSettings(psf_n=64))
+    sfra = coarse.predict(pl).sfra
+    assert np.all(np.isfinite(sfra)) and np.all(sfra > 0)
