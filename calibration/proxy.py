@@ -515,7 +515,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         if progress:
             from tqdm import tqdm
 
-            bar = tqdm(total=max_iter, unit="iter", desc=f"proxy fit ({n} parameters)")
+            bar = tqdm(total=max_iter, unit="iter", desc=f"proxy fit ({n} parameters, {len(obs)} edges)")
 
         def report(rec):
             if bar is not None and rec["iteration"] > 0:
@@ -559,7 +559,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         if restarts > 0 and res.merit > RESTART_CHI2 * res.residuals.size:
             if bar is not None:
                 bar.total += restarts * min(PROBE_ITER, max_iter) + max(max_iter - PROBE_ITER, 0)
-                bar.set_description(f"proxy fit ({n} parameters, {restarts} restarts)")
+                bar.set_description(f"proxy fit ({n} parameters, {len(obs)} edges, {restarts} restarts)")
             res, tried = restart(local, res, restarts, max_iter, seed)
         u, evals = res.x, res.evaluations
     finally:
