@@ -89,9 +89,9 @@ PROBE_ITER = 5
 #: PROBE_ITER iterations a probe is still falling, where the first fit had the whole budget
 CONTINUE_WITHIN = 1.5
 
-#: coarse-to-fine: with many more regions than this (rows, cols), the fit, its screening and any
-#: restarts run first on the observations of a sub-grid of regions spread over the whole field
-#: (:func:`coarse_subset`), and the full set refines that fit. Why: a lens evaluation costs about
+#: coarse-to-fine: where a sub-grid of this many regions (rows, cols), spread over the whole field,
+#: at least halves the observations, the fit, its screening and any restarts run first on its
+#: observations (:func:`coarse_subset`), and all of them refine that fit. Why: a lens evaluation costs about
 #: in proportion to the observations (e9: 1.74 s CPU for 600, 0.17 s for the 70 of the sub-grid,
 #: ``benchmarks/lens_eval.py``), and which basin a fit ends in shows on a 5 × 7 sub-grid already
 #: (README, "Coarse to fine").
