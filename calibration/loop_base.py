@@ -25,7 +25,7 @@ import numpy as np
 
 from .effects import Geometry
 from .proxy_data import Observations
-from .sfr_model import Prediction, aperture_mtf, sfra_of
+from .sfr_model import Prediction, aperture_mtf, measure_like, sfra_of
 
 __all__ = ["LensBase", "ParametricBase", "area_weights", "colour_shift_mtf", "diffraction_mtf", "disc_mtf",
            "disc_otf", "edge_profile"]
@@ -299,7 +299,7 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
     of the observation's size, ``default_roi`` (across, along) px where it
     has none) with the observation's noise and measured, minus the exact
     SFR ``|otf|``."""
-    from .sfr import SfrError, measure_sfr
+    from .sfr import SfrError
 
     rng = np.random.default_rng(0)
     n = len(obs)
@@ -327,9 +327,10 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
         noise = float(obs.noise[i])
         img = 0.2 + step * prof
         vals, curves = [], []
+        measure = measure_like(obs, i)   # as it was measured: an image, or a mosaic's plane
         for _ in range(4 if noise > 0 else 1):
             try:
-                r = measure_sfr(img + rng.normal(0, noise, img.shape) if noise > 0 else img)
+                r = measure(img + rng.normal(0, noise, img.shape) if noise > 0 else img)
             except SfrError:
                 continue
             vals.append(r.sfra)

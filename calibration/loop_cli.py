@@ -293,8 +293,10 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
     if not parts:
         raise IspError(f"{path}: no edge could be measured")
     meta_out = {"measure": kind, "encoding": encoding, "channels": chans}
-    if kind == "raw" and getattr(meta, "pixel_pitch_um", None):
-        meta_out["pixel_pitch_um"] = float(meta.pixel_pitch_um)
+    if kind == "raw":
+        meta_out["cfa"] = meta.cfa.value if hasattr(meta.cfa, "value") else str(meta.cfa)
+        if getattr(meta, "pixel_pitch_um", None):
+            meta_out["pixel_pitch_um"] = float(meta.pixel_pitch_um)
     obs = _concat(parts, str(path), meta_out)
     return obs, notes
 

@@ -377,7 +377,8 @@ class SfrModel:
         """What the measurement adds to each observation's SFRA (N,),
         cycles/pixel: the mean SFRA of ``noise_realisations`` renders of its
         edge through its predicted PSF with its own noise, measured as it
-        was measured (``obs.meta["measure"]``: "image" or "bayer:<channel>"),
+        was measured (``obs.meta["measure"]``: "image", "bayer:<channel>" or
+        "raw", the mosaic, each edge on its own channel; ``obs.meta["cfa"]``),
         minus the model's noise-free SFRA. It holds the noise's rise (paper
         eq. 14) and the ISO method's own small bias (its binning and
         derivative: +0.001 cycles/pixel on e9 noise-free). Returns
@@ -519,6 +520,30 @@ def _trace_nodes(pl: PerturbedLens, fields, wavelengths, samples: int, z_pupil: 
     return out
 
 
+def measure_like(obs: Observations, i: int):
+    """The ISO 12233 measurement observation ``i`` had, as a function of an
+    ROI image: :func:`calibration.sfr.measure_sfr` on an image
+    (``obs.meta["measure"]`` "image", the default), or
+    :func:`calibration.sfr.measure_sfr_bayer` on the plane of one channel of
+    a mosaic ("bayer:<channel>"; "raw": each edge on its own channel's
+    plane, as `isp calib loop` and `isp calib fit` measure a raw capture),
+    its pattern ``obs.meta["cfa"]`` (default RGGB).
+
+    Until 2026-11-26 "raw" observations were re-rendered and measured as
+    images: on a 2.8 µm-pixel capture (`isp calib simulate`) their spread
+    came out 4.5× below what two noise draws of the capture showed.
+    """
+    from .sfr import measure_sfr, measure_sfr_bayer
+
+    how = str(obs.meta.get("measure", "image"))
+    if how == "raw":
+        how = f"bayer:{obs.channel[i]}"
+    if how.startswith("bayer:"):
+        cfa, channel = str(obs.meta.get("cfa", "RGGB")), how.split(":", 1)[1]
+        return lambda img: measure_sfr_bayer(img, cfa, channel=channel)
+    return measure_sfr
+
+
 def _roi_shape(obs: Observations, i: int) -> tuple[int, int]:
     if obs.roi is not None:
         w, h = int(obs.roi[i][2]), int(obs.roi[i][3])
@@ -533,7 +558,7 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
     from types import SimpleNamespace
 
     from .imaging import render_slanted_edge
-    from .sfr import SfrError, measure_sfr, measure_sfr_bayer
+    from .sfr import SfrError
 
     noise, step = float(obs.noise[i]), float(obs.step[i]) or 1.0
     a = float(obs.normal_deg[i]) % 180.0
@@ -548,7 +573,7 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
                             angle, horizontal=horizontal, low=0.25, high=0.25 + step,
                             pixel_pitch_um=pixel_pitch_um, fill_factor=aperture_px, noise=False)
     clean = r.optical[:, :, 0]
-    how = str(obs.meta.get("measure", "image"))
+    measure = measure_like(obs, i)
 
     f = np.asarray(obs.freq)
 
@@ -556,10 +581,7 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
 
     def sfra(img):
         try:
-            if how.startswith("bayer:"):
-                r = measure_sfr_bayer(img, "RGGB", channel=how.split(":", 1)[1])
-            else:
-                r = measure_sfr(img)
+            r = measure(img)
         except SfrError:
             return np.nan, np.full(f.shape, np.nan), np.full(n_odd, np.nan)
         return r.sfra, np.interp(f, r.freq, r.sfr, right=np.nan), odd_bands(r.lsf, r.esf_step_px)
