@@ -5,7 +5,10 @@ a lens with its perturbations, or a parametric optical MTF) and the
 effects of the registry (:mod:`calibration.effects`):
 
 1. Fit the base parameters (damped least squares,
-   :func:`calibration.dls.damped_least_squares`).
+   :func:`calibration.dls.damped_least_squares`). A base with a
+   ``start()`` (a lens: :func:`calibration.proxy.fit_proxy`, whose coarse
+   stage and restarts find the basin) is fitted from there, for at most
+   :data:`START_POLISH` iterations.
 2. Estimate the measurement's noise floor from the data: every observation
    is re-rendered through the model with its own measured noise
    (``noise_realisations`` times) and re-measured; the spread of those
