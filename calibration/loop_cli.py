@@ -688,6 +688,8 @@ def add_parser(sub) -> None:
                     help="parametric base: F-number held at N, or fitted from 2.0 (default fit)")
     sp.add_argument("--pixel-um", type=float, metavar="UM",
                     help=f"pixel pitch, µm (default: the raw file's, else {DEFAULT_PIXEL_UM:g})")
-    sp.add_argument("--n-params", type=int, default=12, help="lens base: perturbations screened (default 12)")
+    sp.add_argument("--n-params", type=int, default=12,
+                    help="lens base: perturbations screened (default 12; on a simulated device perturbed in all "
+                         "48, 24 left χ² 4.3 per term in 389 s against 12.6 in 279 s, README)")
     sp.add_argument("--seed", type=int, default=0, help="seed of the fold split and noise renders")
     sp.set_defaults(func=cmd_loop)
