@@ -196,10 +196,10 @@ def fov_sets(radius: np.ndarray) -> dict[float, np.ndarray]:
     return out
 
 
-def metrics(model: SfrModel, lens, obs, edges, truth_sfr, sets, grid=None) -> dict:
-    """SFR MSE (vs measured and vs truth) and SSIM per FoV for ``lens``;
-    with the devices' ``grid``, also the SSIM of ``lens``'s edges rendered
-    as the devices are (:func:`render_as_device`)."""
+def metrics(model: SfrModel, lens, obs, edges, truth_sfr, sets, grid) -> dict:
+    """SFR MSE (vs measured and vs truth) and SSIM per FoV for ``lens``,
+    and the SSIM of its edges rendered as the devices on ``grid`` are
+    (:func:`render_as_device`)."""
     from skimage.metrics import structural_similarity
 
     band = obs.freq <= NYQUIST + 1e-12
@@ -213,19 +213,16 @@ def metrics(model: SfrModel, lens, obs, edges, truth_sfr, sets, grid=None) -> di
     moved = [register_edge(s, m) for s, m in zip(sims, images)]
     ssim_reg = np.array([structural_similarity(s, m, data_range=1.0) for (s, _), m in zip(moved, images)])
     offset = np.abs([o for _, o in moved])
-    out = {"sfr_mse": {}, "sfr_mse_truth": {}, "ssim": {}, "ssim_registered": {}, "edge_offset_px": {}}
-    if grid is not None:
-        ssim_dev = np.array([structural_similarity(s, m, data_range=1.0)
-                             for s, m in zip(render_as_device(lens, edges, grid), images)])
-        out["ssim_device"] = {}
+    ssim_dev = np.array([structural_similarity(s, m, data_range=1.0)
+                         for s, m in zip(render_as_device(lens, edges, grid), images)])
+    out = {key: {} for key in FIGURES}
     for k, sel in [(f"{f:g}", sel) for f, sel in sets.items()] + [("all", slice(None))]:
         out["sfr_mse"][k] = float(np.nanmean(mse_meas[sel]))
         out["sfr_mse_truth"][k] = float(np.nanmean(mse_truth[sel]))
         out["ssim"][k] = float(np.mean(ssim[sel]))
         out["ssim_registered"][k] = float(np.mean(ssim_reg[sel]))
         out["edge_offset_px"][k] = float(np.mean(offset[sel]))
-        if grid is not None:
-            out["ssim_device"][k] = float(np.mean(ssim_dev[sel]))
+        out["ssim_device"][k] = float(np.mean(ssim_dev[sel]))
     return out
 
 

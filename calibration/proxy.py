@@ -526,7 +526,8 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         before = model.predict(nominal).sfra + bias_sfra
         if method == "dls":
             # central differences cure forward ones' O(h) bias, not a cheaper model's error: at a
-            # fitted e9 device (15 × 20 regions) the cheap model's Jacobian is 7.9 % off the full
+            # fitted e9 device (15 × 20 regions; a one-off check, 2026-11-26, not a benchmark) the
+            # cheap model's Jacobian is 7.9 % off the full
             # model's central one forward, 7.5 % central (the full model forward: 2.8 %), and the
             # two central iterations that ended the fit bought 0.1 χ² for 42 s
             scheme = "auto" if jacobian_settings is None else "forward"

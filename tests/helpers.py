@@ -39,3 +39,23 @@ def kernel_psf_map(kernel, *, height: int, width: int, grid=(3, 4), n: int = 16,
                 psfs[r, c, ch] = g / g.sum()
     centers = region_centers_mm(sensor, grid)
     return PSFMap(psfs, pitch_um, centers, np.zeros_like(centers), ("R", "G", "B"), sensor)
+
+
+def e9_device(names, u, *, grid, noise: float, rng, n: int = 48, pupil_samples: int = 48, n_wavelengths: int = 2):
+    """The e9 phone lens and its edges measured on a device perturbed by
+    ``u`` (tolerance units) in ``names``: PSF map on ``grid`` (``n``
+    samples, ``pupil_samples``, ``n_wavelengths``), an edge pair per
+    region with ``noise`` (seeded by ``rng``). Returns (nominal lens,
+    observations)."""
+    import numpy as np
+
+    from calibration.lens_io import read_lens
+    from calibration.proxy import parameter_space
+    from calibration.proxy_synth import synthetic_observations
+    from calibration.psf_map import psf_map
+
+    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    space = parameter_space(lens, names)
+    pm = psf_map(space.apply(np.asarray(u, float) * space.tolerance), grid=grid, channels=("G",), n=n,
+                 pupil_samples=pupil_samples, n_wavelengths=n_wavelengths, progress=False)
+    return lens, synthetic_observations(pm, noise=noise, rng=rng)

@@ -69,35 +69,41 @@ def test_stops_at_the_noise_floor():
     assert res.reason == "noise floor" and res.merit / 3 <= 0.7 and abs(res.x[0] - 1.0) < 0.3
 
 
+T = np.linspace(0.0, 3.0, 120)
+TRUTH = np.array([40.0, 1.3, 5.0, -3.0, 2.0, 0.7])
+
+
+def _decay_sine(seed: int, sigma: float):
+    """Residuals of a decaying exponential + sine + quadratic fitted to its
+    own samples plus noise of ``sigma`` (data in units of σ = 1), a start
+    20 % off the truth, and scipy's minimum from there (the oracle)."""
+    def model(x):
+        return x[0] * np.exp(-x[1] * T) + x[2] * np.sin(x[3] * T) + x[4] * T + x[5] * T * T
+
+    y = model(TRUTH) + sigma * np.random.default_rng(seed).standard_normal(T.size)
+
+    def f(x):
+        return model(x) - y
+
+    x0 = TRUTH * 0.8
+    return f, x0, least_squares(f, x0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+
+
 def test_the_noise_floor_stop_lands_within_one_chi2_of_the_minimum():
     """Property (statistics of least squares): a minimum's χ² is about
     M − N, so φ/M ≤ 1 alone stops a fit with about N of χ² still to gain.
     With the gain test the fit ends within 1 of the minimum that scipy
     finds (the oracle), on every noise draw, and the stop that looked at
     φ/M alone would have stopped earlier on most of them."""
-    from scipy.optimize import least_squares
-
-    t = np.linspace(0.0, 3.0, 120)
-    truth = np.array([40.0, 1.3, 5.0, -3.0, 2.0, 0.7])
-
-    def model(x):
-        return x[0] * np.exp(-x[1] * t) + x[2] * np.sin(x[3] * t) + x[4] * t + x[5] * t * t
-
     early = 0
     for seed in range(5):
-        y = model(truth) + np.random.default_rng(seed).standard_normal(t.size)   # σ = 1: φ is a χ²
-
-        def f(x, y=y):
-            return model(x) - y
-
-        x0 = truth * 0.8
-        lo, hi = np.full(6, -100.0), np.full(6, 100.0)
-        best = least_squares(f, x0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        f, x0, best = _decay_sine(seed, sigma=1.0)   # σ = 1: φ is a χ²
         phi_min = float(np.sum(best.fun ** 2))
-        res = damped_least_squares(f, x0, lower=lo, upper=hi, h=1e-6, target_chi2=1.0, max_iter=200)
+        res = damped_least_squares(f, x0, lower=np.full(6, -100.0), upper=np.full(6, 100.0), h=1e-6,
+                                   target_chi2=1.0, max_iter=200)
         assert res.merit - phi_min < 1.0, (seed, res.merit, phi_min, res.reason)
-        assert phi_min < t.size - 6 + 3 * np.sqrt(2 * (t.size - 6))   # a χ²(M − N) draw
-        early += any(h["merit"] / t.size <= 1.0 and h["merit"] - phi_min > 1.0 for h in res.history)
+        assert phi_min < T.size - 6 + 3 * np.sqrt(2 * (T.size - 6))   # a χ²(M − N) draw
+        early += any(h["merit"] / T.size <= 1.0 and h["merit"] - phi_min > 1.0 for h in res.history)
     assert early >= 3
 
 
@@ -108,25 +114,11 @@ def test_with_no_chi2_target_it_stops_within_one_scaled_unit_of_the_minimum():
     scipy's minimum (the oracle), its parameters within their (scaled) 1-σ
     uncertainty of it; and on most draws further than one plain unit of χ²
     from it, where a stop in plain units would have gone on."""
-    from scipy.optimize import least_squares
-
-    t = np.linspace(0.0, 3.0, 120)
-    truth = np.array([40.0, 1.3, 5.0, -3.0, 2.0, 0.7])
-
-    def model(x):
-        return x[0] * np.exp(-x[1] * t) + x[2] * np.sin(x[3] * t) + x[4] * t + x[5] * t * t
-
     sooner = 0
     for seed in range(4):
-        y = model(truth) + 3.0 * np.random.default_rng(seed).standard_normal(t.size)
-
-        def f(x, y=y):
-            return model(x) - y
-
-        x0 = truth * 0.8
-        best = least_squares(f, x0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        f, x0, best = _decay_sine(seed, sigma=3.0)
         phi_min = float(np.sum(best.fun ** 2))
-        unit = phi_min / (t.size - 6)
+        unit = phi_min / (T.size - 6)
         assert unit > 5.0
         res = damped_least_squares(f, x0, lower=np.full(6, -100.0), upper=np.full(6, 100.0), h=1e-6,
                                    target_chi2=np.inf, max_iter=200)

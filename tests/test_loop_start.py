@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.helpers import data_file
+from tests.helpers import e9_device
 
 NAMES = ["e1.decenter_x", "e2.tilt_yz"]
 U_TRUE = np.array([0.8, -0.6])
@@ -15,17 +15,9 @@ U_TRUE = np.array([0.8, -0.6])
 
 @pytest.fixture(scope="module")
 def lens_base():
-    from calibration.lens_io import read_lens
     from calibration.loop_base import LensBase
-    from calibration.proxy import parameter_space
-    from calibration.proxy_synth import synthetic_observations
-    from calibration.psf_map import psf_map
 
-    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
-    space = parameter_space(lens, NAMES)
-    pm = psf_map(space.apply(U_TRUE * space.tolerance), grid=(3, 4), channels=("G",), n=96, pupil_samples=64,
-                 n_wavelengths=3, progress=False)
-    obs = synthetic_observations(pm, noise=0.003, rng=4)
+    lens, obs = e9_device(NAMES, U_TRUE, grid=(3, 4), noise=0.003, rng=4, n=96, pupil_samples=64, n_wavelengths=3)
     return LensBase(lens, obs, names=NAMES)
 
 

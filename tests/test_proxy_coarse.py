@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.helpers import data_file
+from tests.helpers import e9_device
 
 NAMES = ["e1.decenter_x", "s17.thickness"]
 U_TRUE = np.array([0.8, 0.6])
@@ -16,16 +16,7 @@ U_TRUE = np.array([0.8, 0.6])
 
 @pytest.fixture(scope="module")
 def grid_device():
-    from calibration.lens_io import read_lens
-    from calibration.proxy import parameter_space
-    from calibration.proxy_synth import synthetic_observations
-    from calibration.psf_map import psf_map
-
-    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
-    space = parameter_space(lens, NAMES)
-    pm = psf_map(space.apply(U_TRUE * space.tolerance), grid=(4, 6), channels=("G",), n=48, pupil_samples=48,
-                 n_wavelengths=2, progress=False)
-    return lens, synthetic_observations(pm, noise=0.003, rng=3)
+    return e9_device(NAMES, U_TRUE, grid=(4, 6), noise=0.003, rng=3)
 
 
 def one_per_region(obs, grid):

@@ -1,0 +1,126 @@
+"""A simulated raw capture measured back: how far the SFR model stands from
+the simulator's own capture chain, and what the fits can reach.
+
+The device is ``isp calib simulate LENS --perturb random --seed SEED --size
+W,H`` at its default exposure (all perturbations drawn within tolerance, refocused; the same
+device the CLI draws). It is captured twice, with two noise seeds, and
+both DNGs are measured as ``isp calib loop``/``fit`` measure a capture
+(chart edges on the mosaic's green plane). Printed:
+
+* **noise repeat**: RMS over the edges both captures hold of the SFRA
+  difference, over √2: what one edge's SFRA scatters by from noise alone;
+* **the device's own lens** through :class:`calibration.sfr_model.SfrModel`
+  (measurement bias included): SFRA RMS error against the first capture.
+  No fit can be expected to beat it by much;
+* with ``--fit N [N ...]``: ``fit_proxy`` on SFRA over the ``N`` perturbations
+  that :class:`calibration.loop_base.LensBase` screens (the loop's base
+  parameters; focus is left to the loop's ``focus_shift`` effect), with
+  its coarse stage and restarts: SFRA RMS error and whether a restart was
+  kept.
+
+Prints a line per figure and one JSON object as the LAST line. Usage::
+
+    python benchmarks/capture_roundtrip.py [--seed 3] [--size 2000 1500] [--fit 12 24]
+"""
+
+from __future__ import annotations
+
+import os
+
+if __name__ == "__main__":   # one BLAS thread per fit worker
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import types  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from calibration.cli import _load, _perturbed  # noqa: E402
+from calibration.imaging import simulate_capture, write_capture  # noqa: E402
+from calibration.imaging_chart import slanted_square_chart  # noqa: E402
+from calibration.lens import Sensor  # noqa: E402
+from calibration.loop_cli import load_measured, match_sensor  # noqa: E402
+from calibration.proxy import fit_proxy, residual_bias  # noqa: E402
+from calibration.sfr_model import FAST_JACOBIAN, SfrModel  # noqa: E402
+
+LENS = ROOT.parent / "shared" / "data" / "lenses" / "phone" / "US-12210142-B2-e9.zmx"
+
+
+def sfra_rms(obs, pred) -> float:
+    return float(np.sqrt(np.mean((np.asarray(obs.sfra) - pred) ** 2)))
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--lens", default=str(LENS))
+    ap.add_argument("--seed", type=int, default=3, help="the device (isp calib simulate --seed)")
+    ap.add_argument("--size", type=int, nargs=2, default=[2000, 1500], metavar=("W", "H"))
+    ap.add_argument("--exposure", type=float, default=0.8, help="chart white level (isp calib simulate's default)")
+    ap.add_argument("--fit", type=int, nargs="*", default=[], metavar="N",
+                    help="fit_proxy over the loop base's N screened perturbations, for each N")
+    args = ap.parse_args(argv)
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    lens = _load(args.lens)
+    w, h = args.size
+    lens = lens.replace(sensor=Sensor(pixel_pitch_um=lens.sensor.pixel_pitch_um * lens.sensor.width_px / w,
+                                      width_px=w, height_px=h))
+    device, what = _perturbed(lens, types.SimpleNamespace(perturb="random", seed=args.seed))
+    chart = slanted_square_chart(h, w)
+    obs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for noise_seed in (args.seed, args.seed + 1000):
+            log(f"capture, noise seed {noise_seed} ...")
+            dng = write_capture(Path(tmp) / f"c{noise_seed}.dng",
+                                capture=simulate_capture(device, chart, exposure=args.exposure, rng=noise_seed))
+            o, _ = load_measured(str(dng))
+            nominal, o = match_sensor(_load(args.lens), o)
+            obs.append(o)
+    out = {"lens": Path(args.lens).stem, "device": what, "size": [w, h],
+           "pixel_pitch_um": round(float(obs[0].sensor.pixel_pitch_um), 4), "edges": len(obs[0])}
+
+    def key(o):
+        return {(round(x), round(y), round(n)): i for i, (x, y, n) in enumerate(zip(o.x_px, o.y_px, o.normal_deg))}
+
+    k0, k1 = key(obs[0]), key(obs[1])
+    both = sorted(set(k0) & set(k1))
+    d = obs[0].sfra[[k0[c] for c in both]] - obs[1].sfra[[k1[c] for c in both]]
+    out["noise_repeat_sfra"] = float(np.sqrt(np.mean(d ** 2) / 2))
+    out["edges_in_both"] = len(both)
+    log(f"noise repeat: SFRA {out['noise_repeat_sfra']:.4f} per edge over {len(both)} edges")
+
+    model = SfrModel(nominal, obs[0])
+    pred = model.predict(device).sfra + residual_bias(model, device, "sfra", 2).sfra
+    out["device_lens_sfra_rms"] = sfra_rms(obs[0], pred)
+    log(f"the device's own lens: SFRA RMS {out['device_lens_sfra_rms']:.4f}")
+
+    out["fits"] = []
+    for n in args.fit:
+        from calibration.loop_base import LensBase
+
+        t0 = time.perf_counter()
+        base = LensBase(nominal, obs[0], n_params=n)
+        fit = fit_proxy(nominal, obs[0], names=list(base.names), residuals="sfra", progress=False,
+                        jacobian_settings=FAST_JACOBIAN)
+        rec = {"n_params": n, "sfra_rms": fit.errors()["after"]["sfra_rms"],
+               "restart_kept": any(t.get("kept") for t in fit.restarts), "seconds": round(time.perf_counter() - t0, 1)}
+        out["fits"].append(rec)
+        log(f"fit_proxy over the loop base's {n}: SFRA RMS {rec['sfra_rms']:.4f}, restart kept "
+            f"{rec['restart_kept']}, {rec['seconds']} s")
+    print(json.dumps(out))
+    return out
+
+
+if __name__ == "__main__":
+    main()
