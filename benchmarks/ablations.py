@@ -86,6 +86,8 @@ ENTRIES = {
     "linear_srgb_hp": ("doconv:sqrt:9:linear", "linear"),
 }
 RINGS = ("0.1", "0.5", "0.9")
+#: steps of the step-time probe of ``--minutes``
+PROBE_STEPS = 40
 
 
 def _train(args) -> dict:
@@ -116,20 +118,60 @@ def _train_one(args) -> dict:
     return {"name": name, "seconds": time.perf_counter() - t0,
             "val_psnr_db": (info["val"][-1]["psnr_db"] if info.get("val") else None),
             "val_input_psnr_db": (info["val"][-1]["input_psnr_db"] if info.get("val") else None),
-            "kmac_per_pixel": info["model"]["kmac_per_pixel"], "parameters": info["model"]["parameters"]}
+            "kmac_per_pixel": info["model"]["kmac_per_pixel"], "parameters": info["model"]["parameters"],
+            "seconds_per_step": info.get("seconds_per_step"), "device": info.get("device")}
+
+
+def steps_in(minutes: float, seconds_per_step: float, entries: int, workers: int) -> int:
+    """Training steps per entry that fit ``minutes`` when ``entries`` train
+    ``workers`` at a time at ``seconds_per_step`` each (the slowest's),
+    rounded down to 100, at least 100.
+
+    >>> steps_in(4, 0.0516, 3, 3)   # the H200 run of the README
+    4600
+    >>> steps_in(4, 0.0516, 4, 3)   # a second round halves them
+    2300
+    """
+    rounds = -(-int(entries) // int(workers))
+    return max(100, int(minutes * 60 / (seconds_per_step * rounds)) // 100 * 100)
+
+
+def _steps_for(minutes: float, todo: list, args, out: Path) -> int:
+    """The steps that train ``todo`` in about ``minutes``: every entry trains
+    :data:`PROBE_STEPS` steps first, as many at once as the real run will
+    (so the probe sees what they cost each other on a shared GPU or CPU),
+    and the slowest median step sets the count, rounded down to 100."""
+    with ProcessPoolExecutor(args.workers) as pool:
+        probes = list(pool.map(_train, [(n, args.config, out / "probe", PROBE_STEPS, args.seed) for n in todo]))
+    for r in probes:
+        if "error" in r:
+            raise SystemExit(f"ablations: the probe of {r['name']} failed: {r['error']}")
+    slowest = max(probes, key=lambda r: r["seconds_per_step"])
+    steps = steps_in(minutes, slowest["seconds_per_step"], len(todo), args.workers)
+    print(f"probe ({PROBE_STEPS} steps each, {args.workers} at a time on {slowest['device']}): slowest "
+          f"{slowest['name']} {slowest['seconds_per_step'] * 1e3:.1f} ms a step → {steps} steps for "
+          f"{minutes:g} min", flush=True)
+    return steps
 
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", default="configs/e9_default.toml", help="training config (data, optimiser)")
     ap.add_argument("--steps", type=int, default=1500, help="training steps per entry (default 1500)")
+    ap.add_argument("--minutes", type=float,
+                    help="instead of --steps: as many steps as train the entries in about this many minutes, "
+                         f"timed by a {PROBE_STEPS}-step probe of each, run as they will be (out/probe)")
     ap.add_argument("--only", nargs="+", choices=list(ENTRIES), help="a subset of the entries")
     ap.add_argument("--out", default="out/ablations")
-    ap.add_argument("--latent", default="../shared/data/latent",
+    from restoration.cli import DATA  # ../shared/data, or $ISP_DATA as the training config's data: paths
+
+    ap.add_argument("--latent", default=str(DATA / "latent"),
                     help="the latent folder training drew from; its held-out images are the test set")
-    ap.add_argument("--lens", default="../shared/data/lenses/phone/US-12210142-B2-e9.zmx")
+    ap.add_argument("--lens", default=str(DATA / "lenses/phone/US-12210142-B2-e9.zmx"))
     ap.add_argument("--samples", type=int, default=2, help="unseen proxy cameras (default 2)")
     ap.add_argument("--workers", type=int, default=2, help="entries trained at once (default 2)")
+    ap.add_argument("--psf-workers", type=int, default=2,
+                    help="processes for the unseen proxy cameras' PSF maps (default 2)")
     ap.add_argument("--retrain", action="store_true")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
@@ -138,7 +180,15 @@ def main(argv=None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
 
     todo = [n for n in names if args.retrain or not (out / n / "model.pt").is_file()]
+    if todo:
+        # the pairs, synthesised once here: entries started at once would each make them
+        from restoration.train import ensure_data
+        from restoration.train_config import load_config
+
+        ensure_data(load_config(args.config), progress=True, log=lambda m: print(m, flush=True))
     trained = {}
+    if todo and args.minutes:
+        args.steps = _steps_for(args.minutes, todo, args, out)
     if todo:
         print(f"training {len(todo)} entries × {args.steps} steps ({args.workers} at a time): {', '.join(todo)}",
               flush=True)
@@ -178,7 +228,7 @@ def main(argv=None) -> dict:
         for n in names:
             t0 = time.perf_counter()
             rep = evaluate(out / n / "model.pt", tmp, args.lens, samples=args.samples, seed=args.seed,
-                           baseline="none", progress=False, threads=2)
+                           baseline="none", progress=False, threads=2, workers=args.psf_workers)
             rings = {r: {k: rep["rings"][r][k] for k in ("psnr_uncorrected", "psnr_corrected",
                                                          "ssim_uncorrected", "ssim_corrected")}
                      for r in RINGS}
