@@ -36,6 +36,10 @@ linear_highpass     highpass with the high-pass on the residual made linear
                     ``optim.highpass_penalty``)
 static_linear_hp    "static" with √x and the linear high-pass (against
                     linear_highpass: the dynamic convolution's gain on it)
+large               linear_highpass 12× the size (widths 48/192, depths
+                    1/6/1; 79 kMAC/px, past the 2-core budget): what
+                    capacity buys at 0.9
+static_large        static_linear_hp at large's MACs
 linear_srgb_hp      linear_highpass placed between the colour matrix and
                     the gamma (linear sRGB at display exposure; against
                     linear_highpass and srgb_highpass: what the colour
@@ -49,6 +53,19 @@ high-pass entries 10 more, the two linear ones 8, 2026-11-26)::
 
     python -m benchmarks.ablations --steps 1500
     python -m benchmarks.ablations --steps 300 --only doconv static   # a quick look
+
+On a GPU machine (``configs/e9_gpu.toml``: nine cameras, 4,000 pairs,
+batches of 32; one H200, 2026-11-26: 19–25 s of synthesis on 14 processes,
+then 52–78 ms a step for three entries or two large ones at once)::
+
+    python -m benchmarks.ablations --config configs/e9_gpu.toml --minutes 4 \
+        --only linear_highpass static_linear_hp srgb_highpass --workers 3 \
+        --psf-workers 14 --train-only --out out/gpu_abl
+    # then, anywhere (here: the CPU), the same command without --train-only
+    # and with --samples 4: the trained entries are evaluated, not retrained
+
+``--minutes`` trains every entry 40 steps first, as many at once as the
+real run, and sets the steps that fit the slowest into the minutes.
 
 Prints the table and, as its last line, one JSON object: per entry the
 PSNR/SSIM per ring (corrected and uncorrected), the validation PSNR at the
@@ -66,7 +83,13 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-#: entry → ("variant[:encoding[:highpass[:highpass_domain]]]", placement)
+#: the "large" entries' network: 12x the default's MACs, past the export's
+#: 2-core budget (is the gain at 0.9 bound by the network's size?)
+LARGE = {"widths": (48, 192), "depths": (1, 6, 1)}
+#: the static network of LARGE's MACs (78.9 against 78.7 kMAC/px; the
+#: ``static`` factory matches only at the default widths)
+STATIC_LARGE = {"widths": (90, 180), "depths": (1, 6, 1)}
+#: entry → ("variant[:encoding[:highpass[:highpass_domain]]]", placement[, other network arguments])
 ENTRIES = {
     "doconv": ("doconv", "pipeline"),
     "static": ("static", "pipeline"),
@@ -84,6 +107,8 @@ ENTRIES = {
     "linear_highpass": ("doconv:sqrt:9:linear", "pipeline"),
     "static_linear_hp": ("static:sqrt:9:linear", "pipeline"),
     "linear_srgb_hp": ("doconv:sqrt:9:linear", "linear"),
+    "large": ("doconv:sqrt:9:linear", "pipeline", LARGE),
+    "static_large": ("static:sqrt:9:linear", "pipeline", STATIC_LARGE),
 }
 RINGS = ("0.1", "0.5", "0.9")
 #: steps of the step-time probe of ``--minutes``
@@ -105,10 +130,10 @@ def _train_one(args) -> dict:
     from restoration.train import train
     from restoration.train_config import load_config
 
-    spec, placement = ENTRIES[name]
+    spec, placement, *more = ENTRIES[name]
     variant, enc, highpass, domain = (spec.split(":") + ["", "", ""])[:4]
     kwargs = {**({"encoding": enc} if enc else {}), **({"highpass": int(highpass)} if highpass else {}),
-              **({"highpass_domain": domain} if domain else {})}
+              **({"highpass_domain": domain} if domain else {}), **(more[0] if more else {})}
     cfg = load_config(config_path)
     # the kwargs replace the config's own (the default config's high-pass is an entry here, not a baseline)
     cfg = cfg.replace("model", variant=variant, kwargs=kwargs, placement=placement)
@@ -172,6 +197,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--workers", type=int, default=2, help="entries trained at once (default 2)")
     ap.add_argument("--psf-workers", type=int, default=2,
                     help="processes for the unseen proxy cameras' PSF maps (default 2)")
+    ap.add_argument("--train-only", action="store_true",
+                    help="train, skip the evaluation (e.g. train on a GPU machine, evaluate elsewhere)")
     ap.add_argument("--retrain", action="store_true")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
@@ -212,6 +239,8 @@ def main(argv=None) -> dict:
             trained[n] = {"name": n, "val_psnr_db": v.get("psnr_db"), "val_input_psnr_db": v.get("input_psnr_db"),
                           "kmac_per_pixel": log["model"]["kmac_per_pixel"], "parameters": log["model"]["parameters"]}
 
+    if args.train_only:
+        return {"steps": args.steps, "entries": trained}
     import tempfile
 
     from restoration.evaluate import evaluate
