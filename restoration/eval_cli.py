@@ -16,7 +16,7 @@ from pathlib import Path
 
 from isp.errors import ConfigError, InputError
 
-from .cli import _grid
+from .cli import _grid, _range
 from .synth_optics import PSF_DEFAULTS
 
 EPILOG = """\
@@ -24,6 +24,7 @@ examples:
   isp eval runs/doconv/best.pt --images ../shared/data/latent/Kodak24 --lens proxy.json --json eval.json
   isp eval doconv.onnx --images test_images/ --lens phone.zmx --samples 8 --json eval.json --baseline rl
   isp eval best.pt --images test_images/ --lens proxy.json --samples 2 --size 128 --limit 4 --json quick.json
+  isp eval best.pt --images test_images/ --lens phone.zmx --exposure 0,0 --noise-scale 0.25,0.25 --json bright.json
 
 The test set is synthesised like the training pairs (`isp synth`), on lenses drawn within
 tolerance around the proxy from SeedSequence(SEED, spawn_key=(2,)) -- training draws from
@@ -67,6 +68,10 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", action="append", metavar="DNG",
                    help="phone DNG for the colour models (repeatable; default those of `isp synth`)")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise")
+    p.add_argument("--exposure", type=_range, metavar="LO,HI",
+                   help="luminosity compression in EV (default: training's, 0,2)")
+    p.add_argument("--noise-scale", type=_range, metavar="LO,HI",
+                   help="factor on the NoiseProfile, log-uniform (default: training's, 0.5,2)")
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
     g = p.add_argument_group("PSF maps (use the training set's settings)")
     g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
@@ -126,7 +131,8 @@ def run(args) -> int:
         img_dir = images if args.limit is None else _limited_images(images, args.limit, Path(tmp) / "images")
         report = evaluate(model, img_dir, lens, samples=args.samples, seed=args.seed, size=args.size,
                           border=args.border, positions=args.positions, baseline=args.baseline,
-                          noise=False if args.no_noise else None,
+                          noise=False if args.no_noise else None, exposure_ev=args.exposure,
+                          noise_scale=args.noise_scale,
                           cameras=args.camera, tolerance_scale=args.tolerance_scale, with_proxy=args.with_proxy,
                           psf_options={"n": args.psf_n, "grid": args.psf_grid}, workers=args.workers,
                           progress=not args.quiet, cache_dir=args.psf_cache, threads=args.threads)

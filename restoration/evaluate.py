@@ -536,7 +536,7 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
 
 def evaluate(model, images_dir, lens, *, samples: int = 4, seed: int = 0, size: int = 256, border: int = 32,
              positions: int = 1, baseline: str = "wiener", synth: SynthSettings | None = None,
-             noise: bool | None = None, cameras=None,
+             noise: bool | None = None, exposure_ev=None, noise_scale=None, cameras=None,
              tolerance_scale: float = 1.0, with_proxy: bool = False, psf_options: dict | None = None,
              workers: int = 2, progress: bool = True, cache_dir=None, threads: int = 2) -> dict:
     """Evaluate a model file on ``images_dir`` × ``samples`` proxy cameras not
@@ -561,6 +561,10 @@ def evaluate(model, images_dir, lens, *, samples: int = 4, seed: int = 0, size: 
         of the model's metadata ``process``.
     noise : bool, optional
         Override of ``synth.noise``.
+    exposure_ev, noise_scale : (low, high), optional
+        Overrides of ``synth.exposure_ev`` (luminosity compression, EV) and
+        ``synth.noise_scale`` (factor on the NoiseProfile): the test set at
+        other light levels than training's.
     cameras, psf_options, workers, cache_dir
         :func:`eval_plan`.
     progress : bool
@@ -580,10 +584,12 @@ def evaluate(model, images_dir, lens, *, samples: int = 4, seed: int = 0, size: 
     runner = load_runner(model, threads=threads) if isinstance(model, (str, os.PathLike)) else model
     t_load = time.perf_counter() - t0
     synth = _with_model_process(synth, getattr(runner, "meta", {}) or {})
-    if noise is not None:
+    given = {"noise": None if noise is None else bool(noise), "exposure_ev": exposure_ev, "noise_scale": noise_scale}
+    given = {k: v for k, v in given.items() if v is not None}
+    if given:
         from dataclasses import replace
 
-        synth = replace(synth or SynthSettings(), noise=bool(noise))
+        synth = replace(synth or SynthSettings(), **given)
     plan = eval_plan(lens, images_dir, samples=samples, seed=seed, settings=settings, synth=synth, cameras=cameras,
                      tolerance_scale=tolerance_scale, with_proxy=with_proxy, psf_options=psf_options,
                      workers=workers, progress=progress, cache_dir=cache_dir)

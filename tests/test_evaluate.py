@@ -344,6 +344,40 @@ def test_isp_eval_writes_the_report(make, latent_dir, tmp_path, monkeypatch, cap
     assert "wrote" in capsys.readouterr().out
 
 
+def test_isp_eval_sets_the_light_of_the_test_set(make, latent_dir, tmp_path, monkeypatch, capsys):
+    """`--exposure` and `--noise-scale` reach the test set's synthesis (the
+    rest of it as training's), and a bad range is one line, exit 2, no
+    report."""
+    import restoration.evaluate as ev
+    from isp.cli import main
+
+    plan, _ = make([psf_map()])
+    seen = {}
+
+    def fake_plan(lens, images_dir, **kw):
+        seen.update(kw)
+        return plan
+
+    monkeypatch.setattr(ev, "eval_plan", fake_plan)
+    lens = tmp_path / "lens.json"
+    lens.write_text("{}")
+    model = onnx_select_rgb(tmp_path / "sel.onnx")
+    args = ["eval", str(model), "--images", str(latent_dir), "--lens", str(lens), "--size", "32", "--border", "8",
+            "-q", "--json"]
+    assert main(args + [str(tmp_path / "a.json"), "--exposure", "0,0.5", "--noise-scale", "0.25,0.5"]) == 0
+    st = seen["synth"]
+    assert st.exposure_ev == (0.0, 0.5) and st.noise_scale == (0.25, 0.5)
+    assert st.noise and st.cct_k == (2850.0, 7500.0)                    # the others as training's
+    seen.clear()
+    assert main(args + [str(tmp_path / "b.json"), "--no-noise", "--exposure", "1,1"]) == 0
+    assert seen["synth"].exposure_ev == (1.0, 1.0) and not seen["synth"].noise
+    capsys.readouterr()
+    rc = main(args + [str(tmp_path / "c.json"), "--noise-scale", "0,1"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.count("\n") == 0 and "noise_scale" in err
+    assert not (tmp_path / "c.json").exists()
+
+
 @pytest.mark.parametrize("missing", ["model", "images", "lens"])
 def test_isp_eval_missing_input_is_one_line(missing, latent_dir, tmp_path, capsys):
     from isp.cli import main
