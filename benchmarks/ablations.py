@@ -36,6 +36,8 @@ linear_highpass     highpass with the high-pass on the residual made linear
                     ``optim.highpass_penalty``)
 static_linear_hp    "static" with √x and the linear high-pass (against
                     linear_highpass: the dynamic convolution's gain on it)
+half_res_blocks     linear_highpass with a block at ½ resolution before and
+                    after the ¼-resolution ones (depths 1/4/1; 7.7 kMAC/px)
 large               linear_highpass 12× the size (widths 48/192, depths
                     1/6/1; 79 kMAC/px, past the 2-core budget): what
                     capacity buys at 0.9
@@ -107,6 +109,7 @@ ENTRIES = {
     "linear_highpass": ("doconv:sqrt:9:linear", "pipeline"),
     "static_linear_hp": ("static:sqrt:9:linear", "pipeline"),
     "linear_srgb_hp": ("doconv:sqrt:9:linear", "linear"),
+    "half_res_blocks": ("doconv:sqrt:9:linear", "pipeline", {"depths": (1, 4, 1)}),
     "large": ("doconv:sqrt:9:linear", "pipeline", LARGE),
     "static_large": ("static:sqrt:9:linear", "pipeline", STATIC_LARGE),
 }
