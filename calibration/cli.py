@@ -232,7 +232,7 @@ def cmd_simulate(args) -> int:
     from .imaging import simulate_capture, write_capture
     from .imaging_chart import slanted_square_chart
 
-    lens = _load(args.lens)
+    lens = given = _load(args.lens)
     if args.pixel_pitch or args.size:
         from .lens import Sensor
 
@@ -248,6 +248,13 @@ def cmd_simulate(args) -> int:
     print(f"wrote {out}: {sensor.width_px}x{sensor.height_px} at {sensor.pixel_pitch_um:.3f} µm, {what}; "
           f"process it with `isp process {out} -o capture.jpg`, measure it with "
           f"`isp calib sfr {out} --roi ...`")
+    if args.save_lens:
+        from .proxy import save_proxy
+
+        # the prescription's own sensor: --size and --pixel-pitch set the capture, not the lens
+        path = save_proxy(args.save_lens, given, getattr(model, "perturbation", None))
+        print(f"wrote {path}: the device's true lens (a proxy lens file: `isp eval --lens {path} "
+              f"--samples 0 --with-proxy` scores a correction on this device)")
     return 0
 
 
@@ -459,7 +466,8 @@ def make_parser() -> argparse.ArgumentParser:
                                     "it as a DNG that `isp process` and `isp calib sfr` read like a real "
                                     "capture.",
                         epilog="examples:\n  isp calib simulate e9.json -o nominal.dng --size 2000,1500\n"
-                               "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3",
+                               "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3\n"
+                               "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3 --save-lens dev3.json",
                         formatter_class=argparse.RawDescriptionHelpFormatter)
     sp.add_argument("lens")
     sp.add_argument("-o", "--output", required=True, help="output .dng")
@@ -467,6 +475,9 @@ def make_parser() -> argparse.ArgumentParser:
     sp.add_argument("--pixel-pitch", type=float, metavar="UM", help="pixel pitch in µm")
     sp.add_argument("--exposure", type=float, default=0.8, help="white level reached by the chart's white")
     sp.add_argument("--colorchecker", action="store_true", help="add ColorChecker patches in the middle")
+    sp.add_argument("--save-lens", metavar="FILE.json",
+                    help="also write the device's true lens (the prescription with the device's perturbation, "
+                         "a proxy lens file), to score a correction or a fit against")
     perturb_args(sp)
     sp.set_defaults(func=cmd_simulate)
 

@@ -241,13 +241,9 @@ class ProxyFit(FittedLens):
         ``fit.json`` and the plots into ``directory``; returns the paths."""
         from isp.io import write_bytes_atomic
 
-        from .lens_io import lens_to_dict
-
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        lens_doc = lens_to_dict(self.nominal)
-        lens_doc["perturbation"] = {n: float(v) for n, v in self.perturbation.as_dict().items()}
-        paths = {"proxy": write_bytes_atomic(d / "proxy.json", json.dumps(lens_doc, indent=2).encode()),
+        paths = {"proxy": save_proxy(d / "proxy.json", self.nominal, self.perturbation),
                  "fit": write_bytes_atomic(d / "fit.json", json.dumps(self.to_dict(), indent=2).encode())}
         paths.update(plot_fit(self, d))
         return paths
@@ -714,6 +710,20 @@ def plot_fit(fit: ProxyFit, directory) -> dict:
     return out
 
 
+def save_proxy(path, nominal, perturbation: Perturbation | None = None) -> Path:
+    """Write ``nominal`` with ``perturbation`` as a proxy lens file (lens/v1
+    plus a ``perturbation`` object of {name: value}), atomically; what
+    :func:`load_proxy` reads back. A fitted proxy camera, or the true lens of
+    a simulated device (``isp calib simulate --save-lens``)."""
+    from isp.io import write_bytes_atomic
+
+    from .lens_io import lens_to_dict
+
+    doc = lens_to_dict(nominal)
+    doc["perturbation"] = {n: float(v) for n, v in (perturbation.as_dict() if perturbation else {}).items()}
+    return write_bytes_atomic(Path(path), json.dumps(doc, indent=2).encode())
+
+
 def load_proxy(path) -> PerturbedLens:
     """A proxy lens file (lens/v1 with a ``perturbation`` object) as a
     PerturbedLens; a plain lens/v1 file gives the nominal lens."""
@@ -724,5 +734,5 @@ def load_proxy(path) -> PerturbedLens:
     return apply(lens, Perturbation.from_dict(pert))
 
 
-__all__ = ["FittedLens", "ProxyFit", "default_names", "screen_parameters", "fit_proxy", "focus_name", "load_proxy", "parameter_space",
+__all__ = ["FittedLens", "ProxyFit", "default_names", "screen_parameters", "fit_proxy", "focus_name", "load_proxy", "parameter_space", "save_proxy",
            "plot_fit", "FOCUS_TOLERANCE_MM"]

@@ -106,6 +106,31 @@ def test_simulate_writes_a_capture_the_isp_reads(capsys, tmp_path):
     assert code == 0, stderr
 
 
+@pytest.mark.slow
+def test_simulate_saves_the_devices_true_lens(capsys, tmp_path):
+    """`--save-lens`: the prescription (its own sensor, not the capture's
+    --size) with exactly the device's drawn and refocused perturbation."""
+    import argparse
+
+    from calibration.cli import _load, _perturbed
+    from calibration.proxy import load_proxy
+
+    zmx = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
+    saved = tmp_path / "dev3.json"
+    code, stdout, stderr = _run(capsys, "calib", "simulate", str(zmx), "-o", str(tmp_path / "dev3.dng"),
+                                "--size", "640,480", "--perturb", "random", "--seed", "3",
+                                "--save-lens", str(saved), "--cache", str(tmp_path / "cache"))
+    assert code == 0, stderr
+    assert "true lens" in stdout
+    lens = _load(str(zmx))
+    device, _ = _perturbed(lens, argparse.Namespace(perturb="random", seed=3))
+    back = load_proxy(saved)
+    want, got = device.perturbation.as_dict(), back.perturbation.as_dict()
+    assert set(got) == set(want) and any(abs(v) > 0 for v in want.values())
+    assert all(got[k] == pytest.approx(v, rel=1e-12, abs=1e-15) for k, v in want.items())
+    assert back.nominal.sensor == lens.sensor and lens.sensor.width_px != 640
+
+
 def test_sfr_chart_on_a_raw_capture(capsys, tmp_path):
     """The demo capture (a DNG from the project's writer) has six slanted dark
     squares: chart mode on the raw mosaic finds their sides and measures the
