@@ -20,6 +20,12 @@ examples:
   isp train --config configs/e9_default.toml --steps 50 --out out/try   # a short trial run
   isp train --config configs/e9_default.toml --resume out/e9_default/last.pt
   isp train --resume out/e9_default/last.pt --steps 6000      # continue with the checkpoint's config
+  isp train --config configs/e9_default.toml --lens fit/proxy.json --out out/dev3   # for one device
+
+--lens trains for one device (the paper's "single sample"): the pairs come from
+that lens file alone -- the proxy camera `isp calib fit` fitted to the device,
+measured at the pixel pitch the pairs are made at (README: "That route on a
+simulated device") -- into OUT/pairs.
 
 The config (TOML or JSON) has sections [data], [synth], [model], [optim],
 [temperature] and [run]; every key and its default is listed in the docstring
@@ -44,6 +50,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, help="total optimiser steps (overrides run.steps)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="overrides run.device")
     p.add_argument("--threads", type=int, help="torch CPU threads (overrides run.threads)")
+    p.add_argument("--lens", metavar="PROXY",
+                   help="train for one device: the pairs from this lens file alone (synth.lens = PROXY, "
+                        "synth.samples = 1, synth.out = OUT/pairs)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -68,10 +77,25 @@ def run(args) -> int:
                                                     ("threads", args.threads)) if v is not None}
     if changes:
         config = config.replace("run", **changes)
+    if args.lens is not None:
+        config = for_one_device(config, args.lens)
     from .train import train
 
     train(config, resume=args.resume, progress=not args.quiet)
     return 0
+
+
+def for_one_device(config, lens):
+    """``config`` trained on pairs from ``lens`` alone (a fitted proxy
+    camera), synthesised into ``<run.out>/pairs``."""
+    from isp.errors import InputError
+
+    if not Path(lens).is_file():
+        raise InputError(lens, "no such lens file (a fitted proxy.json, lens/v1 or .zmx)")
+    if config.synth is None or config.data.dirs:
+        raise ConfigError("--lens needs a config whose pairs come from its [synth] section (no data.dirs)")
+    return config.replace("synth", lens=str(Path(lens).resolve()), samples=1,
+                          out=str(Path(config.run.out) / "pairs"))
 
 
 def main(argv: list[str] | None = None) -> int:

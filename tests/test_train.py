@@ -309,11 +309,36 @@ def test_cli_errors_are_one_line_exit_2(tmp_path, capsys, pairs):
         assert err.startswith("isp: error:") and msg in err and "\n" not in err
 
 
-@pytest.mark.parametrize("name, samples", [("e9_default.toml", 3), ("e9_lenses9.toml", 9)])
+def test_isp_train_lens_trains_for_one_device(tmp_path, monkeypatch, capsys):
+    """`--lens PROXY`: the pairs from that lens alone, into OUT/pairs; the
+    rest as the config says. A missing file is one line, exit 2."""
+    from pathlib import Path
+
+    import restoration.train as tr
+    from restoration.train_config import load_config
+
+    seen = {}
+    monkeypatch.setattr(tr, "train", lambda config, **kw: seen.setdefault("config", config))
+    proxy = tmp_path / "proxy.json"
+    proxy.write_text("{}")
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "e9_default.toml"
+    argv = ["train", "--config", str(cfg), "--out", str(tmp_path / "dev"), "-q", "--lens"]
+    assert main(argv + [str(proxy)]) == 0
+    c, base = seen["config"], load_config(cfg)
+    assert c.synth.samples == 1 and Path(c.synth.lens) == proxy.resolve()
+    assert Path(c.synth.out) == tmp_path / "dev" / "pairs" and c.data_dirs() == [c.synth.out]
+    assert c.model == base.model and c.optim == base.optim and c.synth.pairs == base.synth.pairs
+    assert main(argv + [str(tmp_path / "nope.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "nope.json" in err and "\n" not in err
+
+
+@pytest.mark.parametrize("name, samples", [("e9_default.toml", 3), ("e9_lenses9.toml", 9), ("e9_gpu.toml", 9),
+                                           ("e9_bright.toml", 3), ("e9_nonoise.toml", 3)])
 def test_default_config_is_valid(name, samples):
-    """configs/e9_default.toml (and its nine-camera twin) parses, trains the
-    default variant with the linear high-pass and its penalty, and
-    synthesises from the e9 lens."""
+    """configs/e9_default.toml (and its twins: nine cameras, the GPU budget,
+    bright light, no noise) parses, trains the default variant with the
+    linear high-pass and its penalty, and synthesises from the e9 lens."""
     from pathlib import Path
 
     from restoration.train_config import load_config, resolve_path
@@ -323,6 +348,10 @@ def test_default_config_is_valid(name, samples):
     assert cfg.synth.samples == samples
     assert cfg.model.variant == "doconv" and cfg.optim.betas == [0.9, 0.999] and cfg.optim.eps == 1e-8
     assert cfg.model.kwargs["highpass_domain"] == "linear" and cfg.optim.highpass_penalty == 1.0
+    light = {"e9_bright.toml": ([0.0, 0.5], [0.25, 0.5], True), "e9_nonoise.toml": ([0.0, 2.0], [0.5, 2.0], False)}
+    ev, scale, noise = light.get(name, ([0.0, 2.0], [0.5, 2.0], True))
+    assert list(cfg.synth.exposure_ev) == ev and list(cfg.synth.noise_scale) == scale and cfg.synth.noise is noise
+    assert Path(cfg.synth.out).name == name.removesuffix(".toml")   # each its own pairs
 
 
 @pytest.mark.parametrize("placement", ["raw", "srgb", "linear"])
