@@ -18,6 +18,7 @@ temporary folder and renamed, so a failed fit leaves nothing):
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import tempfile
 import time
@@ -37,7 +38,7 @@ def cmd_fit(args) -> int:
     from .loop_cli import _check_out, _publish, load_measured, match_sensor
     from .proxy import fit_proxy
     from .psf_map import WINDOW_ENERGY_WARN
-    from .sfr_model import FAST_JACOBIAN
+    from .sfr_model import FAST_JACOBIAN, ModelSettings
 
     t0 = time.perf_counter()
     if args.max_iter < 1:
@@ -46,6 +47,8 @@ def cmd_fit(args) -> int:
         raise IspError(f"--n-params {args.n_params}: at least 1")
     if args.restarts < 0:
         raise IspError(f"--restarts {args.restarts}: 0 or more")
+    if args.window_um is not None and not 8.0 <= args.window_um <= 256.0:
+        raise IspError(f"--window-um {args.window_um:g}: between 8 and 256 µm")
     if min(args.coarse) < 0 or (0 in args.coarse and any(args.coarse)):
         raise IspError(f"--coarse {args.coarse[0]} {args.coarse[1]}: two positive counts, or 0 0 (off)")
     out = Path(args.output)
@@ -58,7 +61,15 @@ def cmd_fit(args) -> int:
     nominal, obs = match_sensor(nominal, obs, pixel_um=args.pixel_um)
     print(f"{args.measured}: {len(obs)} observations; fitting {args.n_params} parameters "
           f"({args.method}, {args.residuals} residuals)", flush=True)
-    fit = fit_proxy(nominal, obs, method=args.method, workers=args.workers, max_iter=args.max_iter,
+    settings = None
+    if args.window_um is not None:
+        # the pupil grid grows with the window, keeping the default's ratio, so that
+        # the window stays inside the pupil sampling's replica period (sfr_model._check_window)
+        d = ModelSettings()
+        settings = ModelSettings(window_um=args.window_um,
+                                 pupil_samples=max(d.pupil_samples,
+                                                   math.ceil(d.pupil_samples * args.window_um / d.window_um)))
+    fit = fit_proxy(nominal, obs, settings=settings, method=args.method, workers=args.workers, max_iter=args.max_iter,
                     n_params=args.n_params, residuals=args.residuals,
                     jacobian_settings=FAST_JACOBIAN if args.fast_jacobian else None,
                     refresh=args.refresh, restarts=args.restarts,
@@ -85,7 +96,7 @@ def cmd_fit(args) -> int:
     if fit.window_energy < WINDOW_ENERGY_WARN:
         print(f"note: the fitted lens throws {1 - fit.window_energy:.0%} of some region's light outside the model's "
               f"{fit.settings.get('window_um')} µm PSF window; its SFR there is too high at low frequencies "
-              "(a wider window: ModelSettings.window_um, benchmarks/psf_window.py)")
+              "(a wider window: --window-um, benchmarks/psf_window.py)")
     print(f"wrote {out}/proxy.json, fit.json, merit.png, sfra_maps.png, parameters.png "
           f"({time.perf_counter() - t0:.0f} s)")
     return 0
@@ -130,6 +141,9 @@ def add_parser(sub) -> None:
                          "(default on: on e9 at 15 × 20 regions, with the 16 µm model window of the time, it "
                          "ended at a lower merit in 109 s against 181 s with the full model's Jacobian; 152 s "
                          "with today's 32 µm window)")
+    sp.add_argument("--window-um", type=float, metavar="UM",
+                    help="the forward model's PSF window, µm (default 32; wider for blurry devices, whose "
+                         "corner light a narrow window drops: the fit says when)")
     sp.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
     sp.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")
     sp.add_argument("--pixel-um", type=float, metavar="UM", help="pixel pitch, µm (default: the capture's)")

@@ -144,3 +144,23 @@ def test_a_bad_coarse_grid_is_one_line_exit_2(capsys, tmp_path, device_obs, coar
     err = capsys.readouterr().err.strip()
     assert code == 2 and "--coarse" in err and "\n" not in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_a_wider_window_grows_the_pupil_grid_with_it(capsys, tmp_path, device_obs):
+    """`--window-um 48`: past the default pupil grid's replica period on e9
+    (≈ 45 µm), so the pupil grid grows in proportion (48 → 72 samples) and
+    the fit runs and records both; a window out of range is one line."""
+    _, obs_path = device_obs
+    lens = str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    out = tmp_path / "proxy"
+    code = main(["calib", "fit", "--lens", lens, "--measured", str(obs_path), "-o", str(out), "--n-params", "2",
+                 "--max-iter", "1", "--workers", "1", "--restarts", "0", "--coarse", "0", "0",
+                 "--window-um", "48"])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    settings = json.loads((out / "fit.json").read_text())["settings"]
+    assert settings["window_um"] == 48.0 and settings["pupil_samples"] == 72
+    code = main(["calib", "fit", "--lens", lens, "--measured", str(obs_path), "-o", str(tmp_path / "p2"),
+                 "--window-um", "4"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--window-um" in err and "\n" not in err and not (tmp_path / "p2").exists()
