@@ -183,6 +183,8 @@ def _steps_for(minutes: float, todo: list, args, out: Path) -> int:
 
 
 def main(argv=None) -> dict:
+    from restoration.cli import DATA  # ../shared/data, or $ISP_DATA as the training config's data: paths
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", default="configs/e9_default.toml", help="training config (data, optimiser)")
     ap.add_argument("--steps", type=int, default=1500, help="training steps per entry (default 1500)")
@@ -191,8 +193,6 @@ def main(argv=None) -> dict:
                          f"timed by a {PROBE_STEPS}-step probe of each, run as they will be (out/probe)")
     ap.add_argument("--only", nargs="+", choices=list(ENTRIES), help="a subset of the entries")
     ap.add_argument("--out", default="out/ablations")
-    from restoration.cli import DATA  # ../shared/data, or $ISP_DATA as the training config's data: paths
-
     ap.add_argument("--latent", default=str(DATA / "latent"),
                     help="the latent folder training drew from; its held-out images are the test set")
     ap.add_argument("--lens", default=str(DATA / "lenses/phone/US-12210142-B2-e9.zmx"))

@@ -18,7 +18,6 @@ temporary folder and renamed, so a failed fit leaves nothing):
 from __future__ import annotations
 
 import argparse
-import math
 import shutil
 import tempfile
 import time
@@ -61,14 +60,7 @@ def cmd_fit(args) -> int:
     nominal, obs = match_sensor(nominal, obs, pixel_um=args.pixel_um)
     print(f"{args.measured}: {len(obs)} observations; fitting {args.n_params} parameters "
           f"({args.method}, {args.residuals} residuals)", flush=True)
-    settings = None
-    if args.window_um is not None:
-        # the pupil grid grows with the window, keeping the default's ratio, so that
-        # the window stays inside the pupil sampling's replica period (sfr_model._check_window)
-        d = ModelSettings()
-        settings = ModelSettings(window_um=args.window_um,
-                                 pupil_samples=max(d.pupil_samples,
-                                                   math.ceil(d.pupil_samples * args.window_um / d.window_um)))
+    settings = None if args.window_um is None else ModelSettings().with_window(args.window_um)
     fit = fit_proxy(nominal, obs, settings=settings, method=args.method, workers=args.workers, max_iter=args.max_iter,
                     n_params=args.n_params, residuals=args.residuals,
                     jacobian_settings=FAST_JACOBIAN if args.fast_jacobian else None,

@@ -44,7 +44,7 @@ observation's own noise and measuring it as it was measured.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -113,6 +113,18 @@ class ModelSettings:
     aperture_px: float = 1.0
     noise_realisations: int = 4
     seed: int = 0
+
+    def with_window(self, window_um: float) -> ModelSettings:
+        """These settings with a ``window_um`` window and the pupil grid grown
+        with it in this window's ratio (never shrunk), so that a window
+        these settings keep inside the pupil sampling's replica period stays
+        inside it (:func:`_check_window`; ``isp calib fit --window-um``).
+
+        >>> ModelSettings().with_window(48.0).pupil_samples
+        72
+        """
+        grown = math.ceil(self.pupil_samples * float(window_um) / self.window_um)
+        return replace(self, window_um=float(window_um), pupil_samples=max(self.pupil_samples, grown))
 
 
 #: the cheaper model a fit may take its Jacobian from (``--fast-jacobian``): fewer pupil samples, and so a
