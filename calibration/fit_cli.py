@@ -83,7 +83,8 @@ def cmd_fit(args) -> int:
         print(f"the fit ended far above the noise floor; {len(fit.restarts)} other starts tried: "
               + (f"start {won[0]['start']} reached a lower merit and was kept" if won else "none did better"))
     print(f"SFRA RMS {e['before']['sfra_rms']:.4f} → {e['after']['sfra_rms']:.4f} cycles/pixel, "
-          f"χ²/obs {e['before']['chi2_per_obs']:.1f} → {e['after']['chi2_per_obs']:.2f}; "
+          f"χ²/obs {e['before']['chi2_per_obs']:.1f} → {e['after']['chi2_per_obs']:.2f}, median |residual| "
+          f"{e['before']['median_abs_z']:.2f} → {e['after']['median_abs_z']:.2f} σ (0.67 at the noise floor); "
           f"{fit.evaluations} lens evaluations, {fit.seconds:.0f} s")
     if fit.window_energy < WINDOW_ENERGY_WARN:
         print(f"note: the fitted lens throws {1 - fit.window_energy:.0%} of some region's light outside the model's "

@@ -153,6 +153,19 @@ class Sensor:
         w, h = self.size_mm
         return 0.5 * math.hypot(w, h)
 
+    def at_pitch(self, pixel_pitch_um: float) -> Sensor:
+        """The same sensor area sampled at ``pixel_pitch_um`` µm (a binned or
+        full-resolution mode of one sensor): pixel counts rounded.
+
+        >>> Sensor(2.807, 2000, 1500).at_pitch(1.0)
+        Sensor(pixel_pitch_um=1.0, width_px=5614, height_px=4210)
+        """
+        p = float(pixel_pitch_um)
+        if not (math.isfinite(p) and p > 0):
+            raise ValueError(f"pixel pitch must be positive, got {pixel_pitch_um!r}")
+        return Sensor(pixel_pitch_um=p, width_px=max(1, round(self.width_px * self.pixel_pitch_um / p)),
+                      height_px=max(1, round(self.height_px * self.pixel_pitch_um / p)))
+
 
 @dataclass(frozen=True)
 class Lens:

@@ -109,15 +109,36 @@ __all__ = [
     "psf_map",
     "region_centers_mm",
     "sensor_to_image",
+    "default_psf_n",
 ]
 
 CACHE_VERSION = 1
 """Bumped whenever a change to the PSF code changes the numbers."""
 
+WINDOW_UM = 32.0
+"""Default side of a PSF window, µm (:func:`default_psf_n`; the fit's
+``ModelSettings.window_um`` too). A lens's PSF is as wide in µm whatever
+the pixel: a window of a fixed sample count shrinks with the pixel pitch,
+and until 2026-11-27 :func:`psf_map`'s default of 32 samples at half a
+pixel was 16 µm on 1 µm pixels, where a device drawn within e9's
+tolerance kept only 47 % of a corner PSF (``isp calib simulate`` at the
+prescription's sensor rendered such devices sharper than their lens)."""
+
 WINDOW_ENERGY_WARN = 0.9
 """:func:`psf_map` warns when a PSF keeps less than this share of its energy
 inside the window (a lens blurred beyond it: e.g. e9 with element 1
 decentred by its 5 µm tolerance keeps 71 % in 16 µm)."""
+
+
+def default_psf_n(pitch_um: float, window_um: float = WINDOW_UM, minimum: int = 32) -> int:
+    """Samples per side of a PSF window at least ``window_um`` µm wide at
+    ``pitch_um`` µm per sample: even, and never below ``minimum`` (coarse
+    pixels keep the 32 samples they always had).
+
+    >>> default_psf_n(0.5), default_psf_n(1.4), default_psf_n(0.35)
+    (64, 32, 92)
+    """
+    return max(int(minimum), 2 * math.ceil(float(window_um) / (2.0 * float(pitch_um)) - 1e-9))
 
 
 # -- sensor geometry ------------------------------------------------------------------
@@ -508,7 +529,7 @@ def _wavelength_plan(channels, n_wavelengths, camera, illuminant) -> tuple[np.nd
 
 
 def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = (15, 20),
-            channels: Sequence[str] = ("R", "G", "B"), method: str = "debye", n: int = 32,
+            channels: Sequence[str] = ("R", "G", "B"), method: str = "debye", n: int | None = None,
             pitch_um: float | None = None, pupil_samples: int = 64, n_wavelengths: int | None = None,
             camera: str = DEFAULT_CAMERA, illuminant: str = "D65", aiming: str = "real",
             aim_each_wavelength: bool = False, symmetry: str = "auto", sensor: Sensor | None = None,
@@ -535,8 +556,9 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
         map (Huygens, 96 pupil samples, 4 wavelengths per channel aimed at
         each), on 6 regions from the centre to the corner
         (``benchmarks/psf.py``).
-    n : int
-        PSF size (n × n).
+    n : int, optional
+        PSF size (n × n); default :func:`default_psf_n` at ``pitch_um``:
+        a :data:`WINDOW_UM` (32 µm) window, at least 32 samples.
     pitch_um : float, optional
         PSF sample spacing; default half the sensor's pixel pitch.
     pupil_samples : int
@@ -585,7 +607,6 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
         raise PSFError(f"grid must be (rows, cols), got {grid!r}") from None
     _positive_int(rows, "grid rows")
     _positive_int(cols, "grid cols")
-    n = _positive_int(n, "n")
     samples = _positive_int(pupil_samples, "pupil_samples")
     if workers is None:
         workers = max(1, min(2, os.cpu_count() or 1))
@@ -599,6 +620,7 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
     pitch = 0.5 * sensor.pixel_pitch_um if pitch_um is None else float(pitch_um)
     if not (math.isfinite(pitch) and pitch > 0):
         raise PSFError(f"pitch_um must be positive, got {pitch_um!r}")
+    n = default_psf_n(pitch) if n is None else _positive_int(n, "n")
     n_wl = DEFAULT_WAVELENGTHS_PER_CHANNEL if n_wavelengths is None else _positive_int(n_wavelengths, "n_wavelengths")
     nodes, weights = _wavelength_plan(channels, n_wl, camera, illuminant)
     symmetric = symmetry == "auto" and _is_coaxial(pl)

@@ -60,7 +60,7 @@ from .psf import (
     _mono,
     _sphere,
 )
-from .psf_map import _wavelength_plan, chief_ray_fields, sensor_to_image
+from .psf_map import WINDOW_UM, _wavelength_plan, chief_ray_fields, default_psf_n, sensor_to_image
 from .sfr import LUMINANCE_WEIGHTS
 from .sfr_asym import BANDS as ODD_BANDS
 from .sfr_asym import model_odd_bands, odd_bands, project_masses
@@ -102,7 +102,7 @@ class ModelSettings:
     """
 
     pupil_samples: int = 48
-    window_um: float = 32.0
+    window_um: float = WINDOW_UM
     psf_n: int | None = None
     psf_pitch_um: float | None = None
     n_wavelengths: int = 2
@@ -230,7 +230,7 @@ class SfrModel:
         self.pitch_px = self.pitch_um / sen.pixel_pitch_um
         # until 2026-11-26 the window was 64 samples whatever the pixel: 2.8 µm pixels made it 90 µm,
         # past the pupil sampling's replica period, and `isp calib loop` stopped with an internal error
-        self.psf_n = int(s.psf_n) if s.psf_n is not None else 2 * math.ceil(s.window_um / (2.0 * self.pitch_um) - 1e-9)
+        self.psf_n = int(s.psf_n) if s.psf_n is not None else default_psf_n(self.pitch_um, s.window_um, minimum=2)
         used = set(np.asarray(obs.channel).tolist())
         self.channels = tuple(c for c in CHANNELS if c in used or "L" in used)
         if not self.channels:

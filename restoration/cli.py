@@ -82,6 +82,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance-scale", type=float, default=1.0,
                    help="scale of the default tolerances for drawn lenses (default 1)")
     p.add_argument("--shard-size", type=int, default=100, help="pairs per shard file (default 100)")
+    p.add_argument("--pixel-um", type=float, metavar="UM",
+                   help="the pairs' pixel pitch, µm: the lens file's sensor area at this pitch (default the lens "
+                        "file's; a proxy fitted to a binned capture carries that capture's pitch)")
     g = p.add_argument_group("what the pairs look like")
     g.add_argument("--exposure", type=_range, default=(0.0, 2.0), metavar="LO,HI",
                    help="luminosity compression in EV (default 0,2)")
@@ -117,13 +120,15 @@ def run(args) -> int:
         raise ConfigError("--pairs, --workers and --shard-size must be ≥ 1")
     if not Path(args.lens).exists():
         raise IspError(f"{args.lens}: no such lens file")
+    if args.pixel_um is not None and not 0.2 <= args.pixel_um <= 20.0:
+        raise ConfigError(f"--pixel-um {args.pixel_um:g}: between 0.2 and 20 µm")
     cameras = args.camera or [str(DATA / c) for c in DEFAULT_CAMERAS]
     settings = SynthSettings(size=args.size, exposure_ev=args.exposure, cct_k=args.cct, noise_scale=args.noise_scale,
                              noise=not args.no_noise, blend=args.blend, demosaic=args.demosaic, tone=args.tone)
     p = plan(args.lens, samples=args.samples, latent_dir=args.latent, cameras=cameras, seed=args.seed,
              settings=settings, tolerance_scale=args.tolerance_scale,
              psf_options={"n": args.psf_n, "grid": args.psf_grid},
-             workers=args.workers, progress=not args.quiet, cache_dir=args.psf_cache)
+             workers=args.workers, progress=not args.quiet, cache_dir=args.psf_cache, pixel_um=args.pixel_um)
     m = generate(p, args.output, args.pairs, shard_size=args.shard_size, workers=args.workers,
                  progress=not args.quiet, force=args.force)
     print(f"wrote {m['pairs']} pairs of {m['size']}×{m['size']} in {len(m['shards'])} shards to {args.output} "

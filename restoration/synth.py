@@ -377,7 +377,7 @@ def _sensor_geometry(plan: SynthPlan):
 
 def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings: SynthSettings | None = None,
          tolerance_scale: float = 1.0, psf_options: dict | None = None, workers: int = 2,
-         progress: bool = True, cache_dir=None) -> SynthPlan:
+         progress: bool = True, cache_dir=None, pixel_um: float | None = None) -> SynthPlan:
     """Read the inputs and compute (or read from the cache) the PSF maps.
 
     Parameters
@@ -400,7 +400,14 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
         Processes for the PSF maps.
     cache_dir : path, optional
         PSF-map cache (default ``$ISP_CACHE/psf`` or ``~/.cache/phone-isp/psf``).
+    pixel_um : float, optional
+        The pairs' pixel pitch, µm: the lens file's sensor area sampled at
+        this pitch (:meth:`calibration.lens.Sensor.at_pitch`). A proxy
+        fitted to a binned capture carries that capture's sensor; the pairs
+        must be made at the pitch the correction will run on.
     """
+    from calibration.perturb import apply
+
     from .synth_colour import read_camera
     from .synth_optics import draw_lenses, load_lens, psf_maps
 
@@ -409,6 +416,9 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
     if isinstance(lens, (str, os.PathLike)):
         lens_path = str(lens)
         lens = load_lens(lens)
+    if pixel_um:
+        nom = lens.nominal
+        lens = apply(nom.replace(sensor=nom.sensor.at_pitch(pixel_um)), lens.perturbation)
     opts = _psf_options(psf_options)
     # context of a crop, before the maps exist: the PSF window's reach (+ demosaic)
     reach = window_reach_px(opts["n"], opts.get("pitch_um"), lens.nominal.sensor.pixel_pitch_um)

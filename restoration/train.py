@@ -50,6 +50,8 @@ key                            default              meaning
 ``synth.seed``                 0                    seed of the synthesis
 ``synth.workers``              2                    processes
 ``synth.tolerance_scale``      1.0                  scale of the default tolerances
+``synth.pixel_um``             0                    the pairs' pixel pitch, µm (the lens
+                                                    file's sensor area at it); 0: the file's
 ``synth.latent``               ``"data:latent"``    latent sRGB images
 ``synth.cameras``              the two phone DNGs   colour metadata (the first: the sensor)
                                of ``isp synth``
@@ -165,6 +167,8 @@ def synth_argv(config: TrainConfig) -> list[str]:
         argv += ["--camera", str(resolve_path(c))]
     if not s.noise:
         argv.append("--no-noise")
+    if s.pixel_um:
+        argv += ["--pixel-um", repr(float(s.pixel_um))]
     return argv
 
 
@@ -185,6 +189,8 @@ def _synth_mismatch(manifest: dict, config: TrainConfig) -> list[str]:
             # a set blurred through another PSF window is another set (the window changed default)
             "psf_n": (manifest.get("psf_map", {}).get("n"), s.psf_n),
             "psf_grid": (list(manifest.get("psf_map", {}).get("grid", [])), list(map(int, s.psf_grid)))}
+    if s.pixel_um:
+        want["pixel_um"] = (manifest.get("psf_map", {}).get("sensor", {}).get("pixel_pitch_um"), float(s.pixel_um))
     return [f"{k} {have!r} ≠ {need!r}" for k, (have, need) in want.items() if have != need]
 
 

@@ -53,6 +53,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--lens", metavar="PROXY",
                    help="train for one device: the pairs from this lens file alone (synth.lens = PROXY, "
                         "synth.samples = 1, synth.out = OUT/pairs)")
+    p.add_argument("--pixel-um", type=float, metavar="UM",
+                   help="the pairs' pixel pitch, µm (overrides synth.pixel_um): e.g. 1.0 to train the "
+                        "full-resolution mode from a proxy fitted to a binned capture")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -79,6 +82,10 @@ def run(args) -> int:
         config = config.replace("run", **changes)
     if args.lens is not None:
         config = for_one_device(config, args.lens)
+    if args.pixel_um is not None:
+        if config.synth is None:
+            raise ConfigError("--pixel-um needs a config whose pairs come from its [synth] section")
+        config = config.replace("synth", pixel_um=float(args.pixel_um))
     from .train import train
 
     train(config, resume=args.resume, progress=not args.quiet)

@@ -50,6 +50,7 @@ class SynthConfig:
     seed: int = 0
     workers: int = 2
     tolerance_scale: float = 1.0
+    pixel_um: float = 0.0           # the pairs' pixel pitch; 0: the lens file's
     latent: str = "data:latent"
     cameras: list = field(default_factory=lambda: ["data:raw/SYNTHETIC_phone_S6meta_512x384.dng",
                                                    "data:raw/skia_sample_1mp.dng"])
@@ -188,6 +189,8 @@ class TrainConfig:
                 raise ConfigError("synth.out is required in a [synth] section (where the pairs go)")
             for k in ("samples", "pairs", "size", "workers", "psf_n", "shard_size"):
                 _positive(getattr(s, k), f"synth.{k}")
+            if s.pixel_um and not 0.2 <= s.pixel_um <= 20.0:
+                raise ConfigError(f"synth.pixel_um must be 0 (the lens file's) or 0.2–20 µm; got {s.pixel_um}")
             if s.size < d.crop:
                 raise ConfigError(f"data.crop ({d.crop}) is larger than synth.size ({s.size})")
             for k in ("exposure_ev", "cct_k", "noise_scale", "psf_grid"):

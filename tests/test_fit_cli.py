@@ -46,6 +46,11 @@ def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device
         assert (out / f).is_file(), f
     fit = json.loads((out / "fit.json").read_text())
     assert fit["errors"]["after"]["sfra_rms"] < 0.5 * fit["errors"]["before"]["sfra_rms"]
+    # the median |residual| (σ) falls with χ², above the floor's 0.67 here (three parameters), and is printed
+    e = fit["errors"]
+    assert 0.67 < e["after"]["median_abs_z"] < 0.5 * e["before"]["median_abs_z"]
+    assert e["after"]["median_abs_z"] ** 2 < e["after"]["chi2_per_obs"]
+    assert f"{e['after']['median_abs_z']:.2f} σ" in printed.out
     assert all(np.isfinite(p["std"]) for p in fit["parameters"])
     # three parameters cannot fit this device: the fit ends far above the noise floor and tries one restart
     assert len(fit["restarts"]) == 1 and "1 other starts tried" in printed.out

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -359,14 +360,34 @@ def test_property_plot_psf_map(e9, tmp_path):
 def test_property_full_map_of_a_perturbed_e9(e9):
     """property (slow): a 15 × 20 × 3 map of a perturbed e9 (no symmetry,
     2 worker processes) is normalised; element 1 decentred by its 5 µm
-    tolerance blurs beyond the default 16 µm window (71 % of the energy
-    inside, measured) and the map says so with a warning."""
+    tolerance blurs beyond a 16 µm window (32 samples, the default until
+    2026-11-27: 71 % of the energy inside, measured) and the map says so
+    with a warning."""
     with pytest.warns(UserWarning, match="increase n"):
-        m = M.psf_map(apply(e9, {"e1.decenter_y": 0.005}), cache=False, progress=False, workers=2)
+        m = M.psf_map(apply(e9, {"e1.decenter_y": 0.005}), n=32, cache=False, progress=False, workers=2)
     assert m.psfs.shape == (15, 20, 3, 32, 32)
     assert np.allclose(m.psfs.sum(axis=(3, 4)), 1, atol=1e-5)
     assert 0.6 < m.window_energy.min() < 0.9 and m.window_energy.max() <= 1.0
     assert not np.allclose(m.psfs[7, 10], m.psfs[7, 10, :, ::-1, :], atol=1e-3)
+
+
+def test_default_window_is_32_um_whatever_the_pixel(e9):
+    """property: the default window is :data:`WINDOW_UM` (32 µm) wide, not a
+    sample count: on e9's 1 µm pixels 64 samples at 0.5 µm, and there the
+    same decentred element 1 keeps ≥ 90 % of every region's energy (0.933
+    measured) where 32 samples keep 0.82 and warn; 2.8 µm pixels keep 32
+    samples (45 µm)."""
+    pl = apply(e9, {"e1.decenter_y": 0.005})
+    kw = dict(grid=(3, 4), channels=("G",), n_wavelengths=1, cache=False, progress=False, workers=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m = M.psf_map(pl, **kw)
+    assert m.psfs.shape[-2:] == (64, 64) and m.psfs.shape[-1] * m.pitch_um == pytest.approx(M.WINDOW_UM)
+    assert m.window_energy.min() > M.WINDOW_ENERGY_WARN
+    with pytest.warns(UserWarning, match="increase n"):
+        narrow = M.psf_map(pl, n=32, **kw)
+    assert narrow.window_energy.min() < m.window_energy.min() - 0.05
+    assert M.default_psf_n(1.4) == 32 and M.default_psf_n(0.25) == 128
 
 
 # -- property: the SFR model's batched path = the per-field path ------------------------------

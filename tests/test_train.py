@@ -311,7 +311,8 @@ def test_cli_errors_are_one_line_exit_2(tmp_path, capsys, pairs):
 
 def test_isp_train_lens_trains_for_one_device(tmp_path, monkeypatch, capsys):
     """`--lens PROXY`: the pairs from that lens alone, into OUT/pairs; the
-    rest as the config says. A missing file is one line, exit 2."""
+    rest as the config says. A missing file is one line, exit 2.
+    `--pixel-um`: the pairs' pixel pitch."""
     from pathlib import Path
 
     import restoration.train as tr
@@ -331,6 +332,15 @@ def test_isp_train_lens_trains_for_one_device(tmp_path, monkeypatch, capsys):
     assert main(argv + [str(tmp_path / "nope.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert "nope.json" in err and "\n" not in err
+    # --pixel-um: the pairs' pitch, passed on to isp synth and checked against an existing set
+    seen.clear()
+    assert main(argv + [str(proxy), "--pixel-um", "1"]) == 0
+    c = seen["config"]
+    assert c.synth.pixel_um == 1.0 and tr.synth_argv(c)[-2:] == ["--pixel-um", "1.0"]
+    assert "--pixel-um" not in tr.synth_argv(base)
+    assert tr._synth_mismatch({"psf_map": {"sensor": {"pixel_pitch_um": 2.807}}}, c)[-1] == "pixel_um 2.807 ≠ 1.0"
+    assert main(argv + [str(proxy), "--pixel-um", "0.01"]) == 2
+    assert "pixel_um" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("name, samples", [("e9_default.toml", 3), ("e9_lenses9.toml", 9), ("e9_gpu.toml", 9),
