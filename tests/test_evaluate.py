@@ -378,6 +378,33 @@ def test_isp_eval_sets_the_light_of_the_test_set(make, latent_dir, tmp_path, mon
     assert not (tmp_path / "c.json").exists()
 
 
+def test_a_model_trained_at_another_pixel_pitch_is_flagged(make, latent_dir, tmp_path, monkeypatch):
+    """A model corrects blur in pixels: one whose training pairs were made
+    at 2.807 µm pixels, scored on lenses whose sensor has 1 µm pixels,
+    gets a warning naming both pitches and the option that makes pairs at
+    the test's pitch; trained at the test's pitch, none."""
+    import warnings
+
+    import restoration.evaluate as ev
+    from restoration.runner import load_runner
+
+    plan, _ = make([psf_map()], baseline="none")
+    plan.info["psf_map"] = {"sensor": {"pixel_pitch_um": 1.0, "width_px": 128, "height_px": 96}}
+    monkeypatch.setattr(ev, "eval_plan", lambda lens, images_dir, **kw: plan)
+    runner = load_runner(onnx_select_rgb(tmp_path / "sel.onnx"))
+    kw = dict(images_dir=latent_dir, lens="lens.json", samples=1, size=32, border=8, baseline="none",
+              progress=False)
+    for pitch, flagged in ((2.807, True), (1.0, False)):
+        runner.info = {"metadata": {"training_sets": [{"psf_map": {"sensor": {"pixel_pitch_um": pitch}}}]}}
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            ev.evaluate(runner, **kw)
+        hits = [str(w.message) for w in seen if "µm pixels" in str(w.message)]
+        assert bool(hits) is flagged
+        if flagged:
+            assert "2.807 µm" in hits[0] and "1 µm" in hits[0] and "--pixel-um 1" in hits[0]
+
+
 @pytest.mark.parametrize("missing", ["model", "images", "lens"])
 def test_isp_eval_missing_input_is_one_line(missing, latent_dir, tmp_path, capsys):
     from isp.cli import main
