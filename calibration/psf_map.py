@@ -119,7 +119,7 @@ WINDOW_UM = 32.0
 """Default side of a PSF window, µm (:func:`default_psf_n`; the fit's
 ``ModelSettings.window_um`` too). A lens's PSF is as wide in µm whatever
 the pixel: a window of a fixed sample count shrinks with the pixel pitch,
-and until 2026-11-27 :func:`psf_map`'s default of 32 samples at half a
+and until 2026-11-26 :func:`psf_map`'s default of 32 samples at half a
 pixel was 16 µm on 1 µm pixels, where a device drawn within e9's
 tolerance kept only 47 % of a corner PSF (``isp calib simulate`` at the
 prescription's sensor rendered such devices sharper than their lens)."""

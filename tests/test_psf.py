@@ -361,7 +361,7 @@ def test_property_full_map_of_a_perturbed_e9(e9):
     """property (slow): a 15 × 20 × 3 map of a perturbed e9 (no symmetry,
     2 worker processes) is normalised; element 1 decentred by its 5 µm
     tolerance blurs beyond a 16 µm window (32 samples, the default until
-    2026-11-27: 71 % of the energy inside, measured) and the map says so
+    2026-11-26: 71 % of the energy inside, measured) and the map says so
     with a warning."""
     with pytest.warns(UserWarning, match="increase n"):
         m = M.psf_map(apply(e9, {"e1.decenter_y": 0.005}), n=32, cache=False, progress=False, workers=2)
