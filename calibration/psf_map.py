@@ -109,6 +109,7 @@ __all__ = [
     "psf_map",
     "region_centers_mm",
     "sensor_to_image",
+    "check_window",
     "default_psf_n",
 ]
 
@@ -139,6 +140,32 @@ def default_psf_n(pitch_um: float, window_um: float = WINDOW_UM, minimum: int = 
     (64, 32, 92)
     """
     return max(int(minimum), 2 * math.ceil(float(window_um) / (2.0 * float(pitch_um)) - 1e-9))
+
+
+def check_window(lens, n: int, pitch_um: float, pupil_samples: int, lam_min_nm: float, *,
+                 fix: str = "a smaller n") -> None:
+    """Refuse a PSF window wider than the replica period of the sampled
+    pupil: ``pupil_samples`` samples across a pupil of image-space
+    numerical aperture 1/(2N) (N the working F-number) make the diffracted
+    field periodic with period λ·N·``pupil_samples``; a window past it
+    folds the far tails back onto the core, silently for the "debye" and
+    "huygens" sums. ``fix`` names the other way out in the message.
+
+    Raises
+    ------
+    PSFError
+        Naming the window, the period and the pupil samples that would do.
+    """
+    n_w = paraxial.first_order(nominal(lens).lens).working_f_number
+    if not (math.isfinite(n_w) and n_w > 0):
+        return
+    period_um = lam_min_nm * 1e-3 * n_w * pupil_samples
+    window_um = n * pitch_um
+    if window_um > period_um:
+        need = math.ceil(window_um / (lam_min_nm * 1e-3 * n_w))
+        raise PSFError(f"the PSF window ({window_um:.3g} µm: {n} samples × {pitch_um:.3g} µm) exceeds the "
+                       f"pupil sampling's replica period (≈ {period_um:.3g} µm at {lam_min_nm:.0f} nm, "
+                       f"N = {n_w:.2f}, {pupil_samples} samples): use pupil_samples ≥ {need} or {fix}")
 
 
 # -- sensor geometry ------------------------------------------------------------------
@@ -623,6 +650,8 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
     n = default_psf_n(pitch) if n is None else _positive_int(n, "n")
     n_wl = DEFAULT_WAVELENGTHS_PER_CHANNEL if n_wavelengths is None else _positive_int(n_wavelengths, "n_wavelengths")
     nodes, weights = _wavelength_plan(channels, n_wl, camera, illuminant)
+    if method != "fft":          # the FFT method checks its own period
+        check_window(pl, n, pitch, samples, float(np.min(nodes)))
     symmetric = symmetry == "auto" and _is_coaxial(pl)
     settings = {"grid": [rows, cols], "channels": list(channels), "method": method, "n": n, "pitch_um": pitch,
                 "pupil_samples": samples, "n_wavelengths": n_wl, "camera": camera, "illuminant": illuminant,

@@ -60,7 +60,7 @@ from .psf import (
     _mono,
     _sphere,
 )
-from .psf_map import WINDOW_UM, _wavelength_plan, chief_ray_fields, default_psf_n, sensor_to_image
+from .psf_map import WINDOW_UM, _wavelength_plan, check_window, chief_ray_fields, default_psf_n, sensor_to_image
 from .sfr import LUMINANCE_WEIGHTS
 from .sfr_asym import BANDS as ODD_BANDS
 from .sfr_asym import model_odd_bands, odd_bands, project_masses
@@ -472,24 +472,8 @@ class MeasurementBias(NamedTuple):
 
 
 def _check_window(lens, s: ModelSettings, psf_n: int, pitch_um: float, lam_min_nm: float) -> None:
-    """Refuse a PSF window wider than the replica period of the sampled
-    pupil: ``pupil_samples`` samples across a pupil of image-space
-    numerical aperture 1/(2N) (N the working F-number) make the diffracted
-    field periodic with period λ·N·``pupil_samples``; a window past it
-    folds the far tails back onto the core (silently, for the "debye"
-    sums)."""
-    from . import paraxial
-
-    n_w = paraxial.first_order(nominal(lens).lens).working_f_number
-    if not (math.isfinite(n_w) and n_w > 0):
-        return
-    period_um = lam_min_nm * 1e-3 * n_w * s.pupil_samples
-    window_um = psf_n * pitch_um
-    if window_um > period_um:
-        need = math.ceil(window_um / (lam_min_nm * 1e-3 * n_w))
-        raise ValueError(f"the PSF window ({window_um:.3g} µm: {psf_n} samples × {pitch_um:.3g} µm) exceeds the "
-                         f"pupil sampling's replica period (≈ {period_um:.3g} µm at {lam_min_nm:.0f} nm, "
-                         f"N = {n_w:.2f}, {s.pupil_samples} samples): use pupil_samples ≥ {need} or a smaller window_um")
+    """:func:`calibration.psf_map.check_window` with these settings' pupil grid."""
+    check_window(lens, psf_n, pitch_um, s.pupil_samples, lam_min_nm, fix="a smaller window_um")
 
 
 def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.ndarray]:

@@ -75,7 +75,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
     g = p.add_argument_group("PSF maps (use the training set's settings)")
     g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
-                   help=f"PSF window in samples of half a pixel (default {PSF_DEFAULTS['n']})")
+                   help="PSF window in samples of half a pixel (default a 32 µm window, 64 samples on 1 µm "
+                        "pixels)")
     g.add_argument("--psf-grid", type=_grid, default=PSF_DEFAULTS["grid"], metavar="ROWS,COLS",
                    help="regions of the PSF map (default 15,20)")
     g.add_argument("--psf-cache", metavar="DIR", help="PSF-map cache folder")

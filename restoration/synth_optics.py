@@ -80,13 +80,17 @@ __all__ = ["CropBlur", "blur_crop", "draw_lenses", "load_lens", "map_margin_px",
            "psf_options", "window_reach_px"]
 
 #: default settings of the synthesis's PSF maps (the rest: those of
-#: :func:`calibration.psf_map.psf_map`). The window is 64 samples of half a
-#: pixel (32 µm on e9's 1 µm pixels), not psf_map's 32: a lens drawn within
-#: tolerance throws light far out, and a 16 µm window dropped up to 32 % of
-#: a corner PSF of the default training set's lenses (2.5 % even at the
-#: centre), so the pairs were blurred less than the lenses blur. At 64 every
-#: region keeps ≥ 95 % (the same lenses), for 1.3× the map's cost.
-PSF_DEFAULTS = {"grid": (15, 20), "n": 64}
+#: :func:`calibration.psf_map.psf_map`). The window: ``n`` None is
+#: psf_map's 32 µm (:data:`calibration.psf_map.WINDOW_UM`; 64 samples of
+#: half a pixel on e9's 1 µm pixels). A lens drawn within tolerance throws
+#: light far out, and a 16 µm window dropped up to 32 % of a corner PSF of
+#: the default training set's lenses (2.5 % even at the centre), so the
+#: pairs were blurred less than the lenses blur; at 32 µm every region
+#: keeps ≥ 95 % (the same lenses), for 1.3× the map's cost. Until
+#: 2026-11-26 it was 64 samples whatever the pixel: pairs made at 2.8 µm
+#: pixels (``--pixel-um``) got a 90 µm window, past the pupil sampling's
+#: replica period.
+PSF_DEFAULTS = {"grid": (15, 20), "n": None}
 
 
 def load_lens(path):
@@ -179,11 +183,15 @@ def map_margin_px(psfmap) -> int:
     return window_reach_px(psfmap.n, psfmap.pitch_um, psfmap.sensor.pixel_pitch_um)
 
 
-def window_reach_px(n: int, pitch_um: float | None, pixel_pitch_um: float) -> int:
+def window_reach_px(n: int | None, pitch_um: float | None, pixel_pitch_um: float) -> int:
     """:func:`map_margin_px` before the map exists: an ``n``-sample window
+    (None: psf_map's default, :func:`calibration.psf_map.default_psf_n`)
     at ``pitch_um`` (default half a pixel) on pixels of ``pixel_pitch_um``."""
+    from calibration.psf_map import default_psf_n
+
     pitch = float(pitch_um or 0.5 * pixel_pitch_um)
-    return math.ceil(0.5 * int(n) * pitch / pixel_pitch_um * math.sqrt(2.0)) + 1
+    n = default_psf_n(pitch) if n is None else int(n)
+    return math.ceil(0.5 * n * pitch / pixel_pitch_um * math.sqrt(2.0)) + 1
 
 
 def psf_options(options: dict | None = None) -> dict:

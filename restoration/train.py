@@ -62,7 +62,8 @@ key                            default              meaning
 ``synth.blend``                ``"bilinear"``       PSF interpolation between regions
 ``synth.demosaic``             ``"malvar2004"``     the pipeline's demosaic
 ``synth.tone``                 ``"none"``           the luminance stage's tone curve
-``synth.psf_n``                64                   PSF window, half-pixel samples
+``synth.psf_n``                0                    PSF window, half-pixel samples; 0: 32 µm
+                                                    (64 on 1 µm pixels)
 ``synth.psf_grid``             [15, 20]             PSF-map regions (rows, cols)
 ``synth.shard_size``           100                  pairs per shard
 ``model.variant``              ``"doconv"``         :func:`restoration.network.build_model` name
@@ -162,7 +163,9 @@ def synth_argv(config: TrainConfig) -> list[str]:
             "--latent", str(resolve_path(s.latent)),
             "--exposure", ",".join(map(str, s.exposure_ev)), "--cct", ",".join(map(str, s.cct_k)),
             "--noise-scale", ",".join(map(str, s.noise_scale)), "--blend", s.blend, "--demosaic", s.demosaic,
-            "--tone", s.tone, "--psf-n", str(s.psf_n), "--psf-grid", ",".join(map(str, s.psf_grid))]
+            "--tone", s.tone, "--psf-grid", ",".join(map(str, s.psf_grid))]
+    if s.psf_n:
+        argv += ["--psf-n", str(s.psf_n)]
     for c in s.cameras:
         argv += ["--camera", str(resolve_path(c))]
     if not s.noise:
@@ -172,10 +175,20 @@ def synth_argv(config: TrainConfig) -> list[str]:
     return argv
 
 
+def _default_n(psf_map: dict) -> int | None:
+    """The default window's samples at a set's PSF-map pitch (None where the
+    manifest does not say)."""
+    from calibration.psf_map import default_psf_n
+
+    pitch = psf_map.get("pitch_um")
+    return default_psf_n(float(pitch)) if pitch else None
+
+
 def _synth_mismatch(manifest: dict, config: TrainConfig) -> list[str]:
     """Where an existing set differs from the ``[synth]`` section."""
     s = config.synth
     st = manifest.get("settings", {})
+    pm = manifest.get("psf_map", {})
     lens = manifest.get("lens", {})
     want = {"pairs": (manifest.get("pairs"), s.pairs), "size": (manifest.get("size"), s.size),
             "seed": (manifest.get("seed"), s.seed), "samples": (lens.get("samples"), s.samples),
@@ -187,7 +200,7 @@ def _synth_mismatch(manifest: dict, config: TrainConfig) -> list[str]:
             "cct_k": (list(st.get("cct_k", [])), list(map(float, s.cct_k))),
             "noise_scale": (list(st.get("noise_scale", [])), list(map(float, s.noise_scale))),
             # a set blurred through another PSF window is another set (the window changed default)
-            "psf_n": (manifest.get("psf_map", {}).get("n"), s.psf_n),
+            "psf_n": (pm.get("n"), s.psf_n or _default_n(pm)),
             "psf_grid": (list(manifest.get("psf_map", {}).get("grid", [])), list(map(int, s.psf_grid)))}
     if s.pixel_um:
         want["pixel_um"] = (manifest.get("psf_map", {}).get("sensor", {}).get("pixel_pitch_um"), float(s.pixel_um))

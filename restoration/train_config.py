@@ -61,7 +61,7 @@ class SynthConfig:
     blend: str = "bilinear"
     demosaic: str = "malvar2004"
     tone: str = "none"
-    psf_n: int = PSF_DEFAULTS["n"]
+    psf_n: int = 0                  # PSF window, half-pixel samples; 0: 32 µm (64 on 1 µm pixels)
     psf_grid: list = field(default_factory=lambda: list(PSF_DEFAULTS["grid"]))
     shard_size: int = 100
 
@@ -187,8 +187,10 @@ class TrainConfig:
                 raise ConfigError("synth.lens is required in a [synth] section (a lens or proxy file)")
             if not s.out:
                 raise ConfigError("synth.out is required in a [synth] section (where the pairs go)")
-            for k in ("samples", "pairs", "size", "workers", "psf_n", "shard_size"):
+            for k in ("samples", "pairs", "size", "workers", "shard_size"):
                 _positive(getattr(s, k), f"synth.{k}")
+            if s.psf_n < 0:
+                raise ConfigError(f"synth.psf_n must be ≥ 0 (0: a 32 µm window); got {s.psf_n}")
             if s.pixel_um and not 0.2 <= s.pixel_um <= 20.0:
                 raise ConfigError(f"synth.pixel_um must be 0 (the lens file's) or 0.2–20 µm; got {s.pixel_um}")
             if s.size < d.crop:

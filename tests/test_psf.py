@@ -390,6 +390,21 @@ def test_default_window_is_32_um_whatever_the_pixel(e9):
     assert M.default_psf_n(1.4) == 32 and M.default_psf_n(0.25) == 128
 
 
+def test_a_map_window_past_the_pupil_replica_period_is_refused(e9):
+    """analytic: 64 pupil samples across e9's pupil make the diffracted
+    field periodic with period λ·N·64 ≈ 66 µm at G's shortest node (527 nm,
+    N = 1.95); 64 samples of 1.4 µm (2.8 µm pixels: 90 µm, what `isp synth --psf-n 64`
+    gave there) are refused with the pupil grid that would do; the default
+    window on those pixels (32 samples, 45 µm) is not."""
+    from calibration.lens import Sensor
+
+    sensor = Sensor(2.807, 2000, 1500)
+    kw = dict(grid=(1, 1), channels=("G",), n_wavelengths=1, cache=False, progress=False, workers=1, sensor=sensor)
+    with pytest.raises(P.PSFError, match=r"replica period \(≈ 65.7 µm .* pupil_samples ≥ 88 "):
+        M.psf_map(e9, n=64, **kw)
+    assert M.psf_map(e9, **kw).psfs.shape[-1] == 32
+
+
 # -- property: the SFR model's batched path = the per-field path ------------------------------
 #
 # calibration.sfr_model traces and diffracts every field node at once (one

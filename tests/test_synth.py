@@ -397,3 +397,7 @@ def test_plan_pixel_um_samples_the_lens_sensor_at_that_pitch(tmp_path, cameras):
         x = (np.arange(p.shape[0]) - (p.shape[0] - 1) / 2) * m.pitch_um
         return float(np.sqrt((p.sum(0) * x ** 2).sum() / p.sum()))
     assert width_um(half) == pytest.approx(width_um(own), rel=0.1)
+    # the default window is 32 µm at any pitch (64 samples of 0.5 µm on 1 µm pixels, 32 of 1.4 µm at 2.8 µm),
+    # not 64 samples whatever the pixel, which at 2.8 µm had been 90 µm, past the pupil's replica period
+    coarse = plan(str(lens), pixel_um=2.8, psf_options={**psf, "pupil_samples": 48}, **kw).maps[0]
+    assert coarse.n == 32 and coarse.n * coarse.pitch_um >= 32.0

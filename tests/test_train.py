@@ -442,7 +442,7 @@ def test_a_set_blurred_through_another_psf_window_is_refused(tmp_path):
                 "lens": {"samples": 1, "tolerance_scale": 1.0, "path": "x.zmx"},
                 "settings": {"tone": "none", "demosaic": "malvar2004", "blend": "bilinear", "noise": True,
                              "exposure_ev": [0.0, 2.0], "cct_k": [2850.0, 7500.0], "noise_scale": [0.5, 2.0]},
-                "psf_map": {"n": 32, "grid": [15, 20]}, "shards": []}
+                "psf_map": {"n": 32, "pitch_um": 0.5, "grid": [15, 20]}, "shards": []}
     (tmp_path / "set" / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(ConfigError, match="psf_n 32 ≠ 64"):
         ensure_data(cfg, progress=False, log=lambda *a: None)
