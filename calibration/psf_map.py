@@ -102,15 +102,16 @@ from .trace import Rays, stop_and_pupil, trace
 __all__ = [
     "CACHE_VERSION",
     "PSFMap",
+    "WINDOW_UM",
     "cache_key",
+    "check_window",
     "chief_ray_fields",
+    "default_psf_n",
     "image_to_sensor",
     "plot_psf_map",
     "psf_map",
     "region_centers_mm",
     "sensor_to_image",
-    "check_window",
-    "default_psf_n",
 ]
 
 CACHE_VERSION = 1
