@@ -200,7 +200,7 @@ def _measure_rois(rois, measure, progress: bool) -> tuple[list, list]:
 
 def observations_from_capture(img, kind: str, meta=None, *, path: str = "", channel: str | None = None,
                               encoding: str = "linear", pixel_um: float | None = None, method: str = "iso",
-                              min_edge: float = 40.0, progress: bool = False):
+                              min_edge: float = 40.0, progress: bool = False, bootstrap: int = 0):
     """Observations measured on a capture, and notes on how.
 
     Parameters
@@ -221,6 +221,11 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
     min_edge : float
         Shortest polygon side taken as an edge, pixels
         (:func:`calibration.sfr_chart.find_edges`).
+    bootstrap : int
+        Residual-bootstrap replicas per edge (:func:`calibration.sfr.measure_sfr`):
+        each observation's ``sfra_std`` is its own measured spread instead
+        of the 0.002 cycles/pixel default, so an edge whose measurement is
+        unstable weighs what it is worth in a fit. 0: the default σ.
 
     Returns
     -------
@@ -233,6 +238,8 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
     h, w = img.shape[:2]
     notes = []
     colour = img.ndim == 3
+    # seeded: the same capture measures to the same σ
+    boot = {"bootstrap": int(bootstrap), "rng": 0} if bootstrap else {}
     chans = _channels(channel, kind, colour, path, notes)
     if kind == "raw":
         pixel_um = pixel_um or getattr(meta, "pixel_pitch_um", None)
@@ -242,14 +249,14 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
                         r.field_angle_deg, r.orientation, r.shape) for r in _find(find_edges, half, min_edge / 2.0)]
 
         def measurer(c):
-            return lambda box: measure_sfr_bayer(mosaic, meta.cfa, channel=c, box=box, method=method)
+            return lambda box: measure_sfr_bayer(mosaic, meta.cfa, channel=c, box=box, method=method, **boot)
     else:
         idx = {"R": 0, "G": 1, "B": 2, "L": "luminance"}
         rois = _find(lambda a, **k: find_edges(a, encoding=encoding, **k), img, min_edge)
 
         def measurer(c):
             sel = idx[c] if colour else None
-            return lambda box: measure_sfr(img, channel=sel, encoding=encoding, box=box, method=method)
+            return lambda box: measure_sfr(img, channel=sel, encoding=encoding, box=box, method=method, **boot)
     sensor = _sensor(w, h, pixel_um)
     if kind == "image" and img.dtype == np.uint8 and encoding == "linear":
         notes.append("8-bit image measured as linear codes; pass --encoding srgb if it is sRGB-encoded")
@@ -373,7 +380,7 @@ def observations_from_sfr_json(doc: dict, path: str, pixel_um: float | None = No
 
 
 def load_measured(path: str, *, channel=None, encoding="linear", pixel_um=None, method="iso", min_edge=40.0,
-                  progress=False):
+                  progress=False, bootstrap: int = 0):
     """(Observations, notes) from a capture, an SFR JSON or an observations
     JSON (module docstring); bad input raises :class:`IspError` naming
     ``path``."""
@@ -415,7 +422,7 @@ def load_measured(path: str, *, channel=None, encoding="linear", pixel_um=None, 
     try:
         return observations_from_capture(img, kind, meta, path=str(path), channel=channel, encoding=encoding,
                                          pixel_um=pixel_um, method=method, min_edge=min_edge,
-                                         progress=progress)
+                                         progress=progress, bootstrap=bootstrap)
     except SfrError as e:
         raise IspError(f"{path}: {e}") from None
 

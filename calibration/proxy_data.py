@@ -157,7 +157,8 @@ class Observations:
         rows, odd, odd_sd = [], [], []
         for x, y, a, orient, r in items:
             sfr = np.interp(FREQ, r.freq, r.sfr, right=np.nan)
-            std = r.sfra_std if getattr(r, "sfra_std", None) else default_std
+            sd = getattr(r, "sfra_std", None)
+            std = float(sd) if sd is not None and np.isfinite(sd) and sd > 0 else default_std
             lo_hi = _step(r)
             rows.append((x, y, a % 180.0, channel, orient, r.sfra, std, r.noise, lo_hi, sfr))
             odd.append(odd_bands(r.lsf, r.esf_step_px))

@@ -140,14 +140,14 @@ def test_scipy_fits_restart_as_dls_fits_do(device_obs):
     assert (again.result.merit < plain.result.merit) == bool(kept)
 
 
-@pytest.mark.parametrize("coarse", [["-1", "7"], ["0", "7"]])
-def test_a_bad_coarse_grid_is_one_line_exit_2(capsys, tmp_path, device_obs, coarse):
+@pytest.mark.parametrize("bad", [["--coarse", "-1", "7"], ["--coarse", "0", "7"], ["--bootstrap", "-1"]])
+def test_a_bad_option_is_one_line_exit_2(capsys, tmp_path, device_obs, bad):
     _, obs_path = device_obs
     out = tmp_path / "proxy"
     code = main(["calib", "fit", "--lens", str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")),
-                 "--measured", str(obs_path), "-o", str(out), "--coarse", *coarse])
+                 "--measured", str(obs_path), "-o", str(out), *bad])
     err = capsys.readouterr().err.strip()
-    assert code == 2 and "--coarse" in err and "\n" not in err and "Traceback" not in err
+    assert code == 2 and bad[0] in err and "\n" not in err and "Traceback" not in err
     assert not out.exists()
 
 
