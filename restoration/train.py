@@ -201,9 +201,9 @@ def _synth_mismatch(manifest: dict, config: TrainConfig) -> list[str]:
             "noise_scale": (list(st.get("noise_scale", [])), list(map(float, s.noise_scale))),
             # a set blurred through another PSF window is another set (the window changed default)
             "psf_n": (pm.get("n"), s.psf_n or _default_n(pm)),
-            "psf_grid": (list(manifest.get("psf_map", {}).get("grid", [])), list(map(int, s.psf_grid)))}
+            "psf_grid": (list(pm.get("grid", [])), list(map(int, s.psf_grid)))}
     if s.pixel_um:
-        want["pixel_um"] = (manifest.get("psf_map", {}).get("sensor", {}).get("pixel_pitch_um"), float(s.pixel_um))
+        want["pixel_um"] = (pm.get("sensor", {}).get("pixel_pitch_um"), float(s.pixel_um))
     return [f"{k} {have!r} ≠ {need!r}" for k, (have, need) in want.items() if have != need]
 
 
