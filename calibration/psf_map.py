@@ -132,15 +132,22 @@ inside the window (a lens blurred beyond it: e.g. e9 with element 1
 decentred by its 5 µm tolerance keeps 71 % in 16 µm)."""
 
 
-def default_psf_n(pitch_um: float, window_um: float = WINDOW_UM, minimum: int = 32) -> int:
+def default_psf_n(pitch_um: float, window_um: float = WINDOW_UM, minimum: int = 32,
+                  max_um: float = 48.0) -> int:
     """Samples per side of a PSF window at least ``window_um`` µm wide at
-    ``pitch_um`` µm per sample: even, and never below ``minimum`` (coarse
-    pixels keep the 32 samples they always had).
+    ``pitch_um`` µm per sample: even, and at least ``minimum`` samples
+    (coarse pixels keep the 32 they always had) where those stay within
+    ``max_um`` µm: the replica period of psf_map's default 64 pupil samples
+    is ≈ 55 µm on e9 at 441 nm (:func:`check_window`), and 32 samples of
+    4.4 µm (8.8 µm pixels) would be 140 µm.
 
-    >>> default_psf_n(0.5), default_psf_n(1.4), default_psf_n(0.35)
-    (64, 32, 92)
+    >>> default_psf_n(0.5), default_psf_n(1.4), default_psf_n(0.35), default_psf_n(4.39)
+    (64, 32, 92, 10)
     """
-    return max(int(minimum), 2 * math.ceil(float(window_um) / (2.0 * float(pitch_um)) - 1e-9))
+    p = float(pitch_um)
+    need = 2 * math.ceil(float(window_um) / (2.0 * p) - 1e-9)
+    floor = min(int(minimum), 2 * int(float(max_um) / (2.0 * p)))
+    return max(need, floor)
 
 
 def check_window(lens, n: int, pitch_um: float, pupil_samples: int, lam_min_nm: float, *,
