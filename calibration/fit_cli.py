@@ -34,6 +34,7 @@ EPILOG = """examples:
   isp calib fit --lens e9.zmx --measured capture.dng -o e9_proxy/
   isp calib fit --lens e9.zmx --measured chart_sfr.json --method scipy --max-iter 20
   isp calib fit --lens e9.zmx --measured obs.json --residuals bands --no-fast-jacobian
+  isp calib fit --lens e9.zmx --measured capture.dng --bootstrap 20 -o e9_proxy/   # each edge its own σ
 """
 
 
