@@ -91,7 +91,7 @@ class ModelSettings:
     regions on e9 a prediction went from 1.31 to 1.61 s CPU,
     ``benchmarks/lens_eval.py --psf-n``). The window must
     stay inside the sampled pupil's replica period ≈ λ·N·``pupil_samples``
-    (:func:`_check_window`).
+    (:func:`calibration.psf_map.check_window`).
     ``n_wavelengths``: Gauss nodes per channel. ``aiming``: "real" (the
     pupil grid is aimed at the real stop once, at the nominal lens) or
     "paraxial" (paraxial entrance pupil: 0.003 cycles/pixel RMS off on e9,
@@ -118,7 +118,7 @@ class ModelSettings:
         """These settings with a ``window_um`` window and the pupil grid grown
         with it in this window's ratio (never shrunk), so that a window
         these settings keep inside the pupil sampling's replica period stays
-        inside it (:func:`_check_window`; ``isp calib fit --window-um``).
+        inside it (:func:`calibration.psf_map.check_window`; ``isp calib fit --window-um``).
 
         >>> ModelSettings().with_window(48.0).pupil_samples
         72
@@ -128,7 +128,7 @@ class ModelSettings:
 
 
 #: the cheaper model a fit may take its Jacobian from (``--fast-jacobian``): fewer pupil samples, and so a
-#: window inside their shorter replica period (:func:`_check_window`)
+#: window inside their shorter replica period (:func:`calibration.psf_map.check_window`)
 FAST_JACOBIAN = ModelSettings(pupil_samples=32, window_um=24.0)
 
 
@@ -237,7 +237,8 @@ class SfrModel:
             raise ValueError(f"observations have no R, G, B or L channel (got {sorted(used)})")
         self.wavelengths, self.wl_weights = _wavelength_plan(self.channels, s.n_wavelengths, s.camera,
                                                              s.illuminant)
-        _check_window(nominal_lens, s, self.psf_n, self.pitch_um, float(np.min(self.wavelengths)))
+        check_window(nominal_lens, self.psf_n, self.pitch_um, s.pupil_samples, float(np.min(self.wavelengths)),
+                     fix="a smaller window_um")
         self.mix = self._channel_mix()
         self._aim = _real_aim(nominal(nominal_lens), self.fields, s.pupil_samples) if s.aiming == "real" else None
         self._traced_key = None
@@ -469,11 +470,6 @@ class MeasurementBias(NamedTuple):
     sfra: np.ndarray
     sfr: np.ndarray
     odd: np.ndarray
-
-
-def _check_window(lens, s: ModelSettings, psf_n: int, pitch_um: float, lam_min_nm: float) -> None:
-    """:func:`calibration.psf_map.check_window` with these settings' pupil grid."""
-    check_window(lens, psf_n, pitch_um, s.pupil_samples, lam_min_nm, fix="a smaller window_um")
 
 
 def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.ndarray]:

@@ -23,9 +23,10 @@ examples:
   isp train --config configs/e9_default.toml --lens fit/proxy.json --out out/dev3   # for one device
 
 --lens trains for one device (the paper's "single sample"): the pairs come from
-that lens file alone -- the proxy camera `isp calib fit` fitted to the device,
-measured at the pixel pitch the pairs are made at (README: "That route on a
-simulated device") -- into OUT/pairs.
+that lens file alone -- the proxy camera `isp calib fit` fitted to the device --
+into OUT/pairs. A proxy file carries the sensor of the capture it was fitted
+to; --pixel-um makes the pairs at the pitch the model will correct instead
+(README: "That route on a simulated device").
 
 The config (TOML or JSON) has sections [data], [synth], [model], [optim],
 [temperature] and [run]; every key and its default is listed in the docstring
