@@ -62,25 +62,15 @@ def truth_merit(model, nominal, truth, workers: int) -> tuple[dict, np.ndarray]:
 
 def stability(model, truth, worst, draws: int = 6, seed: int = 0) -> list:
     """Measured SFRA of the model's render of each edge at 1× and 1.5× its noise."""
-    from types import SimpleNamespace
-
-    from calibration.imaging import render_slanted_edge
     from calibration.sfr import SfrError
-    from calibration.sfr_model import _roi_shape, measure_like
+    from calibration.sfr_model import measure_like, render_observation
 
     obs, rng = model.obs, np.random.default_rng(seed)
     psfs = model.observation_psfs(truth)
     out = []
     for i in worst:
-        a = float(obs.normal_deg[i]) % 180.0
-        horizontal = 45.0 <= a < 135.0
-        angle = a - 90.0 if horizontal else (-a if a <= 45.0 else 180.0 - a)
-        h, w = _roi_shape(obs, i)
-        h, w = (min(h, w), max(h, w)) if horizontal else (max(h, w), min(h, w))
-        clean = render_slanted_edge(SimpleNamespace(data=psfs[i], pitch_um=model.pitch_um),
-                                    ((w - 1) / 2, (h - 1) / 2), (h, w), angle, horizontal=horizontal, low=0.25,
-                                    high=0.25 + float(obs.step[i]), pixel_pitch_um=obs.sensor.pixel_pitch_um,
-                                    fill_factor=model.settings.aperture_px, noise=False).optical[:, :, 0]
+        clean = render_observation(psfs[i], model.pitch_um, obs.sensor.pixel_pitch_um, obs, i,
+                                   model.settings.aperture_px)
         measure = measure_like(obs, i)
         row = {"edge": int(i), "measured": round(float(obs.sfra[i]), 4)}
         for k in (1.0, 1.5):

@@ -545,16 +545,15 @@ def _roi_shape(obs: Observations, i: int) -> tuple[int, int]:
     return (96, 64) if obs.orientation[i] != "horizontal" else (64, 96)
 
 
-def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_px) -> tuple:
-    """Mean measured SFRA, SFR curve, SFRA spread and LSF asymmetry bands
-    of observation ``i``'s edge rendered through ``psf`` with its noise
-    (noise-free once if it has none)."""
+def render_observation(psf, pitch_um, pixel_pitch_um, obs, i, aperture_px) -> np.ndarray:
+    """Observation ``i``'s edge rendered noise-free through ``psf`` (sampled
+    at ``pitch_um``): its ROI's shape, its normal, and its step on a 0.25
+    floor, as the measurement saw it."""
     from types import SimpleNamespace
 
     from .imaging import render_slanted_edge
-    from .sfr import SfrError
 
-    noise, step = float(obs.noise[i]), float(obs.step[i]) or 1.0
+    step = float(obs.step[i]) or 1.0
     a = float(obs.normal_deg[i]) % 180.0
     horizontal = 45.0 <= a < 135.0
     angle = a - 90.0 if horizontal else (-a if a <= 45.0 else 180.0 - a)
@@ -566,7 +565,17 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
     r = render_slanted_edge(SimpleNamespace(data=psf, pitch_um=pitch_um), ((w - 1) / 2.0, (h - 1) / 2.0), (h, w),
                             angle, horizontal=horizontal, low=0.25, high=0.25 + step,
                             pixel_pitch_um=pixel_pitch_um, fill_factor=aperture_px, noise=False)
-    clean = r.optical[:, :, 0]
+    return r.optical[:, :, 0]
+
+
+def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_px) -> tuple:
+    """Mean measured SFRA, SFR curve, SFRA spread and LSF asymmetry bands
+    of observation ``i``'s edge rendered through ``psf`` with its noise
+    (noise-free once if it has none)."""
+    from .sfr import SfrError
+
+    noise = float(obs.noise[i])
+    clean = render_observation(psf, pitch_um, pixel_pitch_um, obs, i, aperture_px)
     measure = measure_like(obs, i)
 
     f = np.asarray(obs.freq)
