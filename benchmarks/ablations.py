@@ -42,6 +42,10 @@ large               linear_highpass 12× the size (widths 48/192, depths
                     1/6/1; 79 kMAC/px, past the 2-core budget): what
                     capacity buys at 0.9
 static_large        static_linear_hp at large's MACs
+dense               linear_highpass with dense DOConv kernels on 48
+                    channels, three blocks (19.0 kMAC/px): the form that
+                    INT8 speeds up (``group_width = 0``)
+static_dense        dense static 3×3 convs on 84 channels, dense's MACs
 linear_srgb_hp      linear_highpass placed between the colour matrix and
                     the gamma (linear sRGB at display exposure; against
                     linear_highpass and srgb_highpass: what the colour
@@ -91,6 +95,13 @@ LARGE = {"widths": (48, 192), "depths": (1, 6, 1)}
 #: the static network of LARGE's MACs (78.9 against 78.7 kMAC/px; the
 #: ``static`` factory matches only at the default widths)
 STATIC_LARGE = {"widths": (90, 180), "depths": (1, 6, 1)}
+#: the "dense" entry's network: linear_highpass with dense DOConv kernels
+#: (``group_width = 0``) on 48 channels, three blocks (19.0 kMAC/px, within
+#: the export's budget), the form whose convs INT8 speeds up (dense 3×3
+#: 2.8× against depthwise 0.74×, ``benchmarks/doconv_speed.py --yardsticks``)
+DENSE = {"widths": (16, 48), "depths": (0, 3, 0), "group_width": 0}
+#: the static network of DENSE's MACs: dense 3×3 convs on 84 channels (18.8 kMAC/px)
+STATIC_DENSE = {"widths": (16, 84), "depths": (0, 3, 0), "group_width": 0}
 #: entry → ("variant[:encoding[:highpass[:highpass_domain]]]", placement[, other network arguments])
 ENTRIES = {
     "doconv": ("doconv", "pipeline"),
@@ -112,6 +123,8 @@ ENTRIES = {
     "half_res_blocks": ("doconv:sqrt:9:linear", "pipeline", {"depths": (1, 4, 1)}),
     "large": ("doconv:sqrt:9:linear", "pipeline", LARGE),
     "static_large": ("static:sqrt:9:linear", "pipeline", STATIC_LARGE),
+    "dense": ("doconv:sqrt:9:linear", "pipeline", DENSE),
+    "static_dense": ("static:sqrt:9:linear", "pipeline", STATIC_DENSE),
 }
 RINGS = ("0.1", "0.5", "0.9")
 #: steps of the step-time probe of ``--minutes``

@@ -127,8 +127,8 @@ def field_features(field: Tensor, factor: int) -> Tensor:
 
 
 class ConvNeXtBlock(nn.Module):
-    """``x + pw₂(ReLU(pw₁(conv(x))))``, ``conv`` a depthwise DOConv or a
-    depthwise static conv; (N, C, H, W) → (N, C, H, W).
+    """``x + pw₂(ReLU(pw₁(conv(x))))``, ``conv`` a DOConv or a static conv,
+    depthwise or grouped; (N, C, H, W) → (N, C, H, W).
 
     Parameters
     ----------
@@ -137,20 +137,28 @@ class ConvNeXtBlock(nn.Module):
     conv : {"doconv", "static"}
         ``"static"``: a plain depthwise ``k × k`` conv (dilation 1), the
         "ordinary convolution" of the paper's ablation.
+    group_width : int
+        Channels per group of ``conv``: 1 (default) is depthwise, as in
+        ConvNeXt; 0 or ``channels`` a dense conv.
     kernel_size, dilations, spatial, pool, window, field_channels
         Of the DOConv (:class:`~restoration.doconv.DOConv2d`).
     """
 
     def __init__(self, channels: int, *, expansion: int, conv: str, kernel_size: int,
-                 dilations: tuple[int, ...], spatial: str, pool: str, window: int, field_channels: int):
+                 dilations: tuple[int, ...], spatial: str, pool: str, window: int, field_channels: int,
+                 group_width: int = 1):
         super().__init__()
+        group_width = group_width or channels
+        if group_width < 1 or channels % group_width:
+            raise ConfigError(f"group_width must divide the block's {channels} channels; got {group_width}")
+        groups = channels // group_width
         self.dynamic = conv == "doconv"
         if self.dynamic:
-            self.conv = DOConv2d(channels, channels, kernel_size, dilations, groups=channels,
+            self.conv = DOConv2d(channels, channels, kernel_size, dilations, groups=groups,
                                  spatial=spatial, pool=pool, window=window, field_channels=field_channels)
         else:
             self.conv = nn.Conv2d(channels, channels, kernel_size, padding=kernel_size // 2,
-                                  groups=channels, bias=False)
+                                  groups=groups, bias=False)
         self.pw1 = nn.Conv2d(channels, expansion * channels, 1)
         self.pw2 = nn.Conv2d(expansion * channels, channels, 1)
         with torch.no_grad():
@@ -189,6 +197,12 @@ class DOConvUNet(nn.Module):
         Field-position encoding: input has 5 channels (RGB, x, y), else 3.
     kernel_size : int
         Of the DOConv kernels and the static convs.
+    group_width : int
+        Channels per group of the blocks' spatial convs: 1 (default)
+        depthwise, as in ConvNeXt; 0 dense. Wider groups trade MACs for speed in
+        INT8: ONNX Runtime's x86 integer kernels run a dense 3×3 conv 2.8×
+        faster than float and a depthwise one 0.74× as fast (AVX-512 VNNI,
+        ``python -m benchmarks.doconv_speed --yardsticks``).
     scale : {2, 4}
         Space-to-depth factor at the input: the two scales run at
         ``1/scale`` and ``1/(2·scale)`` resolution.
@@ -230,7 +244,7 @@ class DOConvUNet(nn.Module):
                  expansion: int = 2, conv: str = "doconv", dilations: tuple[int, ...] = (1, 2, 3, 4),
                  spatial: str = "none", pool: str = "local", window: int = 7, field: bool = True,
                  kernel_size: int = 3, scale: int = 2, encoding: str = "linear", highpass: int = 0,
-                 highpass_domain: str = "encoded"):
+                 highpass_domain: str = "encoded", group_width: int = 1):
         super().__init__()
         _choose(encoding, ENCODINGS, "encoding")
         _choose(highpass_domain, HIGHPASS_DOMAINS, "highpass_domain")
@@ -244,7 +258,8 @@ class DOConvUNet(nn.Module):
         self.config = {"widths": tuple(widths), "depths": tuple(depths), "expansion": expansion,
                        "conv": conv, "dilations": tuple(dilations), "spatial": spatial, "pool": pool,
                        "window": window, "field": field, "kernel_size": kernel_size, "scale": scale,
-                       "encoding": encoding, "highpass": highpass, "highpass_domain": highpass_domain}
+                       "encoding": encoding, "highpass": highpass, "highpass_domain": highpass_domain,
+                       "group_width": group_width}
         self.encoding = encoding
         # the linear residual differs from the encoded one only when there is an encoding
         self.linear_residual = bool(highpass) and highpass_domain == "linear" and encoding == "sqrt"
@@ -257,7 +272,7 @@ class DOConvUNet(nn.Module):
         c1, c2 = widths
         block = {"expansion": expansion, "conv": conv, "kernel_size": kernel_size,
                  "dilations": tuple(dilations), "spatial": spatial, "pool": pool, "window": window,
-                 "field_channels": nf}
+                 "field_channels": nf, "group_width": group_width}
         # space-to-depth and a 3×3 conv in one: a (3·scale)² conv of stride
         # `scale` is the same function (PixelUnshuffle + 3×3 conv, padding 1)
         # without the 6-D transpose ONNX Runtime spent 8 % of an INT8 run on

@@ -236,6 +236,23 @@ def test_static_variant_has_equal_macs():
     assert macs_per_pixel(static, (16, 16)) == pytest.approx(ref, rel=0.05)
 
 
+def test_group_width_sets_the_blocks_conv_groups_and_macs():
+    """``group_width`` channels per group: 1 is depthwise (no filter
+    attention), ``channels`` dense (with it); the block conv's MACs grow
+    with the group width, 4 kernels × 9 taps × width per output value."""
+    dw = build_model("doconv", widths=(8, 16), depths=(0, 1, 0))
+    dense = build_model("doconv", widths=(8, 16), depths=(0, 1, 0), group_width=16)
+    assert dw.mid[0].conv.groups == 16 and dw.mid[0].conv.attention.filter_head is None
+    assert dense.mid[0].conv.groups == 1 and dense.mid[0].conv.attention.filter_head is not None
+    assert build_model("static", widths=(8, 16), group_width=4).mid[0].conv.groups == 4
+    assert build_model("static", widths=(8, 16), group_width=0).mid[0].conv.groups == 1
+    # the block conv runs at ¼ resolution: 1/16 of its MACs per output pixel
+    extra = macs_per_pixel(dense, (16, 16)) - macs_per_pixel(dw, (16, 16))
+    assert extra == pytest.approx(4 * 9 * 16 * (16 - 1) / 16, rel=0.02)
+    with pytest.raises(ConfigError, match="group_width must divide"):
+        build_model("doconv", widths=(8, 16), group_width=5)
+
+
 def test_macs_counter_sees_functional_convs():
     """The DOConv branches are F.conv2d calls (no nn.Conv2d module): counted."""
     layer = DOConv2d(8, 8, groups=8).eval()
@@ -358,7 +375,8 @@ def test_sqrt_encoding_is_the_identity_without_a_correction():
                                 {"conv": "static"}, {"encoding": "sqrt", "highpass": 9},
                                 {"scale": 4, "highpass": 3},
                                 {"encoding": "sqrt", "highpass": 9, "highpass_domain": "linear"},
-                                {"encoding": "sqrt", "scale": 4, "highpass": 3, "highpass_domain": "linear"}])
+                                {"encoding": "sqrt", "scale": 4, "highpass": 3, "highpass_domain": "linear"},
+                                {"group_width": 16}, {"conv": "static", "group_width": 4}])
 def test_space_to_depth_form_is_the_same_function(kw):
     """The export's packed form (stem and head reindexed) equals the model on
     the packed input, to float rounding; built here with plain reshapes."""
