@@ -70,6 +70,12 @@ then 52–78 ms a step for three entries or two large ones at once)::
     # then, anywhere (here: the CPU), the same command without --train-only
     # and with --samples 4: the trained entries are evaluated, not retrained
 
+The dense pair on an H100 (2026-11-26: 27 s of synthesis, 63.5 ms a step
+in the probe, 3,700 steps each)::
+
+    python -m benchmarks.ablations --config configs/e9_gpu.toml --minutes 4 \
+        --only dense static_dense --workers 2 --psf-workers 14 --train-only --out out/gpu_abl
+
 ``--minutes`` trains every entry 40 steps first, as many at once as the
 real run, and sets the steps that fit the slowest into the minutes.
 
