@@ -260,7 +260,6 @@ def _box(rows: np.ndarray, width_bins: np.ndarray) -> np.ndarray:
     """Each row convolved with a unit-area box ``width_bins`` wide (per row,
     fractional: exact for the piecewise-linear cumulative sum). Rows of one
     width are done together: their box is one shift of the cumulative sum."""
-    n = rows.shape[1]
     cum = np.concatenate([np.zeros((rows.shape[0], 1)), np.cumsum(rows, axis=1)], axis=1)   # at edges j − ½
     width_bins = np.broadcast_to(np.asarray(width_bins, float), (rows.shape[0],))
     out = rows.copy()

@@ -703,16 +703,14 @@ def _run(pl: PerturbedLens, rays: Rays, *, to: str, clip: bool, record: bool, to
             dx[pre] = 0.0
             dy[pre] = 0.0
             dz[pre] = 1.0
-        cb = None
-        if rec is not None:
-            def cb(i, xx, yy, zz):
-                pose = pl.poses[i] if i < ns else pl.image_pose
-                gx, gy, gz = _to_global(pose, xx, yy, zz)
-                rec[i, a:e, 0], rec[i, a:e, 1], rec[i, a:e, 2] = gx, gy, gz
+        def cb(i, xx, yy, zz):
+            pose = pl.poses[i] if i < ns else pl.image_pose
+            gx, gy, gz = _to_global(pose, xx, yy, zz)
+            rec[i, a:e, 0], rec[i, a:e, 1], rec[i, a:e, 2] = gx, gy, gz
         with np.errstate(all="ignore"):
             x, y, z, dx, dy, dz = _kernel(geo, x, y, z, dx, dy, dz, op, st, wh, upto=upto,
                                           refract_last=refract_last, clip=clip, tol=float(tol),
-                                          max_iter=max_iter, record=cb)
+                                          max_iter=max_iter, record=cb if rec is not None else None)
         if frame == "global":
             x, y, z = _to_global(end_pose, x, y, z)
             dx, dy, dz = _dir_to_global(end_pose, dx, dy, dz)
