@@ -46,6 +46,12 @@ dense               linear_highpass with dense DOConv kernels on 48
                     channels, three blocks (19.0 kMAC/px): the form that
                     INT8 speeds up (``group_width = 0``)
 static_dense        dense static 3×3 convs on 84 channels, dense's MACs
+wide_attention      linear_highpass with the attention statistics over 31²
+                    px at ¼ resolution (124² at full resolution) instead of
+                    7²: can the attention see which blur it corrects?
+global_attention    linear_highpass with ODConv's global-mean attention
+                    (per crop; not tile-consistent, not exported): the
+                    widest statistics there are
 linear_srgb_hp      linear_highpass placed between the colour matrix and
                     the gamma (linear sRGB at display exposure; against
                     linear_highpass and srgb_highpass: what the colour
@@ -131,10 +137,26 @@ ENTRIES = {
     "static_large": ("static:sqrt:9:linear", "pipeline", STATIC_LARGE),
     "dense": ("doconv:sqrt:9:linear", "pipeline", DENSE),
     "static_dense": ("static:sqrt:9:linear", "pipeline", STATIC_DENSE),
+    "wide_attention": ("doconv:sqrt:9:linear", "pipeline", {"window": 31}),
+    "global_attention": ("doconv:sqrt:9:linear", "pipeline", {"pool": "global"}),
 }
 RINGS = ("0.1", "0.5", "0.9")
 #: steps of the step-time probe of ``--minutes``
 PROBE_STEPS = 40
+
+
+def entry_model(name: str) -> tuple[str, dict, str]:
+    """The network variant, its arguments and the placement of entry ``name``.
+
+    >>> entry_model("static_dense")
+    ('static', {'encoding': 'sqrt', 'highpass': 9, 'highpass_domain': 'linear', 'widths': (16, 84), \
+'depths': (0, 3, 0), 'group_width': 0}, 'pipeline')
+    """
+    spec, placement, *more = ENTRIES[name]
+    variant, enc, highpass, domain = (spec.split(":") + ["", "", ""])[:4]
+    kwargs = {**({"encoding": enc} if enc else {}), **({"highpass": int(highpass)} if highpass else {}),
+              **({"highpass_domain": domain} if domain else {}), **(more[0] if more else {})}
+    return variant, kwargs, placement
 
 
 def _train(args) -> dict:
@@ -152,10 +174,7 @@ def _train_one(args) -> dict:
     from restoration.train import train
     from restoration.train_config import load_config
 
-    spec, placement, *more = ENTRIES[name]
-    variant, enc, highpass, domain = (spec.split(":") + ["", "", ""])[:4]
-    kwargs = {**({"encoding": enc} if enc else {}), **({"highpass": int(highpass)} if highpass else {}),
-              **({"highpass_domain": domain} if domain else {}), **(more[0] if more else {})}
+    variant, kwargs, placement = entry_model(name)
     cfg = load_config(config_path)
     # the kwargs replace the config's own (the default config's high-pass is an entry here, not a baseline)
     cfg = cfg.replace("model", variant=variant, kwargs=kwargs, placement=placement)

@@ -2,7 +2,8 @@
 
 import pytest
 
-from benchmarks.ablations import steps_in
+from benchmarks import ablations
+from benchmarks.ablations import ENTRIES, entry_model, steps_in
 
 
 def test_steps_fill_the_minutes_at_the_slowest_step_rounded_down():
@@ -19,3 +20,18 @@ def test_entries_beyond_the_workers_run_in_rounds_that_share_the_minutes():
 
 def test_a_budget_too_small_still_trains_100_steps():
     assert steps_in(0.01, 1.0, 5, 1) == 100
+
+
+@pytest.mark.parametrize("name", list(ENTRIES))
+def test_every_entry_builds_its_network_and_is_in_the_table(name):
+    """A typo in an entry's arguments would fail only after the other
+    entries' training; the docstring's table names every entry."""
+    from restoration.macs import macs_per_pixel
+    from restoration.network import build_model
+
+    variant, kwargs, placement = entry_model(name)
+    model = build_model(variant, **kwargs)
+    kmac = macs_per_pixel(model, (16, 16)) / 1e3
+    # the export's 2-core budget, but for the entries that measure what capacity buys past it
+    assert kmac <= (80 if name.endswith("large") else 20)
+    assert f"\n{name} " in ablations.__doc__
