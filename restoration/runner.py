@@ -97,6 +97,11 @@ def _info_get(info, key, default=None):
     return getattr(info, key, default)
 
 
+#: the least core (px) a checkpoint's tiles keep inside their margins; a
+#: ``tile_size`` that leaves less is raised to keep it
+MIN_CORE = 256
+
+
 class TorchRunner:
     """A torch model (eval mode, CPU, no gradients) on the correction
     stage's windows.
@@ -111,7 +116,8 @@ class TorchRunner:
         ``metadata`` entries read as top-level keys): ``fov_encoding`` (``"xy"``/``"none"``; default
         the model's attribute, else from its input channels),
         ``input_multiple`` (default the model's attribute, else 4),
-        ``tile_size`` (default 512), ``tile_overlap`` or
+        ``tile_size`` (default 512; raised where it would keep less than
+        :data:`MIN_CORE` px inside the margins), ``tile_overlap`` or
         ``receptive_radius`` (default 32), ``domain``, ``lens``.
     path : path, optional
         Where it was read from (for the report).
@@ -149,6 +155,9 @@ class TorchRunner:
         if overlap is None:
             overlap = _info_get(info, "receptive_radius")
         self.margin = DEFAULT_OVERLAP if overlap is None else int(overlap)
+        if 0 < self.tile < 2 * self.margin + MIN_CORE:
+            # a network that reads far (a wide attention window) still runs: larger tiles, same result
+            self.tile = -(-(2 * self.margin + MIN_CORE) // self.multiple) * self.multiple
         self.meta = {"fov_encoding": fov, "input_multiple": self.multiple, "tile_size": self.tile,
                      "tile_overlap": self.margin, "lens": _info_get(info, "lens"),
                      "domain": domain or DOMAIN}

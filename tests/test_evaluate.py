@@ -308,6 +308,24 @@ def test_checkpoint_and_onnx_score_alike(make, tmp_path):
         assert abs(ra["psnr_corrected"] - ra["psnr_uncorrected"]) > 0.05     # the model does something
 
 
+def test_a_checkpoint_whose_reach_exceeds_the_tile_runs_on_larger_tiles():
+    """A receptive radius of 300 px with the default 512 px tile left no
+    core (`isp eval` of a wide-attention model failed); the runner raises
+    the tile instead, and the result is the whole-frame run's (tile 0)."""
+    torch = pytest.importorskip("torch")
+    from restoration.network import build_model
+    from restoration.runner import MIN_CORE, TorchRunner
+
+    torch.manual_seed(0)
+    model = build_model("doconv", widths=(8, 8), depths=(0, 1, 0)).eval()
+    run = TorchRunner(model, {"receptive_radius": 300, "tile_size": 512})
+    assert run.tile >= 2 * 300 + MIN_CORE and run.tile % run.multiple == 0
+    rgb = np.random.default_rng(0).random((40, 48, 3), dtype=np.float32)
+    got = run(rgb, (0, 0), (40, 48))
+    want = TorchRunner(model, {"receptive_radius": 300, "tile_size": 0})(rgb, (0, 0), (40, 48))
+    assert np.abs(got - want).max() < 1e-5 and np.abs(got - rgb).max() > 1e-3
+
+
 # -- the command line -------------------------------------------------------------------------
 
 def test_isp_eval_writes_the_report(make, latent_dir, tmp_path, monkeypatch, capsys):
