@@ -135,8 +135,9 @@ class ConvNeXtBlock(nn.Module):
     channels, expansion : int
         Width, and the MLP's hidden width ``expansion · channels``.
     conv : {"doconv", "static"}
-        ``"static"``: a plain depthwise ``k × k`` conv (dilation 1), the
-        "ordinary convolution" of the paper's ablation.
+        ``"static"``: a plain ``k × k`` conv (dilation 1, grouped as
+        ``group_width`` says), the "ordinary convolution" of the paper's
+        ablation.
     group_width : int
         Channels per group of ``conv``: 1 (default) is depthwise, as in
         ConvNeXt; 0 or ``channels`` a dense conv.
