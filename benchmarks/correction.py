@@ -17,7 +17,10 @@ So every model is timed at each of ``--tile-sizes`` (default
 :data:`SWEEP`, plus the model's own ``tile_size``) and ``fp32_s``,
 ``int8_s`` and ``speedup`` are each model's best; ``speedup_same_tile``
 is the ratio at the INT8 model's own tile, and ``sweep`` holds every
-median. ``--tile-size T`` times both at ``T`` only.
+median. ``--tile-size T`` times both at ``T`` only. The runs alternate
+between the two models and are spread over two passes of the tile sizes,
+the second reversed (:func:`sweep_models`), so that the machine's drift
+falls on both models alike.
 
 Models: by default the packaged INT8 model and its FP32 twin
 (:func:`export.quantize.dequantize_qdq`: the same graph with the weights
@@ -71,37 +74,72 @@ def _export(checkpoint: str, calib_data: str, directory: Path) -> tuple[Path, Pa
     return fp32, int8
 
 
-def _time(path: Path, frame, threads: int, runs: int, tile_size: int | None = None) -> dict:
+def _stage(path: Path, frame, threads: int, tile_size: int | None):
     from modules.correction import Correction
-
-    from modules.tiling import plan_tiles
 
     stage = Correction(model=path, threads=threads, progress=False, tile_size=tile_size)
     stage.check(frame.domain)
-    cold = _measure(stage, frame, memory=True)
-    del cold["out"]
+    return stage
+
+
+def _run(stage, frame, memory: bool = False) -> dict:
+    r = _measure(stage, frame, memory=memory)
     # each output is dropped before the next run, as a pipeline drops a frame it has passed on:
     # kept alive, every run's 144 MB output is fresh memory from the kernel (page faults measured
     # at 0.05-0.3 s per 12 MP frame on top of the stage's own 0.1 s)
-    warm = []
-    for _ in range(runs):
-        r = _measure(stage, frame)
-        del r["out"]
-        warm.append(r)
+    del r["out"]
+    return r
+
+
+def _summary(tiling: tuple, frame, cold: dict, warm: list[dict]) -> dict:
+    from modules.tiling import plan_tiles
+
     secs = [r["seconds"] for r in warm]
     model = statistics.median(r["model_seconds"] for r in warm)
-    tiles = plan_tiles(frame.data.shape[:2], *stage.tiling())
+    tiles = plan_tiles(frame.data.shape[:2], *tiling)
     computed = sum(t.window_shape[0] * t.window_shape[1] for t in tiles)  # overlap included
     return {"median_s": round(statistics.median(secs), 3), "runs_s": secs, "cold_s": cold["seconds"],
-            "peak_rss_delta_mib": cold["peak_rss_delta_mib"], "tiles": stage.tiling(),
+            "peak_rss_delta_mib": cold["peak_rss_delta_mib"], "tiles": tiling,
             # inside the model, per megapixel it computed (the network's own rate), and outside it
             "model_s": round(model, 3), "model_ms_per_computed_mp": round(1e9 * model / computed, 1),
             "computed_over_frame": round(computed / frame.data.shape[0] / frame.data.shape[1], 3),
             "outside_model_s": round(statistics.median(secs) - model, 3)}
 
 
+def sweep_models(paths: dict, frame, threads: int, runs: int, sizes: list[int], log=print) -> dict:
+    """``{tile: {name: timing}}`` for every model of ``paths`` (name → .onnx)
+    at every tile size, ``runs`` warm runs each (median).
+
+    The runs alternate between the models at each tile and are spread over
+    two passes of the sizes, the second in reverse order: this shared
+    machine's speed drifts by ±10 % within minutes (one INT8 file measured
+    1.73× and 1.47× within 20 minutes when each sweep ran its sizes once,
+    in order), and a drift now falls on every model and size alike instead
+    of on whichever was timed last. The first visit of a (model, tile)
+    makes the cold run that measures memory; a later visit makes one
+    untimed run first.
+    """
+    cold, warm, tiling = {}, {(n, t): [] for n in paths for t in sizes}, {}
+    first = -(-runs // 2)
+    for order, k in ((sizes, first), (sizes[::-1], runs - first)):
+        for t in order if k else ():
+            stages = {n: _stage(p, frame, threads, t) for n, p in paths.items()}
+            for n, stage in stages.items():
+                r = _run(stage, frame, memory=(n, t) not in cold)
+                cold.setdefault((n, t), r)
+                tiling[(n, t)] = stage.tiling()
+            for _ in range(k):
+                for n, stage in stages.items():
+                    warm[(n, t)].append(_run(stage, frame))
+            del stages
+    out = {t: {n: _summary(tiling[(n, t)], frame, cold[(n, t)], warm[(n, t)]) for n in paths} for t in sizes}
+    for t in sizes:
+        log(f"  tile {t} px: " + ", ".join(f"{n.upper()} {out[t][n]['median_s']:.2f} s" for n in paths))
+    return out
+
+
 def _peak_mb(*timings: dict) -> float:
-    """The largest peak-RSS growth of ``_time`` results, in MB (10⁶ bytes)."""
+    """The largest peak-RSS growth of :func:`sweep_models` timings, in MB (10⁶ bytes)."""
     return round(max(t["peak_rss_delta_mib"] for t in timings) * 1.048576, 1)
 
 
@@ -189,13 +227,10 @@ def main(argv=None) -> dict:
         sizes = [args.tile_size] if args.tile_size else sorted(set(args.tile_sizes) | {own})
         # the first stage built in a process ran up to 1.6x slower (allocator and page-cache warm-up):
         # one throwaway run of each model before anything is timed
-        _time(fp32, frame, args.threads, 1, sizes[0]), _time(int8, frame, args.threads, 1, sizes[0])
-        sweep = {}
-        for t in sizes:
-            sweep[t] = {"fp32": _time(fp32, frame, args.threads, args.runs, t),
-                        "int8": _time(int8, frame, args.threads, args.runs, t)}
-            print(f"  tile {t} px: FP32 {sweep[t]['fp32']['median_s']:.2f} s, "
-                  f"INT8 {sweep[t]['int8']['median_s']:.2f} s", flush=True)
+        for path in (fp32, int8):
+            _run(_stage(path, frame, args.threads, sizes[0]), frame)
+        sweep = sweep_models({"fp32": fp32, "int8": int8}, frame, args.threads, args.runs, sizes,
+                             log=lambda m: print(m, flush=True))
         t32 = min(sizes, key=lambda t: sweep[t]["fp32"]["median_s"])
         t8 = min(sizes, key=lambda t: sweep[t]["int8"]["median_s"])
         r32, r8 = sweep[t32]["fp32"], sweep[t8]["int8"]
