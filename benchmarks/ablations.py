@@ -44,7 +44,8 @@ large               linear_highpass 12× the size (widths 48/192, depths
 static_large        static_linear_hp at large's MACs
 dense               linear_highpass with dense DOConv kernels on 48
                     channels, three blocks (19.0 kMAC/px): the form that
-                    INT8 speeds up (``group_width = 0``)
+                    INT8 speeds up (``group_width = 0``), packaged since
+                    stop 25 (linear_highpass was until then)
 static_dense        dense static 3×3 convs on 84 channels, dense's MACs
 wide_attention      linear_highpass with the attention statistics over 31²
                     px at ¼ resolution (124² at full resolution) instead of
