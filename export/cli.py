@@ -96,6 +96,13 @@ def run(args) -> int:
         report["int8"] = r
         print(f"{q8}: {r['int8_quantized_conv']}/{r['fp32_conv']} convs quantised after optimisation "
               f"({r['int8_float_conv']} float), {args.calib} calibration crops")
+        if not args.no_measure_overlap and args.overlap is None:
+            from .onnx_export import remeasure_overlap
+
+            # INT8 rounding turns small context changes into whole steps: its own margin
+            r["overlap"] = remeasure_overlap(q8)
+            if r["overlap"].get("overlap") is not None:
+                print(f"{q8}: tile overlap {r['overlap']['overlap']} px (measured on the INT8 model)")
         if args.eval_pairs:
             ps = int8_psnr(out, q8, args.calib_data, args.eval_pairs)
             r["psnr"] = ps

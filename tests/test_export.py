@@ -168,6 +168,32 @@ def test_int8_every_conv_quantized(exported, quantized):
     assert stage.model_meta["precision"] == "int8" and stage.model_meta["lens"] == "test-lens"
 
 
+def test_int8_copy_gets_its_own_tile_overlap(exported, quantized, tmp_path):
+    """The INT8 file's margin is measured on the INT8 file (its rounding can
+    need more context than the float model; on e9 80 px against 32): the
+    tiled run then matches the whole frame within the tolerance, in 8-bit
+    sRGB DN, and the metadata says so."""
+    import shutil
+
+    from export.onnx_export import OVERLAP_TOLERANCE, remeasure_overlap, sample_frame, srgb_dn
+    from modules.correction import Correction
+
+    q8 = tmp_path / "q.int8.onnx"
+    shutil.copy(exported[0] / "tiny.int8.onnx", q8)
+    r = remeasure_overlap(q8)
+    m = r["overlap"]
+    assert m is not None and r["errors"][m] <= OVERLAP_TOLERANCE
+    assert all(e > OVERLAP_TOLERANCE for k, e in r["errors"].items() if k < m)
+    stage = Correction(model=q8)
+    assert stage.info.overlap == m
+    h, w = 512, 704
+    frame = Frame(sample_frame((h, w), True, 0), Domain.CAMERA_RGB,
+                  CameraMeta(cfa=CFA.RGGB, raw_size=(h, w), active_area=(0, 0, h, w)))
+    tiled = Correction(model=q8, tile_size=2 * m + 128).process(frame).data
+    whole = Correction(model=q8, tile_size=0).process(frame).data
+    assert np.abs(srgb_dn(tiled) - srgb_dn(whole)).max() <= OVERLAP_TOLERANCE
+
+
 def test_int8_psnr_drop(exported, quantized):
     """INT8 vs FP32 PSNR drop ≤ 0.2 dB (issue 7's limit), here on 4 smooth
     random pairs (target = a random-ish frame, input = its Gaussian blur),
