@@ -29,11 +29,11 @@ metadata key        value
 
 Tile overlap
 ------------
-The gradient-measured receptive radius (174 px for the default model) is a
+The gradient-measured receptive radius (98 px for the packaged model) is a
 bound: the influence of far pixels decays long before it. The overlap
 written is the smallest candidate margin ``m`` for which the stage's own
 tiled run (:class:`modules.correction.Correction`, tiles of
-``2 m + 128`` px so a 256 × 320 frame is cut in several) differs from its
+``2 m + 128`` px) differs from its
 whole-frame run with the same margin (so the same reflected border) by at
 most ``tolerance`` on a smooth random input with edges and noise
 (:func:`sample_frame`), 512 × 704 px so that every candidate cuts it into
@@ -45,9 +45,9 @@ re-export after training. An INT8 copy is measured on its own
 (:func:`measure_tile_overlap` on the quantised file): a context change
 that moves an activation across a rounding step moves the output by a
 whole step of the residual's quantisation, so INT8 needs more margin than
-its float model (on the e9 model 96 px against 32: at 32 px the INT8
-tiles differed from the whole frame by up to 5.7 DN on a photograph, the
-float ones by 0.3).
+its float model (the packaged e9 model: 80 px against 32; at 32 px its
+INT8 tiles differed from the whole frame by up to 5.7 DN on a photograph,
+the float ones by 0.3: ``python -m benchmarks.seams``).
 """
 
 from __future__ import annotations
