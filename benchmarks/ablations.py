@@ -32,7 +32,7 @@ srgb_highpass       placement_srgb with the high-pass (against highpass: the
                     is gamma-encoded already)
 linear_highpass     highpass with the high-pass on the residual made linear
                     (``highpass_domain="linear"``): the packaged design
-                    since 2026-11-26 (with the config's
+                    from 2026-11-26 until stop 25 (with the config's
                     ``optim.highpass_penalty``)
 static_linear_hp    "static" with √x and the linear high-pass (against
                     linear_highpass: the dynamic convolution's gain on it)

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -36,12 +35,14 @@ def photograph(data: Path, size=(2100, 1500)) -> np.ndarray:
     """kodim07 as linear camera-like RGB, (H, W, 3) float32 at half exposure."""
     import cv2
 
+    from modules.gamma import srgb_eotf
+
     path = data / IMAGE
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise SystemExit(f"seams: {path}: not found (the shared data folder is needed)")
     img = cv2.resize(img[:, :, ::-1].astype(np.float32) / 255, size, interpolation=cv2.INTER_CUBIC).clip(0, 1)
-    return (0.5 * np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4)).astype(np.float32)
+    return (0.5 * srgb_eotf(img)).astype(np.float32)
 
 
 def seam_errors(model, img: np.ndarray, overlap: int | None) -> dict:
@@ -87,4 +88,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    sys.exit(0 if main() is not None else 1)
+    main()

@@ -216,8 +216,9 @@ def srgb_dn(x: np.ndarray) -> np.ndarray:
     >>> srgb_dn(np.array([0.0, 0.0031308, 0.2140, 1.0])).round(2).tolist()
     [0.0, 10.31, 127.49, 255.0]
     """
-    x = np.clip(x, 0.0, 1.0)
-    return 255.0 * np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    from modules.gamma import srgb_oetf
+
+    return 255.0 * srgb_oetf(np.asarray(x, dtype=np.float64))
 
 
 def measure_tile_overlap(path, candidates=OVERLAP_CANDIDATES, tolerance: float = OVERLAP_TOLERANCE,
@@ -273,13 +274,26 @@ def remeasure_overlap(path) -> dict:
     from isp.io import atomic_path
 
     proto = onnx.load(str(path))
+    measured = _measure_into(proto, path)
+    if "note" not in measured:                      # global attention: nothing was written
+        with atomic_path(Path(path)) as tmp:
+            onnx.save(proto, str(tmp))
+    return measured
+
+
+def _measure_into(proto, path) -> dict:
+    """Measure the overlap of ``path`` (a file holding ``proto``) and write it
+    into ``proto``'s metadata, the receptive radius (with a warning) where
+    no candidate keeps the tolerance; a global-attention model is left as
+    it is."""
     meta = {p.key: p.value for p in proto.metadata_props}
     if meta.get("attention") == "global":
         return {"overlap": None, "note": "global attention: tiles never match; stage runs whole frames"}
     measured = measure_tile_overlap(path)
+    if measured["overlap"] is None:
+        warnings.warn(f"no margin up to {max(OVERLAP_CANDIDATES)} px keeps tiles within {OVERLAP_TOLERANCE:g} DN; "
+                      f"tile_overlap = receptive_radius {meta.get('receptive_radius')}", stacklevel=3)
     set_metadata(proto, {"tile_overlap": str(measured["overlap"] or meta.get("receptive_radius"))})
-    with atomic_path(Path(path)) as tmp:
-        onnx.save(proto, str(tmp))
     return measured
 
 
@@ -410,19 +424,11 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
     out.parent.mkdir(parents=True, exist_ok=True)
     measured = None
     if measure_overlap and overlap is None:
-        if attention == "global":
-            measured = {"overlap": None, "note": "global attention: tiles never match; stage runs whole frames"}
-        else:
-            with tempfile.TemporaryDirectory() as d:  # measured through the stage, on a file
-                tmp = Path(d) / out.name
-                tmp.write_bytes(data)
-                measured = measure_tile_overlap(tmp)
-            if measured["overlap"] is None:
-                warnings.warn(f"no margin up to {max(OVERLAP_CANDIDATES)} px keeps tiles within "
-                              f"{OVERLAP_TOLERANCE:g} DN; tile_overlap = receptive_radius {radius}",
-                              stacklevel=2)
-            set_metadata(proto, {"tile_overlap": str(measured["overlap"] or radius)})
-            data = proto.SerializeToString()
+        with tempfile.TemporaryDirectory() as d:  # measured through the stage, on a file
+            tmp = Path(d) / out.name
+            tmp.write_bytes(data)
+            measured = _measure_into(proto, tmp)
+        data = proto.SerializeToString()
     with atomic_path(out) as tmp:
         Path(tmp).write_bytes(data)
     written = {p.key: p.value for p in proto.metadata_props}
