@@ -147,8 +147,8 @@ def main(argv=None) -> dict:
         frame = Frame(np.random.default_rng(0).random((h, w, 3), dtype=np.float32), Domain.CAMERA_RGB, meta)
         stage = Correction(model=path, threads=args.threads, progress=False)
         stage.check(Domain.CAMERA_RGB)
-        tile, margin, mult = stage.tiling()
-        tiles = plan_tiles((h, w), tile, margin, mult)
+        tile, margin, mult, border = stage.tiling()
+        tiles = plan_tiles((h, w), tile, margin, mult, border)
         computed = sum(t.window_shape[0] * t.window_shape[1] for t in tiles)
 
         cold = _measure(stage, frame, memory=True)  # first run: ORT arena and output pages fresh

@@ -99,10 +99,15 @@ def run(args) -> int:
         if not args.no_measure_overlap and args.overlap is None:
             from .onnx_export import remeasure_overlap
 
-            # INT8 rounding turns small context changes into whole steps: its own margin
-            r["overlap"] = remeasure_overlap(q8)
-            if r["overlap"].get("overlap") is not None:
-                print(f"{q8}: tile overlap {r['overlap']['overlap']} px (measured on the INT8 model)")
+            # INT8 rounding turns small context changes into whole steps: its own margin, at least
+            # its receptive radius (its tiles then exact); the border context stays the float model's
+            r["overlap"] = ov = remeasure_overlap(q8)
+            if ov.get("overlap") is not None:
+                used = ov.get("overlap_int8", ov["overlap"])
+                why = (f"{ov['overlap']} measured on the INT8 model, raised to its receptive radius: tiles exact"
+                       if used != ov["overlap"] else "measured on the INT8 model, at least its receptive radius")
+                print(f"{q8}: tile overlap {used} px ({why}); border context "
+                      f"{meta.get('border_context', meta.get('tile_overlap'))} px (the float model's)")
         if args.eval_pairs:
             ps = int8_psnr(out, q8, args.calib_data, args.eval_pairs)
             r["psnr"] = ps

@@ -41,6 +41,7 @@ import numpy as np
 
 from isp.errors import ConfigError, InputError
 
+from .int8_form import float_form, int8_form
 from .onnx_export import ExportError, op_counts, set_metadata
 
 __all__ = ["SynthCalibration", "count_quantized_convs", "dequantize_qdq", "int8_psnr", "mobile_usability", "float_io_nodes",
@@ -145,13 +146,14 @@ def optimized_graph(path, threads: int = 2):
         return onnx.load(opts.optimized_model_filepath)
 
 
-def count_quantized_convs(fp32_path, int8_path) -> dict:
-    """Convs of the float model vs quantised and float convs in the
+def count_quantized_convs(fp32, int8_path) -> dict:
+    """Convs of the float model (a path or an ``onnx.ModelProto``: the
+    graph that was quantised) vs quantised and float convs in the
     optimised INT8 graph (module docstring). Keys ``fp32_conv``,
     ``int8_quantized_conv``, ``int8_float_conv``, ``int8_optimized_ops``."""
     import onnx
 
-    fp32 = op_counts(onnx.load(str(fp32_path)))
+    fp32 = op_counts(fp32 if isinstance(fp32, onnx.ModelProto) else onnx.load(str(fp32)))
     opt = op_counts(optimized_graph(int8_path))
     return {"fp32_conv": fp32.get("Conv", 0),
             "int8_quantized_conv": sum(opt.get(k, 0) for k in QUANT_CONV_OPS),
@@ -448,6 +450,7 @@ def dequantize_qdq(model):
     del g.initializer[:]
     g.initializer.extend(inits)
     del g.value_info[:]   # the quantiser's shapes name tensors that are gone
+    float_form(model)     # the INT8 file's graph forms (export.int8_form) back to float's own
     set_metadata(model, {"precision": "fp32-dequantized"})
     return model
 
@@ -523,6 +526,9 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
         pre, q = Path(d) / "pre.onnx", Path(d) / "q.onnx"
         quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
         pre_model = onnx.load(str(pre))
+        # the shapes INT8 kernels run fast (export.int8_form); dequantize_qdq undoes them
+        rewritten = int8_form(pre_model)
+        onnx.save(pre_model, str(pre))
         exclude = float_io_nodes(pre_model) if float_output_add else []
         method = CalibrationMethod.Percentile if calibration == "percentile" else CalibrationMethod.MinMax
         chains = highpass_chains(pre_model)
@@ -559,11 +565,11 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out) as tmp:
         onnx.save(model, str(tmp))
-    counts = count_quantized_convs(fp32_path, out)
+    counts = count_quantized_convs(pre_model, out)
     if require_all_quantized and (counts["int8_float_conv"] or counts["int8_quantized_conv"] < counts["fp32_conv"]):
         raise ExportError(f"{out}: after optimisation {counts['int8_quantized_conv']} of {counts['fp32_conv']} "
                           f"convs are quantised and {counts['int8_float_conv']} stay float")
-    return {"path": str(out), **counts, "float_nodes": exclude, "ops": op_counts(model),
+    return {"path": str(out), **counts, "float_nodes": exclude, "int8_form": rewritten, "ops": op_counts(model),
             "seconds": round(time.perf_counter() - t0, 2)}
 
 

@@ -14,7 +14,10 @@ pixels on every side, the model runs on it, and only the tile's core is
 kept, so with a margin at least the model's receptive-field radius the
 stitched frame equals a whole-frame run (to float rounding; tested), and
 the extra memory is the output frame plus one tile. Frame borders are
-padded by reflection, in the whole-frame run as in the tiled one.
+padded by reflection, in the whole-frame run as in the tiled one, by
+``border_context`` pixels: the surround the model sees past the frame's
+edge, which is made up alike in both runs and so need not be the seam
+margin (:mod:`modules.tiling`).
 
 Field-of-view encoding ``"xy"`` appends two channels holding each pixel's
 normalised position on the *full* active area, in [-1, 1] (x right, y
@@ -45,6 +48,9 @@ metadata key              default    meaning
 ``tile_overlap``          see text   context margin per side (px); else
                                      ``receptive_radius`` (px), else ``receptive_field``
                                      (full width, px; margin = width // 2), else 32
+``border_context``        margin     reflected context past the frame's edges (px), at most
+                                     the margin: the float model's measured margin for an
+                                     INT8 copy, whose own margin is set by rounding flips
 ``input_multiple``        4          H and W of every call are multiples of it, and tile
                                      origins too (a UNet's total stride)
 ``space_to_depth``        1          ``s > 1``: input and output packed ``s × s`` to depth
@@ -83,6 +89,7 @@ from __future__ import annotations
 import functools
 import os
 from dataclasses import dataclass
+from typing import NamedTuple
 from functools import cached_property
 from pathlib import Path
 
@@ -216,6 +223,16 @@ class ModelInfo:
     stats_name: str | None
     stats_shape: tuple[int, ...] | None
     packing: int = 1
+    border: int | None = None   #: ``border_context`` (None: the overlap)
+
+
+class Tiling(NamedTuple):
+    """How the stage cuts a frame (:mod:`modules.tiling`), in pixels."""
+
+    tile: int      #: window side, context included (0: the whole frame)
+    margin: int    #: context between tiles, per side
+    multiple: int  #: window sides and tile origins are multiples of it
+    border: int    #: reflected context past the frame's edges
 
 
 def _int_meta(meta: dict, key: str, default: int, name: str, minimum: int = 0) -> int:
@@ -284,7 +301,8 @@ def model_info(session, name: str = "model") -> ModelInfo:
         tile_size=_int_meta(meta, "tile_size", DEFAULT_TILE_SIZE, name),
         overlap=overlap, multiple=multiple,
         attention=attention, input_name=img.name, in_channels=want, dtype=_DTYPES[img.type],
-        stats_name=STATS_INPUT if stats else None, stats_shape=stats_shape, packing=packing)
+        stats_name=STATS_INPUT if stats else None, stats_shape=stats_shape, packing=packing,
+        border=_int_meta(meta, "border_context", overlap, name) if "border_context" in meta else None)
 
 
 def pack_input(x: np.ndarray, s: int) -> np.ndarray:
@@ -403,6 +421,9 @@ class Correction(StageBase):
         whole frame in one call, memory growing with the frame).
     overlap : int, optional
         Override of the model's context margin per side (px).
+    border : int, optional
+        Override of the model's ``border_context`` (px; at most the
+        margin): the reflected surround past the frame's edges.
     progress : bool, optional
         Progress bar on stderr; by default when stderr is a terminal and the
         frame takes at least 4 tiles.
@@ -415,6 +436,7 @@ class Correction(StageBase):
     threads: int = 2
     tile_size: int | None = None
     overlap: int | None = None
+    border: int | None = None
     progress: bool | None = None
 
     def __post_init__(self):
@@ -424,6 +446,8 @@ class Correction(StageBase):
             raise ValueError(f"tile_size must be ≥ 0 (0: whole frame), got {self.tile_size}")
         if self.overlap is not None and self.overlap < 0:
             raise ValueError(f"overlap must be ≥ 0, got {self.overlap}")
+        if self.border is not None and self.border < 0:
+            raise ValueError(f"border must be ≥ 0, got {self.border}")
         path = resolve_model(self.model)
         if path is not None and not path.is_file():
             shipped = " (the packaged default: reinstall the package)" if path.parent == MODELS_DIR else ""
@@ -460,12 +484,15 @@ class Correction(StageBase):
                 "size_kb": round(self.model.stat().st_size / 1024, 1),
                 "training_data": meta.get("training_data", "?")}
 
-    def tiling(self) -> tuple[int, int, int]:
-        """(tile side, margin, multiple) in pixels, the stage's overrides
-        applied to the model's metadata."""
+    def tiling(self) -> Tiling:
+        """Tile side, margin, multiple and border context in pixels, the
+        stage's overrides applied to the model's metadata (the border at
+        most the margin)."""
         i = self.info
         tile = i.tile_size if self.tile_size is None else self.tile_size
-        return tile, (i.overlap if self.overlap is None else self.overlap), i.multiple
+        margin = i.overlap if self.overlap is None else self.overlap
+        border = self.border if self.border is not None else i.border if i.border is not None else margin
+        return Tiling(tile, margin, i.multiple, min(border, margin))
 
     def check(self, domain: Domain) -> None:
         if self.model is None:
@@ -480,7 +507,7 @@ class Correction(StageBase):
                 f"model {Path(self.model).name} was trained for {want} data ({where}); "
                 f"at this position the data is {domain.value}: move the correction stage there")
         info = self.info
-        tile, margin, mult = self.tiling()
+        tile, margin, mult, _ = self.tiling()
         if info.attention == "global" and info.stats_name is None and tile != 0:
             raise ConfigError(
                 f"model {info.name} pools its attention over the whole input (metadata "
@@ -500,7 +527,7 @@ class Correction(StageBase):
             raise ConfigError(f"correction model {self.model} expects 3-channel data, "
                               f"got shape {frame.data.shape}")
         info, sess = self.info, self.session
-        tile, margin, mult = self.tiling()
+        tile, margin, mult, border = self.tiling()
         origin, full = frame.meta.origin, frame.full_size
         feeds = {}
         if info.stats_name is not None:
@@ -516,11 +543,12 @@ class Correction(StageBase):
                 x[k:] = field_coordinates_at(rows + origin[0], cols + origin[1], full)
             return sess.run(None, {info.input_name: x[None], **feeds})[0][0]
 
-        n = len(plan_tiles(frame.data.shape[:2], tile, margin, mult))
+        n = len(plan_tiles(frame.data.shape[:2], tile, margin, mult, border))
         out = run_tiled(run, frame.data, tile=tile, margin=margin, multiple=mult, out_channels=3,
                         extra_channels=info.in_channels - k, dtype=info.dtype, packing=p,
-                        progress=self.progress, desc=f"correction {info.name}")
+                        progress=self.progress, desc=f"correction {info.name}", border=border)
         lens = info.meta.get("lens", "?")
-        how = f"{n} tiles of {tile} px, overlap {margin} px" if n > 1 else f"whole frame, margin {margin} px"
+        how = (f"{n} tiles of {tile} px, overlap {margin} px" if n > 1 else f"whole frame") + \
+            (f", border {border} px" if n == 1 or border != margin else "")
         return frame.evolve(out, stage=self.name,
                             note=f"{info.name} (lens {lens}, fov {info.fov_encoding}, {how})")

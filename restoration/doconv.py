@@ -145,6 +145,8 @@ def box_mean(x: Tensor, window: int, kernels: tuple[Tensor, Tensor] | None = Non
             [0.6667, 1.0000, 1.0000, 1.0000, 0.6667],
             [0.4444, 0.6667, 0.6667, 0.6667, 0.4444]])
     """
+    if window == 1:  # the pixel itself: no op in the graph (not two identity convs)
+        return x
     r = window // 2
     if kernels is None:
         kv = x.new_full((x.shape[1], 1, window, 1), 1.0 / window)
@@ -200,8 +202,9 @@ class DOAttention(nn.Module):
                          if field_channels and pool == "local" else None)
         # persistent: the ONNX exporter writes persistent buffers as initializers
         # (which INT8 quantisation needs) and the others as Constant nodes
-        self.register_buffer("box_v", torch.full((hidden, 1, window, 1), 1.0 / window))
-        self.register_buffer("box_h", torch.full((hidden, 1, 1, window), 1.0 / window))
+        if window > 1:  # window 1: the statistics are the pixel's own (box_mean is the identity)
+            self.register_buffer("box_v", torch.full((hidden, 1, window, 1), 1.0 / window))
+            self.register_buffer("box_h", torch.full((hidden, 1, 1, window), 1.0 / window))
         # one 1×1 conv per attention: slicing one shared head's output cost
         # more in ONNX Runtime (a Split between layout reorders) than it saves
         self.channel_head = nn.Conv2d(hidden, in_channels, 1)
@@ -226,7 +229,7 @@ class DOAttention(nn.Module):
         if self.pool == "global":
             h = h.mean(dim=(2, 3), keepdim=True)
         else:
-            h = box_mean(h, self.window, (self.box_v, self.box_h))
+            h = box_mean(h, self.window, (self.box_v, self.box_h) if self.window > 1 else None)
             if self.field_fc is not None:
                 if field is None:
                     raise ConfigError("this DOConv layer was built with field channels; pass `field`")

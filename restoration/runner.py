@@ -79,10 +79,10 @@ class OnnxRunner:
         domain = self.stage.model_meta.get("domain", DOMAIN)
         self.domain = Domain(domain if domain in DOMAINS else DOMAIN)
         self.stage.check(self.domain)                 # PlacementError naming where it belongs
-        tile, margin, mult = self.stage.tiling()
+        tile, margin, mult, border = self.stage.tiling()
         info = self.stage.info
         self.meta = {**info.meta, "fov_encoding": info.fov_encoding, "tile_size": tile, "tile_overlap": margin,
-                     "input_multiple": mult}
+                     "input_multiple": mult, "border_context": border}
 
     def __call__(self, rgb, origin, full_size):
         from isp.frame import Frame

@@ -21,18 +21,24 @@ def test_reflect_indices_is_numpy_reflect(n, pad):
 
 @pytest.mark.parametrize("n", [1, 7, 64, 700, 901])
 @pytest.mark.parametrize("tile,margin,mult", [(0, 8, 4), (64, 8, 4), (256, 30, 4), (256, 7, 1), (40, 3, 2)])
-def test_cores_cover_axis_once_aligned(n, tile, margin, mult):
-    spans = split_axis(n, tile, margin, mult)
+@pytest.mark.parametrize("border", [None, 0, 5])
+def test_cores_cover_axis_once_aligned(n, tile, margin, mult, border):
+    spans = split_axis(n, tile, margin, mult, border)
+    m = -(-margin // mult) * mult
+    b = m if border is None else min(-(-border // mult) * mult, m)
+    n_pad = -(-n // mult) * mult
     cover = np.zeros(n, int)
     for s in spans:
         cover[s.core_start:s.core_stop] += 1
         size = s.win_stop - s.win_start
         assert s.core_start % mult == 0 and size % mult == 0
-        assert s.core_start - s.win_start >= margin and s.win_stop - s.core_stop >= margin
+        # between tiles the margin; beyond the frame exactly the border, as in the whole-frame run
+        assert s.win_start == -b if s.core_start == 0 else s.core_start - s.win_start >= margin
+        assert s.win_stop == n_pad + b if s.core_stop == n else s.win_stop - s.core_stop >= margin
         if len(spans) > 1:
             assert size <= tile
     assert np.all(cover == 1)
-    assert len({s.win_stop - s.win_start for s in spans}) == 1  # one window size per axis
+    assert len({s.win_stop - s.win_start for s in spans[1:-1]}) <= 1  # one size between the edges
 
 
 def test_tile_too_small_for_margin_is_refused():
@@ -59,6 +65,24 @@ def test_tiled_equals_whole_frame_when_margin_covers_radius(rng):
     # the whole-frame run is the operator on the reflect-padded frame
     ref = _box(np.pad(img, ((5, 5), (5, 5), (0, 0)), mode="reflect").transpose(2, 0, 1), 5)
     assert np.abs(whole - ref[:, 5:-5, 5:-5].transpose(1, 2, 0)).max() < 1e-5
+
+
+@pytest.mark.parametrize("border", [0, 2, 4])
+def test_a_narrower_border_context_leaves_no_seam(rng, border):
+    # the reflected surround beyond the frame may be narrower than the seam margin: the
+    # tiles still reproduce the whole-frame run made with that surround, exactly, because
+    # the edge windows end where the whole frame's does (module docstring)
+    img = rng.random((150, 170, 3), dtype=np.float32)
+    op = lambda x, rows, cols: _box(x, 5)
+    whole = run_tiled(op, img, tile=0, margin=6, multiple=2, border=border)
+    tiled = run_tiled(op, img, tile=48, margin=6, multiple=2, border=border)
+    assert np.abs(tiled - whole).max() < 1e-5
+    # ... and the surround is what the frame's edge pixels see: zero padding past it
+    ref = _box(np.pad(np.pad(img, ((border,) * 2, (border,) * 2, (0, 0)), mode="reflect"),
+                      ((6 - border,) * 2, (6 - border,) * 2, (0, 0))).transpose(2, 0, 1), 5)
+    assert np.abs(whole - ref[:, 6:-6, 6:-6].transpose(1, 2, 0)).max() < 1e-5
+    if border < 5:   # a narrower surround changes the edge pixels
+        assert np.abs(whole - run_tiled(op, img, tile=0, margin=6, multiple=2)).max() > 1e-3
 
 
 def test_seam_error_grows_as_margin_drops_below_radius(rng):
@@ -111,3 +135,17 @@ def test_plane_copies_equal_numpy_on_strided_views(rng, dtype, channels):
     assert np.array_equal(out[4:24, 7:37], planes.transpose(1, 2, 0))
     out[4:24, 7:37] = 0
     assert not out.any()   # nothing written outside the view
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float16, np.uint8])
+def test_windows_reaching_past_the_border_read_as_fancy_indexing(rng, dtype):
+    # property: whatever the window (folded once by OpenCV's reflecting border, folded
+    # several times, or inside), the gathered window is image[rows][:, cols]
+    from modules.tiling import _gather
+
+    image = (rng.random((30, 40, 3)) * 200).astype(dtype)
+    for _ in range(500):
+        r0, c0 = int(rng.integers(-40, 30)), int(rng.integers(-50, 40))
+        rows = reflect_indices(r0, r0 + int(rng.integers(1, 70)), 30)
+        cols = reflect_indices(c0, c0 + int(rng.integers(1, 90)), 40)
+        assert np.array_equal(_gather(image, rows, cols), image[rows][:, cols]), (r0, c0)
