@@ -32,8 +32,8 @@ metadata key        value
 
 Tile overlap
 ------------
-The gradient-measured receptive radius (98 px for the packaged model) is a
-bound: the influence of far pixels decays long before it. The overlap
+The gradient-measured receptive radius (62 px for the packaged model) is a
+bound: the influence of far pixels decays long before it, in float. The overlap
 written is the smallest candidate margin ``m`` for which the stage's own
 tiled run (:class:`modules.correction.Correction`, tiles of
 ``2 m + 128`` px) differs from its
@@ -48,9 +48,14 @@ re-export after training. An INT8 copy is measured on its own
 (:func:`measure_tile_overlap` on the quantised file): a context change
 that moves an activation across a rounding step moves the output by a
 whole step of the residual's quantisation, so INT8 needs more margin than
-its float model (the packaged e9 model: 80 px against 32; at 32 px its
-INT8 tiles differed from the whole frame by up to 5.7 DN on a photograph,
-the float ones by 0.3: ``python -m benchmarks.seams``).
+its float model: the e9 model packaged at stop 25, 80 px against 32; at
+32 px its INT8 tiles differed from the whole frame by up to 5.7 DN on a
+photograph, the float ones by 0.3 (``python -m benchmarks.seams``), and
+at 80 px, short of its 98 px radius, still 2.5 DN on 512-px tiles, whose
+many seams met rare flips that the sample had not. So an INT8 file's
+margin is at least its receptive radius (:func:`remeasure_overlap`):
+integer arithmetic then makes its tiles the whole frame's result bit for
+bit (the package: 64 px for a 62 px radius; 0.0 DN).
 
 The surround the stage reflects past the frame's edges (``border_context``)
 is not a seam: the whole-frame run makes it up as the tiles do. What it
@@ -60,7 +65,7 @@ model's margin measures (the influence of far pixels there is within the
 tolerance); an INT8 copy keeps its float model's value, where its own
 margin would only re-round its quantisation noise, which it carries
 everywhere. On the packaged model that is 32 px against the INT8 margin's
-64, and INT8 computes 3.5 % fewer pixels on a 12 MP frame.
+64, and INT8 computes 3.4 % fewer pixels on a 12 MP frame in 2,048-px tiles.
 """
 
 from __future__ import annotations
