@@ -203,7 +203,7 @@ def pad_thin_convs(model, multiple: int = CHANNEL_MULTIPLE) -> int:
     from onnx import helper, numpy_helper
 
     g = model.graph
-    consts, readers, ch = _constants(model), _consumers(model), _channels(model)
+    readers, ch = _consumers(model), _channels(model)
     inits = {i.name: i for i in g.initializer}
     done = 0
     for cat in [n for n in g.node if n.op_type == "Concat"]:
@@ -217,12 +217,12 @@ def pad_thin_convs(model, multiple: int = CHANNEL_MULTIPLE) -> int:
             continue
         last = cat.input[-1]
         extra = ch.get(last)
-        if extra is None:
+        # copies of the last input that bring the channels to a multiple (none may: skip then)
+        copies = next((k for k in range(1, multiple + 1) if extra and (c + k * extra) % multiple == 0), None)
+        if copies is None:
             continue
-        add = 0
-        while (c + add) % multiple:
-            add += extra
-        cat.input.extend([last] * (add // extra))
+        add = copies * extra
+        cat.input.extend([last] * copies)
         _forget_shape(model, cat.output[0])
         for r in convs:
             w = numpy_helper.to_array(inits[r.input[1]])
@@ -237,7 +237,7 @@ def unpad_thin_convs(model) -> int:
     inputs repeat its last one, read only by convs whose weights for those
     channels are zero, loses them (and the weights their columns). Returns
     the number of convs unpadded."""
-    from onnx import helper, numpy_helper
+    from onnx import numpy_helper
 
     g = model.graph
     readers, ch = _consumers(model), _channels(model)

@@ -548,7 +548,7 @@ class Correction(StageBase):
                         extra_channels=info.in_channels - k, dtype=info.dtype, packing=p,
                         progress=self.progress, desc=f"correction {info.name}", border=border)
         lens = info.meta.get("lens", "?")
-        how = (f"{n} tiles of {tile} px, overlap {margin} px" if n > 1 else f"whole frame") + \
+        how = (f"{n} tiles of {tile} px, overlap {margin} px" if n > 1 else "whole frame") + \
             (f", border {border} px" if n == 1 or border != margin else "")
         return frame.evolve(out, stage=self.name,
                             note=f"{info.name} (lens {lens}, fov {info.fov_encoding}, {how})")

@@ -119,6 +119,14 @@ def test_forms_leave_other_graphs_alone():
     m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
     assert int8_form(m) == {"spread_muls": 0, "padded_convs": 0}
     assert float_form(m) == {"unspread_muls": 0, "unpadded_convs": 0}
+    # a concatenation whose last input's copies never reach a multiple of 4 (1 + 2k) is left alone
+    w3 = numpy_helper.from_array(np.ones((4, 3, 1, 1), np.float32), "w3")
+    g = helper.make_graph(
+        [helper.make_node("Concat", ["a", "b"], ["ab"], axis=1), helper.make_node("Conv", ["ab", "w3"], ["y"])],
+        "g", [helper.make_tensor_value_info("a", TensorProto.FLOAT, [1, 1, 4, 4]),
+              helper.make_tensor_value_info("b", TensorProto.FLOAT, [1, 2, 4, 4])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 4, 4, 4])], [w3])
+    assert pad_thin_convs(helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])) == 0
 
 
 def test_an_int8_export_runs_the_int8_form_and_its_twin_the_float_form(fp32, tmp_path):
