@@ -182,7 +182,8 @@ class DOAttention(nn.Module):
     pool : {"local", "global"}
         Box mean of side ``window`` (tile-consistent) or the global mean.
     window : int
-        Box side in pixels of the layer's resolution, odd.
+        Box side in pixels of the layer's resolution, odd; 1: the pixel's own
+        statistics (no box in the graph).
     field_channels : int
         Channels of the field features added to the hidden layer (0: none;
         ignored with ``pool="global"``, whose attention is per image).
@@ -273,7 +274,7 @@ class DOConv2d(nn.Module):
         Attention statistics: a ``window`` box (tile-consistent, default) or
         the global mean (ODConv; not tile-consistent).
     window : int
-        Box side, odd, in pixels of this layer's resolution.
+        Box side, odd, in pixels of this layer's resolution (1: no box).
     field_channels : int
         Channels of the field features passed to :meth:`forward` (0: none).
     reduction, min_hidden : float, int

@@ -540,3 +540,32 @@ def test_highpass_rejects_other_windows():
         build_model("doconv", highpass=8)
     with pytest.raises(ConfigError, match="highpass"):
         build_model("doconv", highpass=5)
+
+
+def test_pixel_attention_reads_the_pixel_alone_and_narrows_the_radius():
+    """``window = 1``: each pixel's attention comes from its own features
+    and field position (no box in the graph, no buffers), so a change
+    elsewhere leaves it alone, and each block reads ``window // 2`` fewer
+    pixels: on the e9 default (three blocks at ¼ resolution) 3 × 3 × 4 =
+    36 px less radius than the 7² box (62 against 98 px)."""
+    from restoration.doconv import DOAttention
+    from restoration.network import receptive_radius
+
+    torch.manual_seed(2)
+    att = DOAttention(8, 8, 3, 4, depthwise=False, spatial="none", pool="local", window=1,
+                      field_channels=0, hidden=8)
+    assert not any("box" in k for k in att.state_dict())
+    for conv in att.heads():
+        torch.nn.init.normal_(conv.weight, std=0.5)
+    x = torch.rand(1, 8, 9, 9)
+    a = att(x)
+    y = x.clone()
+    y[..., 4, 4] += 1.0
+    b = att(y)
+    for ma, mb in ((a.channel, b.channel), (a.filter, b.filter), (a.kernel, b.kernel)):
+        d = (ma - mb).abs().amax(dim=1)[0]
+        assert d[4, 4] > 1e-3 and d.sum() == d[4, 4]   # the changed pixel's attention alone
+    e9 = {"encoding": "sqrt", "highpass": 9, "highpass_domain": "linear", "group_width": 0,
+          "widths": (16, 48), "depths": (0, 3, 0)}
+    assert receptive_radius(build_model("doconv", **e9, window=7)) == 98
+    assert receptive_radius(build_model("doconv", **e9, window=1)) == 62
