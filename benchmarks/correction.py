@@ -150,7 +150,7 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
     profiler, the stage's session options) on one window of ``side``²
     pixels, the size of a 1,024-px tile with its context: ``{op: percent}``,
     largest first, ``top_nodes`` (the eight slowest nodes, same unit) and
-    ``ms`` per run."""
+    ``ms`` per run; ``node_ms``: every node's ms per run."""
     import onnxruntime as ort
 
     from modules.correction import model_info, pack_input, session_options
@@ -180,7 +180,8 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
     # the slowest nodes: one conv of an odd shape can cost more than all the others of its type
     # (the packed head at 12 output channels, see restoration.network.HEAD_CHANNEL_MULTIPLE)
     top = {k: round(100 * v / total, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])[:8]}
-    return {"ms": round(total / 1000 / (runs + 1), 1), "percent": shares, "top_nodes": top}
+    return {"ms": round(total / 1000 / (runs + 1), 1), "percent": shares, "top_nodes": top,
+            "node_ms": {k: v / 1000 / (runs + 1) for k, v in per_node.items()}}
 
 
 def main(argv=None) -> dict:
@@ -242,8 +243,9 @@ def main(argv=None) -> dict:
         r32, r8 = sweep[t32]["fp32"], sweep[t8]["int8"]
         same_tile = own if own in sweep else sizes[0]   # --tile-size: the one tile timed
         same = sweep[same_tile]
-        profile = ({"fp32": op_shares(fp32, args.threads, 1072), "int8": op_shares(int8, args.threads, 1072)}
-                   if args.profile else None)
+        # every node's time stays out of the JSON (benchmarks/int8_form.py reads it)
+        profile = ({k: {f: v for f, v in op_shares(p, args.threads, 1072).items() if f != "node_ms"}
+                    for k, p in (("fp32", fp32), ("int8", int8))} if args.profile else None)
     mp = w * h / 1e6
     result = {"size": f"{w}x{h}", "threads": args.threads, "runs": args.runs,
               "fp32_s": r32["median_s"], "int8_s": r8["median_s"],

@@ -5,25 +5,25 @@ The exported FP32 graph is the form float runs fastest; static INT8 runs
 in a different world (channels-last uint8 tensors, ``QLinear*`` kernels
 whose speed depends on the tensor shapes more than on the arithmetic). Two
 shapes were measured to cost INT8 far more than the work they do
-(``python -m benchmarks.correction --profile``, ONNX Runtime 1.32, two
-threads of an AMD EPYC with AVX-512 VNNI):
+(ONNX Runtime 1.32, two threads of an AMD EPYC with AVX-512 VNNI):
 
 * **A one-channel map broadcast over many channels.** DOConv's kernel
   attention ``α_w,i`` is one map per kernel, multiplied into that
   kernel's 48-channel output. INT8's ``QLinearMul`` broadcasts it pixel by
-  pixel (a 48-value span times a scalar) and took 0.87 ms on a 268² map
-  where the same product at full shape took 0.40 ms; float broadcasts it
-  plane by plane and is fast. :func:`spread_broadcast_muls` replaces the
+  pixel (a 48-value span times a scalar); float broadcasts it plane by
+  plane and is fast. :func:`spread_broadcast_muls` replaces the
   one-channel slice by a 1×1 conv of one-hot constant weights that copies
   that kernel's attention to every channel (the same values), so the
-  product is element by element: an INT8 DOConv UNet of three blocks
-  (12 such products) ran 74.6 → 70.5 ms on a 1,072² window, and its FP32
-  twin 63 → 69 ms at 704² (hence the inverse below).
+  product is element by element.
 * **Three input channels.** The field features ``(x, y, x² + y²)`` enter
-  1×1 convs; ONNX Runtime's INT8 conv on three input channels took 2.67 ms
-  where four took 1.37 ms (1×1 → 16 channels, 536²).
-  :func:`pad_thin_convs` appends a copy of the concatenation's last
-  input and gives the convs zero weights for it: the same function.
+  1×1 convs, which ONNX Runtime's INT8 kernel runs at half the speed it
+  runs four. :func:`pad_thin_convs` appends a copy of the concatenation's
+  last input and gives the convs zero weights for it: the same function.
+
+On the packaged e9 model the twelve products took 10.4–10.6 ms broadcast
+and 5.2 ms spread, the four field convs 2.8–3.5 ms and 1.3 ms, and a
+1,072² INT8 window 6.6–6.9 % less; float runs the same forms 5–7 % slower
+(``python -m benchmarks.int8_form``, which measures all of it).
 
 :func:`export.quantize.quantize_int8` applies both to the FP32 graph
 before quantising it (``int8_form``); :func:`float_form` undoes them, for
@@ -34,6 +34,8 @@ INT8 file, so the speed comparison gives float its own best graph.
 from __future__ import annotations
 
 import numpy as np
+
+from .onnx_export import prune_dead_nodes
 
 __all__ = ["float_form", "int8_form", "pad_thin_convs", "spread_broadcast_muls", "unpad_thin_convs",
            "unspread_broadcast_muls"]
@@ -77,6 +79,19 @@ def _consumers(model) -> dict[str, list]:
     return out
 
 
+def _fresh(model, base: str) -> str:
+    """``base``, or ``base`` with a number appended, such that no node,
+    tensor or initializer of the graph starts with that name."""
+    g = model.graph
+    taken = ({n.name for n in g.node} | {t for n in g.node for t in (*n.input, *n.output)}
+             | {i.name for i in g.initializer})
+    k, name = 0, base
+    while any(t == name or t.startswith(name + ".") or t.startswith(name + "_") for t in taken):
+        k += 1
+        name = f"{base}{k}"
+    return name
+
+
 def _channel_slice(node, consts) -> int | None:
     """``i`` when ``node`` is ``Slice(x, [i], [i + 1], axes=[1] [, steps=[1]])``, else None."""
     if node.op_type != "Slice" or len(node.input) < 4:
@@ -89,28 +104,6 @@ def _channel_slice(node, consts) -> int | None:
     if axes == [1] and steps == [1] and len(starts) == 1 and ends == [starts[0] + 1] and starts[0] >= 0:
         return int(starts[0])
     return None
-
-
-def _topological(model) -> None:
-    """Sort the nodes so that every node follows the producers of its inputs."""
-    g = model.graph
-    produced = {o: n for n in g.node for o in n.output}
-    done, order, seen = set(), [], set()
-
-    def visit(n):
-        if id(n) in seen:
-            return
-        seen.add(id(n))
-        for i in n.input:
-            if i in produced and i not in done:
-                visit(produced[i])
-        order.append(n)
-        done.update(n.output)
-
-    for n in list(g.node):
-        visit(n)
-    del g.node[:]
-    g.node.extend(order)
 
 
 def spread_broadcast_muls(model) -> int:
@@ -144,16 +137,17 @@ def spread_broadcast_muls(model) -> int:
             c, n = ch[y], ch[sl.input[0]]
             w = np.zeros((c, n, 1, 1), np.float32)
             w[:, i] = 1.0
-            name = f"{mul.name}/spread"
+            # a graph spread before and spread back (an INT8 file's twin) holds these names already
+            name = _fresh(model, f"{mul.name}/spread")
             g.initializer.append(numpy_helper.from_array(w, f"{name}.weight"))
-            g.node.append(helper.make_node("Conv", [sl.input[0], f"{name}.weight"], [f"{name}_output"],
-                                           name=name, kernel_shape=[1, 1]))
+            conv = helper.make_node("Conv", [sl.input[0], f"{name}.weight"], [f"{name}_output"],
+                                    name=name, kernel_shape=[1, 1])
+            g.node.insert(list(g.node).index(mul), conv)   # before its reader: the order stays topological
             mul.input[side] = f"{name}_output"
             done += 1
             break
     if done:
         _drop_unused(model)
-        _topological(model)
     return done
 
 
@@ -185,12 +179,10 @@ def unspread_broadcast_muls(model) -> int:
             g.initializer.append(numpy_helper.from_array(np.array([v], np.int64), f"{name}/slice_{k}"))
         sl = helper.make_node("Slice", [conv.input[0], f"{name}/slice_starts", f"{name}/slice_ends",
                                         f"{name}/slice_axes"], [conv.output[0]], name=f"{name}/slice")
-        g.node.remove(conv)
-        g.node.append(sl)
+        g.node[list(g.node).index(conv)].CopyFrom(sl)   # in the conv's place
         done += 1
     if done:
         _drop_unused(model)
-        _topological(model)
     return done
 
 
@@ -273,16 +265,10 @@ def _forget_shape(model, name: str) -> None:
 
 
 def _drop_unused(model) -> None:
-    """Remove nodes whose outputs nobody reads (repeatedly) and unused initializers."""
+    """Remove the nodes nobody reads (:func:`prune_dead_nodes`), then the
+    initializers nobody reads."""
     g = model.graph
-    outputs = {o.name for o in g.output}
-    while True:
-        used = {i for n in g.node for i in n.input} | outputs
-        dead = [n for n in g.node if not any(o in used for o in n.output)]
-        if not dead:
-            break
-        for n in dead:
-            g.node.remove(n)
+    prune_dead_nodes(model)
     used = {i for n in g.node for i in n.input}
     keep = [i for i in g.initializer if i.name in used]
     del g.initializer[:]

@@ -90,6 +90,7 @@ __all__ = [
     "measure_tile_overlap",
     "onnx_parity",
     "op_counts",
+    "prune_dead_nodes",
     "remeasure_overlap",
     "sample_frame",
     "set_metadata",
@@ -116,6 +117,24 @@ class ExportError(IspError):
 def op_counts(model) -> dict[str, int]:
     """Nodes per op type of an ``onnx.ModelProto`` (sorted by name)."""
     return dict(sorted(Counter(n.op_type for n in model.graph.node).items()))
+
+
+def prune_dead_nodes(model) -> int:
+    """Remove the nodes whose outputs nothing reads (not a graph output
+    either), repeatedly; returns how many. ONNX Runtime runs them all the
+    same: :func:`export.quantize.bypass_input_qdq` leaves such
+    ``QuantizeLinear`` → ``DequantizeLinear`` pairs behind where it rewired
+    their only reader, and :mod:`export.int8_form` the slices it replaced."""
+    graph_outputs = {o.name for o in model.graph.output}
+    removed = 0
+    while True:
+        read = {i for n in model.graph.node for i in n.input} | graph_outputs
+        dead = [n for n in model.graph.node if not any(o in read for o in n.output)]
+        if not dead:
+            return removed
+        for n in dead:
+            model.graph.node.remove(n)
+        removed += len(dead)
 
 
 def check_constant_weights(model) -> int:

@@ -23,6 +23,11 @@ graph optimisation (what the stage does) and counts, in the optimised graph
 ORT writes out, the convs that became ``QLinearConv`` (or
 ``ConvInteger``) and those left in float; any float conv is an error.
 
+Before quantising, the graph is rewritten into the forms ONNX Runtime's
+INT8 kernels run fast (:mod:`export.int8_form`: no one-channel product
+broadcast over many channels, no conv on three input channels); the FP32
+twin of an INT8 file (:func:`dequantize_qdq`) is rewritten back.
+
 :func:`mobile_usability` runs ``onnxruntime.tools.check_onnx_model_mobile_usability``
 and keeps what it prints.
 """
@@ -42,7 +47,7 @@ import numpy as np
 from isp.errors import ConfigError, InputError
 
 from .int8_form import float_form, int8_form
-from .onnx_export import ExportError, op_counts, set_metadata
+from .onnx_export import ExportError, op_counts, prune_dead_nodes, set_metadata
 
 __all__ = ["SynthCalibration", "count_quantized_convs", "dequantize_qdq", "int8_psnr", "mobile_usability", "float_io_nodes",
            "quantize_int8", "synth_crops"]
@@ -320,23 +325,6 @@ def bypass_input_qdq(model, nodes: list[str]) -> int:
     return count
 
 
-def prune_dead_nodes(model) -> int:
-    """Remove the nodes whose outputs nothing reads (not a graph output
-    either), repeatedly; returns how many. :func:`bypass_input_qdq` leaves
-    such ``QuantizeLinear`` → ``DequantizeLinear`` pairs behind where it
-    rewired their only reader, and ONNX Runtime runs them all the same."""
-    graph_outputs = {o.name for o in model.graph.output}
-    removed = 0
-    while True:
-        read = {i for n in model.graph.node for i in n.input} | graph_outputs
-        dead = [n for n in model.graph.node if not any(o in read for o in n.output)]
-        if not dead:
-            return removed
-        for n in dead:
-            model.graph.node.remove(n)
-        removed += len(dead)
-
-
 def quantized_pads(model) -> int:
     """Run each ``DequantizeLinear → Pad → QuantizeLinear`` whose two sides
     share one scale and zero point on the uint8 tensor itself, the pair
@@ -464,7 +452,7 @@ PERCENTILE = 99.9
 def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool = True,
                   float_output_add: bool = True, require_all_quantized: bool = True,
                   reduce_range: bool = True, calibration: str = CALIBRATION,
-                  percentile: float = PERCENTILE) -> dict:
+                  percentile: float = PERCENTILE, graph_forms: bool = True) -> dict:
     """Static INT8 (QDQ) copy of an exported FP32 model.
 
     Parameters
@@ -498,6 +486,10 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
         at ±127 and saturate often. Measured on the default e9 model (16
         held-out synth pairs): PSNR drop 2.03 dB with 8-bit weights, 0.37 dB
         with 7 (min-max ranges); uint8 weights (no saturation) 0.36 dB.
+    graph_forms : bool
+        Quantise the graph in the forms INT8 runs fast
+        (:func:`export.int8_form.int8_form`); off only to measure what they
+        buy (``benchmarks/int8_form.py``).
     calibration, percentile : {"percentile", "minmax"}, float
         Activation ranges: the ``percentile`` of each tensor's values, or
         its extremes. Measured as above, with 7-bit weights, 16 pairs:
@@ -527,7 +519,7 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
         quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
         pre_model = onnx.load(str(pre))
         # the shapes INT8 kernels run fast (export.int8_form); dequantize_qdq undoes them
-        rewritten = int8_form(pre_model)
+        rewritten = int8_form(pre_model) if graph_forms else {}
         onnx.save(pre_model, str(pre))
         exclude = float_io_nodes(pre_model) if float_output_add else []
         method = CalibrationMethod.Percentile if calibration == "percentile" else CalibrationMethod.MinMax
