@@ -3,7 +3,7 @@
 Every entry is trained with the same budget on the same synthesised pairs
 (the default config's multiple-samples set, ``configs/e9_default.toml``:
 the e9 design and two lenses drawn within tolerance), from the same seed,
-and evaluated by :func:`restoration.evaluate.evaluate` on the same unseen
+and evaluated by :func:`restoration.evaluate.rings.evaluate` on the same unseen
 proxy cameras (lenses drawn within tolerance from the evaluation's own
 seed stream) and the latent images training held out (never trained on by
 any entry: one split, one seed), per field ring:
@@ -24,7 +24,7 @@ sqrt_input          ours with the slot input encoded as √x inside the network
 static_sqrt         "static" with the √x encoding (against sqrt_input: the
                     dynamic convolution's gain on the √x design)
 highpass            sqrt_input with the residual high-pass (``highpass=9``,
-                    restoration.network.ResidualHighPass): the packaged design
+                    restoration.nn.network.ResidualHighPass): the packaged design
 static_highpass     "static" with √x and the high-pass (against highpass: the
                     dynamic convolution's gain on the packaged design)
 srgb_highpass       placement_srgb with the high-pass (against highpass: the
@@ -177,8 +177,8 @@ def _train(args) -> dict:
 def _train_one(args) -> dict:
     name, config_path, out, steps, seed = args
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    from restoration.train import train
-    from restoration.train_config import load_config
+    from restoration.train.trainer import train
+    from restoration.train.config import load_config
 
     variant, kwargs, placement = entry_model(name)
     cfg = load_config(config_path)
@@ -227,7 +227,7 @@ def _steps_for(minutes: float, todo: list, args, out: Path) -> int:
 
 
 def main(argv=None) -> dict:
-    from restoration.cli import DATA  # ../shared/data, or $ISP_DATA as the training config's data: paths
+    from restoration.cli.synth import DATA  # ../shared/data, or $ISP_DATA as the training config's data: paths
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", default="configs/e9_default.toml", help="training config (data, optimiser)")
@@ -256,8 +256,8 @@ def main(argv=None) -> dict:
     todo = [n for n in names if args.retrain or not (out / n / "model.pt").is_file()]
     if todo:
         # the pairs, synthesised once here: entries started at once would each make them
-        from restoration.train import ensure_data
-        from restoration.train_config import load_config
+        from restoration.train.trainer import ensure_data
+        from restoration.train.config import load_config
 
         ensure_data(load_config(args.config), progress=True, log=lambda m: print(m, flush=True))
     trained = {}
@@ -290,7 +290,7 @@ def main(argv=None) -> dict:
         return {"steps": args.steps, "entries": trained}
     import tempfile
 
-    from restoration.evaluate import evaluate
+    from restoration.evaluate.rings import evaluate
 
     # the same images for every entry: the latent images training held out
     # (never trained on, by any entry: one split, one seed), linked into one place

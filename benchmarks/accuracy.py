@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 def shading_errors() -> dict:
     from isp import Pipeline
-    from isp.read import read_raw
+    from isp.io.read import read_raw
 
     f = read_raw(DATA / "raw" / "SYNTHETIC_phone_S6meta_512x384.dng")
     truth = np.load(DATA / "raw" / "SYNTHETIC_phone_S6meta_512x384_truth_unshaded.npy")
@@ -54,7 +54,7 @@ def rawpy_delta_e() -> dict:
     import rawpy
 
     from isp import Pipeline
-    from isp.read import read_raw
+    from isp.io.read import read_raw
 
     out = {}
     for name in ("tinydng_colorchart.dng", "imageio_Blackmagic.dng",

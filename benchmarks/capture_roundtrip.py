@@ -9,11 +9,11 @@ both DNGs are measured as ``isp calib loop``/``fit`` measure a capture
 
 * **noise repeat**: RMS over the edges both captures hold of the SFRA
   difference, over √2: what one edge's SFRA scatters by from noise alone;
-* **the device's own lens** through :class:`calibration.sfr_model.SfrModel`
+* **the device's own lens** through :class:`calibration.fit.forward_model.SfrModel`
   (measurement bias included): SFRA RMS error against the first capture.
   No fit can be expected to beat it by much;
 * with ``--fit N [N ...]``: ``fit_proxy`` on SFRA over the ``N`` perturbations
-  that :class:`calibration.loop_base.LensBase` screens (the loop's base
+  that :class:`calibration.loop.base.LensBase` screens (the loop's base
   parameters; focus is left to the loop's ``focus_shift`` effect), with
   its coarse stage and restarts: SFRA RMS error and whether a restart was
   kept.
@@ -44,13 +44,13 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from calibration.cli import _load, _perturbed  # noqa: E402
-from calibration.imaging import simulate_capture, write_capture  # noqa: E402
-from calibration.imaging_chart import slanted_square_chart  # noqa: E402
-from calibration.lens import Sensor  # noqa: E402
-from calibration.loop_cli import load_measured, match_sensor  # noqa: E402
-from calibration.proxy import fit_proxy, residual_bias  # noqa: E402
-from calibration.sfr_model import FAST_JACOBIAN, SfrModel  # noqa: E402
+from calibration.cli.main import _load, _perturbed  # noqa: E402
+from calibration.simulate.capture import simulate_capture, write_capture  # noqa: E402
+from calibration.simulate.chart import slanted_square_chart  # noqa: E402
+from calibration.optics.lens import Sensor  # noqa: E402
+from calibration.cli.loop import load_measured, match_sensor  # noqa: E402
+from calibration.fit.proxy import fit_proxy, residual_bias  # noqa: E402
+from calibration.fit.forward_model import FAST_JACOBIAN, SfrModel  # noqa: E402
 
 LENS = ROOT.parent / "shared" / "data" / "lenses" / "phone" / "US-12210142-B2-e9.zmx"
 
@@ -107,7 +107,7 @@ def main(argv=None) -> dict:
 
     out["fits"] = []
     for n in args.fit:
-        from calibration.loop_base import LensBase
+        from calibration.loop.base import LensBase
 
         t0 = time.perf_counter()
         base = LensBase(nominal, obs[0], n_params=n)

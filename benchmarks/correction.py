@@ -94,7 +94,7 @@ def _run(stage, frame, memory: bool = False) -> dict:
 
 
 def _summary(tiling: tuple, frame, cold: dict, warm: list[dict]) -> dict:
-    from modules.tiling import plan_tiles
+    from modules._impl.tiling import plan_tiles
 
     secs = [r["seconds"] for r in warm]
     model = statistics.median(r["model_seconds"] for r in warm)
@@ -178,7 +178,7 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
     total = sum(per_op.values())
     shares = {k: round(100 * v / total, 1) for k, v in sorted(per_op.items(), key=lambda kv: -kv[1])}
     # the slowest nodes: one conv of an odd shape can cost more than all the others of its type
-    # (the packed head at 12 output channels, see restoration.network.HEAD_CHANNEL_MULTIPLE)
+    # (the packed head at 12 output channels, see restoration.nn.network.HEAD_CHANNEL_MULTIPLE)
     top = {k: round(100 * v / total, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])[:8]}
     return {"ms": round(total / 1000 / (runs + 1), 1), "percent": shares, "top_nodes": top,
             "node_ms": {k: v / 1000 / (runs + 1) for k, v in per_node.items()}}

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from restoration.macs import macs_per_pixel
-from restoration.network import build_model
+from restoration.nn.macs import macs_per_pixel
+from restoration.nn.network import build_model
 
 SIZE = 512
 

@@ -1,7 +1,7 @@
 """Toy deblurring comparison of the restoration-network variants.
 
 Not the paper's data (that is ``restoration/synth*``): a quick, self-made
-stand-in to rank design choices of :mod:`restoration.network` on two CPU
+stand-in to rank design choices of :mod:`restoration.nn.network` on two CPU
 cores. Latent images: the Kodak set in ``../shared/data/latent/Kodak24``
 (20 for training, 4 for testing), linearised with a 2.2 power. Blur: a
 field-dependent anisotropic Gaussian PSF per channel (radial σ grows with
@@ -35,9 +35,9 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-from restoration.doconv import set_spatial, set_temperature, temperature_schedule
-from restoration.macs import macs_per_pixel, n_parameters
-from restoration.network import build_model, forward_padded
+from restoration.nn.doconv import set_spatial, set_temperature, temperature_schedule
+from restoration.nn.macs import macs_per_pixel, n_parameters
+from restoration.nn.network import build_model, forward_padded
 
 KODAK = Path(__file__).resolve().parents[2] / "shared" / "data" / "latent" / "Kodak24"
 GRID, KSIZE = 10, 21

@@ -19,7 +19,7 @@ keeps √x means, and squaring back adds the residual's local variance).
 
 ``--synth DIR`` also checks that the training pairs themselves are unbiased:
 the mean of each pair's input, processed by the stages after the slot
-(``restoration.synth_colour.process_after_slot`` with ``gamma=False``),
+(``restoration.synth.colour.process_after_slot`` with ``gamma=False``),
 against the mean of its target, per channel, over the first ``--pairs``.
 
 Run::
@@ -108,7 +108,7 @@ def synth_mean_ratio(directory, pairs: int = 400, border: int = 16) -> dict:
     """Input (processed, linear sRGB) over target mean per channel, over the
     first ``pairs`` pairs of a synth folder, ``border`` px trimmed."""
     from modules.gamma import srgb_eotf
-    from restoration.synth_colour import process_after_slot
+    from restoration.synth.colour import process_after_slot
 
     lum = json.loads((Path(directory) / "manifest.json").read_text())["process"]["luminance"]
     ratios = []

@@ -1,12 +1,12 @@
 """Cost of one lens evaluation of the proxy-camera forward model.
 
-A proxy fit (:mod:`calibration.proxy`, :mod:`calibration.dls`) evaluates
-:meth:`calibration.sfr_model.SfrModel.predict` about 200 times, each for a
+A proxy fit (:mod:`calibration.fit.proxy`, :mod:`calibration.fit.dls`) evaluates
+:meth:`calibration.fit.forward_model.SfrModel.predict` about 200 times, each for a
 new perturbed lens. This script times one such evaluation on the paper's
 setup: lens US-12210142-B2-e9, its sensor split into 15 × 20 regions, a
 vertical (normal −5°) and a horizontal (normal 95°) edge at every region
 centre (600 observations, green channel), a lens perturbed uniformly within
-±1 tolerance in every :func:`calibration.proxy.default_names` parameter —
+±1 tolerance in every :func:`calibration.fit.proxy.default_names` parameter —
 a fresh one per timed call (the model caches the last lens's rays; nothing
 is reused across lenses).
 
@@ -20,7 +20,7 @@ machine does not inflate, and wall seconds):
   loop's focus/tilt/curvature effects), on the lens whose rays are already
   traced (the loop's case: the trace is reused, the PSFs recomputed);
 * ``predict`` at both settings on the coarse stage's observations only
-  (:func:`calibration.proxy.coarse_subset`: the 70 edges of a 5 × 7
+  (:func:`calibration.fit.proxy.coarse_subset`: the 70 edges of a 5 × 7
   sub-grid), what a coarse-to-fine fit's first stage pays per evaluation.
 
 Accuracy: with ``--reference FILE`` the predicted SFR of every timed lens is
@@ -49,7 +49,7 @@ core happened to be free: the tracer's two threads then ran in parallel,
 sharing caches; with the cores busy (a fit's worker processes) CPU ≈ wall.
 Accuracy of "after" against
 "before" on the same lenses: SFRA 4e-9 cycles/pixel RMS, 2e-8 max, SFR
-7e-8 max (the complex64 Debye sums, :data:`calibration.psf.DEBYE_SUM_DTYPE`;
+7e-8 max (the complex64 Debye sums, :data:`calibration.optics.psf.core.DEBYE_SUM_DTYPE`;
 with complex128 sums 1e-11 RMS, the tracer's Newton tolerance).
 
 Prints a line per timing and one JSON object as the LAST line. Usage::
@@ -76,12 +76,12 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from calibration.lens_io import read_lens  # noqa: E402
-from calibration.proxy import COARSE_GRID, coarse_subset, default_names, parameter_space  # noqa: E402
-from calibration.proxy_data import FREQ, Observations  # noqa: E402
-from calibration.proxy_synth import edge_sites  # noqa: E402
-from calibration.sfr_chart import classify_orientation  # noqa: E402
-from calibration.sfr_model import FAST_JACOBIAN, ModelSettings, SfrModel  # noqa: E402
+from calibration.optics.io.lens_json import read_lens  # noqa: E402
+from calibration.fit.proxy import COARSE_GRID, coarse_subset, default_names, parameter_space  # noqa: E402
+from calibration.fit.observations import FREQ, Observations  # noqa: E402
+from calibration.fit.synthetic_devices import edge_sites  # noqa: E402
+from calibration.sfr.chart import classify_orientation  # noqa: E402
+from calibration.fit.forward_model import FAST_JACOBIAN, ModelSettings, SfrModel  # noqa: E402
 
 LENS = ROOT.parent / "shared" / "data" / "lenses" / "phone" / "US-12210142-B2-e9.zmx"
 GRID = (15, 20)
@@ -163,7 +163,7 @@ def run_defocus(model, space, seed, offset, repeats, log):
 
 def sfr_diff(model, a, b) -> dict:
     """RMS/max |ΔSFRA| (cycles/pixel) and max |ΔSFR| over all observations and lenses."""
-    from calibration.sfr_model import sfra_of
+    from calibration.fit.forward_model import sfra_of
 
     da = np.concatenate([sfra_of(model.obs.freq, x) - sfra_of(model.obs.freq, y) for x, y in zip(a, b)])
     ds = max(float(np.max(np.abs(x - y))) for x, y in zip(a, b))

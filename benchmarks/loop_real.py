@@ -1,13 +1,13 @@
 """Closing the loop on the real edge photographs of ../shared/data/edges.
 
 Unknown cameras, unknown lenses, unknown processing: the base model is the
-parametric optical MTF (:class:`calibration.loop_base.ParametricBase`:
+parametric optical MTF (:class:`calibration.loop.base.ParametricBase`:
 diffraction at a fitted F-number × Gaussian aberration blur × the square
 pixel aperture, pixel pitch assumed 1 µm so only λN/pitch means anything)
 and the whole effect registry is tried, exactly as
 ``isp calib loop --lens parametric --measured FILE`` does (same loaders,
 same loop). Single-edge ROI files are split along the edge into segments
-(:mod:`calibration.loop_cli`).
+(:mod:`calibration.cli.loop`).
 
 Encoding: JPEG and BMP files are camera output and measured as sRGB; the
 8-bit TIFF ROIs as linear codes, as the reference SFR tools measured them
@@ -43,8 +43,8 @@ DATA = ROOT.parent / "shared" / "data" / "edges"
 FIGURE = ROOT / "docs" / "loop_real_edges.png"
 sys.path.insert(0, str(ROOT))
 
-from calibration.loop import close_loop  # noqa: E402
-from calibration.loop_cli import load_measured, make_base, model_sfr  # noqa: E402
+from calibration.loop.closure import close_loop  # noqa: E402
+from calibration.cli.loop import load_measured, make_base, model_sfr  # noqa: E402
 
 # file, encoding, shortest chart edge (px)
 FILES = (
@@ -131,7 +131,7 @@ def figure(rows: list[dict], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from isp.io import write_bytes_atomic
+    from isp.io.files import write_bytes_atomic
 
     rows = [r for r in rows if "_mono" not in r["file"]]
     cols = 3

@@ -43,7 +43,7 @@ def _setup_threads():
     """2 threads everywhere, and the allocator setting `isp` itself uses."""
     import cv2
 
-    from isp.runtime import tune_allocator
+    from isp.runtime.threads import tune_allocator
 
     cv2.setNumThreads(int(THREADS))
     tune_allocator()
@@ -51,7 +51,7 @@ def _setup_threads():
 
 def run_ours(path: str, jpeg: bool = True) -> float:
     from isp import Pipeline
-    from isp.read import read_raw
+    from isp.io.read import read_raw
 
     # like for like: LibRaw has no optical correction (the packaged model's
     # cost is benchmarks/correction.py's)
@@ -89,8 +89,8 @@ def child_peak_rss(path: str) -> float:
 
 def synthesize(path: Path) -> None:
     """A 16 MP phone capture of our own when the shared file is absent."""
-    from isp.demo import make_capture
-    from isp.dng_write import write_dng
+    from calibration.demo import make_capture
+    from isp.io.dng_write import write_dng
 
     dn, meta, _ = make_capture(3000, 5328)
     write_dng(path, dn, meta)

@@ -41,8 +41,8 @@ def pair_gains(synth, models: dict, step: int = 4, size: int = 256) -> np.ndarra
     ``models`` (name → (torch model, placement))."""
     import torch
 
-    from restoration.dataset import SynthPairs
-    from restoration.train import predict_srgb, process_batch, psnr_db
+    from restoration.train.dataset import SynthPairs
+    from restoration.train.trainer import predict_srgb, process_batch, psnr_db
 
     pairs = SynthPairs(synth)
     rows = []
@@ -72,7 +72,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     import torch
 
-    from restoration.checkpoint import load_model
+    from restoration.nn.checkpoint import load_model
 
     torch.set_num_threads(2)
     models = {}

@@ -3,7 +3,7 @@
 For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
 ``--devices`` devices:
 
-* **truth**: the lens with every :func:`calibration.proxy.default_names`
+* **truth**: the lens with every :func:`calibration.fit.proxy.default_names`
   parameter (element decenters and tilts, air gaps, focus) perturbed
   uniformly within ±1 tolerance (seeded); its PSF map
   (``psf_map(grid=GRID, channels=("G",), n=96, pupil_samples=64,
@@ -11,20 +11,20 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
   PSF, ``benchmarks/psf_window.py``; until 2026-11-25 it was 24 µm, which
   cut up to 13 % off and made the truth itself unreachable for the
   model) is the device;
-* **measurement**: :func:`calibration.proxy_synth.synthetic_observations`
+* **measurement**: :func:`calibration.fit.synthetic_devices.synthetic_observations`
   — a vertical and a horizontal 5° edge at every region centre, rendered
   exactly through the truth PSFs, noise σ = ``noise``·(1 + r²) (r the
   normalised field radius), measured with ISO 12233;
 * **fits**, all from the nominal lens over the same parameters (the
   ``--n-params`` to which SFRA and the LSF asymmetry are most sensitive,
-  :func:`calibration.proxy.screen_parameters`, screened once per
+  :func:`calibration.fit.proxy.screen_parameters`, screened once per
   measurement; its time is reported apart):
 
   - ``nominal``: no fit;
   - ``truth``: no fit either — the device's own lens through the same
     forward model, what a perfect fit would score: the floor the model
     (its PSF window, sampling, wavelengths) leaves;
-  - ``pixel``: :func:`calibration.proxy_pixel.fit_pixel_mse` — MSE
+  - ``pixel``: :func:`calibration.fit.pixel.fit_pixel_mse` — MSE
     between simulated and measured edge images (scipy TRF);
   - ``scipy``: ``fit_proxy(method="scipy")`` — SFRA residuals, scipy TRF
     with the same finite-difference step; ``max_nfev = --max-iter``, which
@@ -42,7 +42,7 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
   - ``ours_bands``: the same with ``residuals="bands"`` (SFRA plus the mean
     SFR in four frequency bands);
   - ``ours_odd``: the same with ``residuals="odd"`` (SFRA plus the LSF's
-    asymmetry in four bands, :mod:`calibration.sfr_asym`);
+    asymmetry in four bands, :mod:`calibration.sfr.asymmetry`);
   - ``ours_shape``: SFRA, the four SFR bands and the four asymmetry bands;
     every ``ours`` fit that ends above ``RESTART_CHI2`` χ² per residual
     tries ``--restarts`` other starts (``fit_proxy(restarts=...)``, seeded
@@ -53,7 +53,7 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
     optimisers on equal terms);
   - ``ours_box``: ``ours_shape`` whose steps are the damped model's
     minimiser inside the ±2-tolerance box (``bounds="box"``,
-    :func:`calibration.dls.damped_least_squares`) instead of the clipped
+    :func:`calibration.fit.dls.damped_least_squares`) instead of the clipped
     step;
   - ``ours_prior``: ``ours_shape`` with a Gaussian prior of σ = 1/√3
     tolerance on each perturbation (``fit_proxy(prior=...)``, a maximum a
@@ -64,7 +64,7 @@ radius is within ±0.1 of it; the nearest radius where none is):
 
 * **SFR MSE ×10⁻³**: mean over those observations of the mean squared
   difference on 0..0.5 cycles/pixel between the fitted lens's noise-free
-  SFR (:class:`calibration.sfr_model.SfrModel`) and the measured SFR;
+  SFR (:class:`calibration.fit.forward_model.SfrModel`) and the measured SFR;
   ``SFR MSE truth`` is the same against the truth lens's noise-free SFR
   through the same model (the part of the error the measurement's noise
   does not hide);
@@ -73,7 +73,7 @@ radius is within ±0.1 of it; the nearest radius where none is):
   lens and the measured (noisy) one;
 * **registered SSIM**: the same after moving each simulated edge along its
   normal onto the measured one, by the offset of the two edges as ISO
-  12233 locates them (:func:`calibration.proxy_pixel.register_edge`;
+  12233 locates them (:func:`calibration.fit.pixel.register_edge`;
   ``|offset| px`` the mean size of that move). The plain SSIM also scores
   each edge's sub-pixel position, which a chart capture does not fix and
   which the forward model's own approximations (its PSF window and pupil
@@ -130,13 +130,13 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from calibration.lens_io import read_lens  # noqa: E402
-from calibration.proxy import (COARSE_GRID, N_PARAMS, RESTART_CHI2, RESTARTS, default_names, fit_proxy, parameter_space,  # noqa: E402
+from calibration.optics.io.lens_json import read_lens  # noqa: E402
+from calibration.fit.proxy import (COARSE_GRID, N_PARAMS, RESTART_CHI2, RESTARTS, default_names, fit_proxy, parameter_space,  # noqa: E402
                                residual_bias, screen_parameters)
-from calibration.proxy_pixel import fit_pixel_mse, register_edge, render_edges  # noqa: E402
-from calibration.proxy_synth import synthetic_observations  # noqa: E402
-from calibration.psf_map import psf_map  # noqa: E402
-from calibration.sfr_model import FAST_JACOBIAN, ModelSettings, SfrModel  # noqa: E402
+from calibration.fit.pixel import fit_pixel_mse, register_edge, render_edges  # noqa: E402
+from calibration.fit.synthetic_devices import synthetic_observations  # noqa: E402
+from calibration.optics.psf.map import psf_map  # noqa: E402
+from calibration.fit.forward_model import FAST_JACOBIAN, ModelSettings, SfrModel  # noqa: E402
 
 LENS_DIR = ROOT.parent / "shared" / "data" / "lenses" / "phone"
 GRID = (5, 7)
@@ -235,8 +235,7 @@ def screen(model, names, n_params, bias, workers) -> list[str]:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    from calibration import proxy as _proxy
-
+    from calibration.fit import proxy as _proxy
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_proxy._init_worker,
                              initargs=((model.nominal, model.obs, model.settings, names, bias),)) as pool:
@@ -272,7 +271,7 @@ def render_as_device(lens, edges, grid) -> list[np.ndarray]:
     are (:func:`device_map`, the PSF of the edge's region), not through the
     fits' forward model: what a proxy camera is used for downstream
     (``isp synth`` renders through its PSF map)."""
-    from calibration.proxy_synth import edge_sites
+    from calibration.fit.synthetic_devices import edge_sites
 
     pm = device_map(lens, grid)
     region = {(round(x, 6), round(y, 6)): (r, k) for r, k, x, y in edge_sites(pm.sensor, grid)}
@@ -647,7 +646,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--refresh", type=int, default=1,
                     help="ours: a finite-difference Jacobian every REFRESH accepted steps, Broyden updates "
                          "in between (default 1, every step: the methods compared at equal iterations; "
-                         "fit_proxy's own default is calibration.proxy.REFRESH with more iterations)")
+                         "fit_proxy's own default is calibration.fit.proxy.REFRESH with more iterations)")
     ap.add_argument("--screen-in-fit", action="store_true",
                     help="ours: fit_proxy screens the parameters itself (with the Jacobian's model, its "
                          "secants the fit's first Jacobian), so the reported fit time includes the screening, "

@@ -46,7 +46,7 @@ def sfr_error(model, lens, truth_sfr, masks) -> dict:
 
 
 def truth_merit(model, nominal, truth, workers: int) -> tuple[dict, np.ndarray]:
-    from calibration.proxy import residual_bias
+    from calibration.fit.proxy import residual_bias
 
     obs = model.obs
     pred = model.predict(truth).sfra
@@ -62,8 +62,8 @@ def truth_merit(model, nominal, truth, workers: int) -> tuple[dict, np.ndarray]:
 
 def stability(model, truth, worst, draws: int = 6, seed: int = 0) -> list:
     """Measured SFRA of the model's render of each edge at 1× and 1.5× its noise."""
-    from calibration.sfr import SfrError
-    from calibration.sfr_model import measure_like, render_observation
+    from calibration.sfr.esfr import SfrError
+    from calibration.fit.forward_model import measure_like, render_observation
 
     obs, rng = model.obs, np.random.default_rng(seed)
     psfs = model.observation_psfs(truth)
@@ -86,10 +86,10 @@ def stability(model, truth, worst, draws: int = 6, seed: int = 0) -> list:
 
 
 def main(argv=None) -> dict:
-    from calibration.cli import _load
-    from calibration.loop_cli import load_measured, match_sensor
-    from calibration.proxy import load_proxy
-    from calibration.sfr_model import SfrModel
+    from calibration.cli.main import _load
+    from calibration.cli.loop import load_measured, match_sensor
+    from calibration.fit.proxy import load_proxy
+    from calibration.fit.forward_model import SfrModel
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--lens", required=True, help="the nominal lens file")

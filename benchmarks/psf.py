@@ -1,4 +1,4 @@
-"""Speed and accuracy of the PSFs (calibration/psf.py, calibration/psf_map.py).
+"""Speed and accuracy of the PSFs (calibration/optics/psf/core.py, calibration/optics/psf/map.py).
 
 On US-12210142-B2-e9 (../shared/data/lenses/phone) and an aberration-free
 singlet:
@@ -74,10 +74,10 @@ def main(argv=None) -> dict:
 
     from test_psf import first_zero_um, perfect_lens, real_working_f_number
 
-    from calibration import psf as P
-    from calibration import psf_map as M
-    from calibration.lens_io import read_lens
-    from calibration.perturb import apply
+    from calibration.optics.psf import core as P
+    from calibration.optics.psf import map as M
+    from calibration.optics.io.lens_json import read_lens
+    from calibration.optics.perturb import apply
 
     e9 = read_lens(DATA / "US-12210142-B2-e9.zmx")
     out: dict = {"load_average": os.getloadavg(), "cpus": os.cpu_count()}

@@ -1,6 +1,6 @@
 """What the forward model's PSF window costs in accuracy, and in time.
 
-:class:`calibration.sfr_model.SfrModel` computes each region's PSF on an
+:class:`calibration.fit.forward_model.SfrModel` computes each region's PSF on an
 ``psf_n`` × ``psf_n`` window at half the pixel pitch and normalises it to
 unit mass *inside the window*. Light the aberrations throw further out is
 dropped, and the SFR, normalised at zero frequency, comes out too high at
@@ -9,7 +9,7 @@ than its nominal design: the corners' coma and astigmatism tails reach
 10–20 µm (``--help``'s table, measured below).
 
 For each phone lens (``../shared/data/lenses/phone``) the nominal design
-and ``--devices`` devices (every :func:`calibration.proxy.default_names`
+and ``--devices`` devices (every :func:`calibration.fit.proxy.default_names`
 parameter uniform within ±1 tolerance, seeded as ``benchmarks/proxy.py``
 seeds them), on a 5 × 7 field grid with a vertical and a horizontal edge
 at every region centre (green channel):
@@ -53,9 +53,9 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.lens_eval import observations  # noqa: E402
 from benchmarks.proxy import pick_lenses  # noqa: E402
-from calibration.lens_io import read_lens  # noqa: E402
-from calibration.proxy import default_names, parameter_space  # noqa: E402
-from calibration.sfr_model import ModelSettings, SfrModel  # noqa: E402
+from calibration.optics.io.lens_json import read_lens  # noqa: E402
+from calibration.fit.proxy import default_names, parameter_space  # noqa: E402
+from calibration.fit.forward_model import ModelSettings, SfrModel  # noqa: E402
 
 GRID = (5, 7)
 REFERENCE = ModelSettings(psf_n=128, pupil_samples=96)

@@ -45,9 +45,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--chunk", type=int, default=None)
     args = ap.parse_args(argv)
 
-    from calibration import trace as tr
-    from calibration.importers import read_zmx
-    from calibration.spot import spot
+    from calibration.optics import trace as tr
+    from calibration.optics.io.formats import read_zmx
+    from calibration.optics.spot import spot
 
     lens = read_zmx(DATA / "US-12210142-B2-e9.zmx")
     lam = 587.6

@@ -64,7 +64,7 @@ def seam_errors(model, img: np.ndarray, overlap: int | None, tile: int | None = 
 
 
 def main(argv=None) -> dict:
-    from restoration.cli import DATA
+    from restoration.cli.synth import DATA
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", nargs="+", default=["default"], help="ONNX files (default: the packaged model)")

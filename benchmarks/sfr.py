@@ -1,8 +1,8 @@
-"""Speed of the e-SFR measurement (calibration.sfr), 2 threads.
+"""Speed of the e-SFR measurement (calibration.sfr.esfr), 2 threads.
 
 1. One edge: a 100×200 px ROI (100 rows along a 5° edge, σ = 1 px,
    1 % noise, 10-bit codes in float32), median of ``--runs`` calls of
-   :func:`calibration.sfr.measure_sfr`; also with ``bootstrap=50``.
+   :func:`calibration.sfr.esfr.measure_sfr`; also with ``bootstrap=50``.
 2. A whole simulated 12 MP chart: a 4000×3000 float32 image with ``--edges``
    slanted-edge ROIs (alternating vertical/horizontal, both polarities,
    angles 3–11°, blur σ 0.7–2 px growing towards the corners, 1 % noise)
@@ -11,7 +11,7 @@
    compared with the analytic truth.
 3. The same 12 MP frame as a chart to be found: 6 × 8 slanted dark squares
    (192 edges), detection and measurement by
-   :func:`calibration.sfr_chart.measure_chart`.
+   :func:`calibration.sfr.chart.measure_chart`.
 
 Prints progress, then one JSON object as its last line:
 ``per_edge_ms, per_edge_bootstrap50_ms, roi, chart_edges, chart_serial_s,
@@ -44,8 +44,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from calibration.sfr import measure_sfr
-from calibration.sfr_synth import mtf50_of, render_slanted_edge
+from calibration.sfr.esfr import measure_sfr
+from calibration.sfr.synthetic import mtf50_of, render_slanted_edge
 
 cv2.setNumThreads(int(THREADS))
 
@@ -151,9 +151,9 @@ def chart(n_edges: int) -> dict:
 
 def detected_chart(grid=(6, 8), sigma=1.2, seed=2) -> dict:
     """A 12 MP image of slanted dark squares (anti-aliased, Gaussian blur,
-    1 % noise, 10-bit): time :func:`calibration.sfr_chart.measure_chart`,
+    1 % noise, 10-bit): time :func:`calibration.sfr.chart.measure_chart`,
     detection included."""
-    from calibration.sfr_chart import measure_chart
+    from calibration.sfr.chart import measure_chart
 
     rng = np.random.default_rng(seed)
     h, w = CHART

@@ -1,7 +1,7 @@
-"""Accuracy of the e-SFR (calibration.sfr) against analytic truth, both methods.
+"""Accuracy of the e-SFR (calibration.sfr.esfr) against analytic truth, both methods.
 
 The SFR issue's sweep: slanted edges rendered exactly
-(:func:`calibration.sfr_synth.render_slanted_edge`: Gaussian PSF σ ⊗ square
+(:func:`calibration.sfr.synthetic.render_slanted_edge`: Gaussian PSF σ ⊗ square
 pixel aperture, 100 % fill, to ~1e-12), from 0.2 to 0.8 of a 0..1 range
 
 * σ ∈ {0.5, 1, 1.5, 2} px, angles ∈ {2, 4, 5, 7, 9, 11, 12}° (clear of 14.04°
@@ -21,8 +21,8 @@ measured with ``method="iso"`` (ISO 12233 / sfrmat5) and
 ``method="accurate"`` (binning correction, adaptive LSF window, exact
 derivative correction, refined edge fit). Truth: ``MTF(f) = exp(−2π²σ²f²)·|sinc(f cos θ)·
 sinc(f sin θ)|`` — the Gaussian times the 2-D pixel box seen along the edge
-normal (:func:`calibration.sfr_synth.edge_mtf`), and its MTF50
-(:func:`calibration.sfr_synth.mtf50_of`).
+normal (:func:`calibration.sfr.synthetic.edge_mtf`), and its MTF50
+(:func:`calibration.sfr.synthetic.mtf50_of`).
 
 Reported per method × rows × noise level, and pooled over the sweep:
 median and worst |ΔMTF50| (relative, %), the largest |ΔSFR| up to Nyquist
@@ -68,8 +68,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from calibration.sfr import measure_sfr
-from calibration.sfr_synth import edge_mtf, mtf50_of, render_slanted_edge
+from calibration.sfr.esfr import measure_sfr
+from calibration.sfr.synthetic import edge_mtf, mtf50_of, render_slanted_edge
 
 SIGMAS = (0.5, 1.0, 1.5, 2.0)
 ANGLES = (2.0, 4.0, 5.0, 7.0, 9.0, 11.0, 12.0)

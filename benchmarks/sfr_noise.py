@@ -36,8 +36,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from calibration.sfr import measure_sfr  # noqa: E402
-from calibration.sfr_synth import render_slanted_edge  # noqa: E402
+from calibration.sfr.esfr import measure_sfr  # noqa: E402
+from calibration.sfr.synthetic import render_slanted_edge  # noqa: E402
 
 SHAPE = (100, 128)
 ANGLE = 5.0

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "edges"
 sys.path.insert(0, str(ROOT))
 
-from calibration.sfr import measure_sfr  # noqa: E402
+from calibration.sfr.esfr import measure_sfr  # noqa: E402
 
 TOOLS = ("sfrmat3", "sfrmat5", "mtf_mapper_linear")
 

@@ -7,7 +7,7 @@
   so the first run computes and caches the map: ≈ 15 s). Target ≤ 5 min.
 * Shortcut error: the synthesis blurs a crop with the 15 × 20 region PSFs
   interpolated bilinearly between region centres (``bilinear``, computed by
-  FFT in float32: :class:`restoration.synth_optics.CropBlur`). Against a
+  FFT in float32: :class:`restoration.synth.optics.CropBlur`). Against a
   per-pixel-varying reference — PSFs computed with the map's own settings
   on a 4-px lattice over a 48 × 48 window and interpolated between its
   nodes (the reference's own convergence is checked against an 8-px
@@ -16,7 +16,7 @@
   measured: ``nearest`` (the paper's one PSF per region), ``crop`` (one
   PSF, the region of the crop's centre, for the whole 256-px crop), and
   the FFT path against the direct-convolution oracle
-  (:func:`calibration.imaging.blur_image`).
+  (:func:`calibration.simulate.capture.blur_image`).
 
   Errors are RMS over the window in % of the RMS of the blur itself
   (reference − sharp), and max |Δ| on the 0..1 scale.
@@ -68,20 +68,20 @@ def _cache_dir() -> Path:
 
 
 def _psf_task(args):
-    from calibration.psf_map import _region_task
+    from calibration.optics.psf.map import _region_task
 
     return _region_task(args)[0]
 
 
 def reference_map(pl, psfmap, origin, size, step, workers):
     """A PSF map over a ``size``-px window at sensor ``origin`` with one PSF
-    every ``step`` px, computed exactly as :func:`calibration.psf_map.psf_map`
+    every ``step`` px, computed exactly as :func:`calibration.optics.psf.map.psf_map`
     computes a region's (same settings, its private per-region task), so
     that bilinear blending between these nodes is a per-pixel-varying blur."""
     from concurrent.futures import ProcessPoolExecutor
 
-    from calibration.lens import Sensor
-    from calibration.psf_map import (
+    from calibration.optics.lens import Sensor
+    from calibration.optics.psf.map import (
         PSFMap,
         _wavelength_plan,
         chief_ray_fields,
@@ -118,9 +118,9 @@ def reference_map(pl, psfmap, origin, size, step, workers):
 def shortcut_errors(pl, psfmap, workers, dense_maps) -> dict:
     import cv2
 
-    from calibration.imaging import blur_image
+    from calibration.simulate.capture import blur_image
     from modules.gamma import srgb_eotf
-    from restoration.synth_optics import CropBlur, map_margin_px
+    from restoration.synth.optics import CropBlur, map_margin_px
 
     m = map_margin_px(psfmap)
     img = cv2.imread(str(DATA / "latent" / "Kodak24" / "kodim05.png"))[:, :, ::-1]
@@ -148,7 +148,7 @@ def shortcut_errors(pl, psfmap, workers, dense_maps) -> dict:
         res["nearest (paper)"] = err(CropBlur(psfmap, "nearest")(work, wo)[inner])
         # one PSF for a whole 256-px crop: the map interpolated at the crop's centre, which lies
         # between 0 (window at the crop's centre) and 128·√2 px (window at its corner) away
-        from calibration.imaging_optics import KernelBank, convolve
+        from calibration.simulate.optical_image import KernelBank, convolve
 
         bank = KernelBank.from_psf(psfmap)
         for label, shift in (("one PSF per 256 crop, window at its centre", 0),
@@ -173,8 +173,8 @@ def shortcut_errors(pl, psfmap, workers, dense_maps) -> dict:
 
 
 def blur_speed(psfmap) -> dict:
-    from calibration.imaging import blur_image
-    from restoration.synth_optics import CropBlur, map_margin_px
+    from calibration.simulate.capture import blur_image
+    from restoration.synth.optics import CropBlur, map_margin_px
 
     m = map_margin_px(psfmap)
     img = np.random.default_rng(0).random((256 + 2 * m, 256 + 2 * m, 3)).astype(np.float32)
@@ -201,8 +201,8 @@ def main():
                     help="also measure bilinear interpolation of a denser PSF map (e.g. 30,40; computed once, cached)")
     args = ap.parse_args()
 
-    from restoration.synth import generate, plan
-    from restoration.synth_optics import load_lens
+    from restoration.synth.pairs import generate, plan
+    from restoration.synth.optics import load_lens
 
     out = {"lens": LENS.name, "load_average_start": os.getloadavg()}
     t = time.perf_counter()
@@ -228,7 +228,7 @@ def main():
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     if not args.skip_error:
-        from restoration.synth_optics import psf_maps
+        from restoration.synth.optics import psf_maps
 
         dense = {}
         for g in args.dense_grid:

@@ -67,7 +67,7 @@ def _summary_line(text: str) -> str:
 
 
 def run(args) -> int:
-    from .onnx_export import export_onnx
+    from export.onnx_export import export_onnx
 
     out = Path(args.output)
     if out.suffix != ".onnx":
@@ -87,7 +87,7 @@ def run(args) -> int:
     print(f"{out}: {fp32['convs']} convs, torch vs ONNX max abs {fp32['parity_max_abs']:.2g}, "
           f"tile {meta['tile_size']} px, overlap {meta.get('tile_overlap', meta['receptive_radius'])} px")
     if args.int8:
-        from .quantize import SynthCalibration, int8_psnr, quantize_int8
+        from export.quantize import SynthCalibration, int8_psnr, quantize_int8
 
         q8 = Path(args.int8_output) if args.int8_output else out.with_suffix(".int8.onnx")
         reader = SynthCalibration(args.calib_data, args.calib, crop=args.calib_crop,
@@ -97,7 +97,7 @@ def run(args) -> int:
         print(f"{q8}: {r['int8_quantized_conv']}/{r['fp32_conv']} convs quantised after optimisation "
               f"({r['int8_float_conv']} float), {args.calib} calibration crops")
         if not args.no_measure_overlap and args.overlap is None:
-            from .onnx_export import remeasure_overlap
+            from export.onnx_export import remeasure_overlap
 
             # INT8 rounding turns small context changes into whole steps: its own margin, at least
             # its receptive radius (its tiles then exact); the border context stays the float model's
@@ -115,7 +115,7 @@ def run(args) -> int:
             print(f"PSNR on {ps['pairs']} held-out pairs: FP32 {ps['fp32_psnr_db']:.2f} dB, "
                   f"INT8 {ps['int8_psnr_db']:.2f} dB, drop {ps['drop_db']:.3f} dB{flag}")
     if not args.no_mobile_check:
-        from .quantize import mobile_usability
+        from export.quantize import mobile_usability
 
         report["mobile_usability"] = {}
         for key, path in (("fp32", out), ("int8", report.get("int8", {}).get("path"))):
@@ -124,7 +124,7 @@ def run(args) -> int:
                 report["mobile_usability"][key] = m
                 print(f"mobile check ({key}): {_summary_line(m['output'])}")
     rep = out.with_suffix(".export.json")
-    from isp.io import atomic_path
+    from isp.io.files import atomic_path
 
     with atomic_path(rep) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1, default=str) + "\n")
@@ -133,12 +133,12 @@ def run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``isp export`` (called by :func:`isp.cli.main`)."""
+    """Entry point of ``isp export`` (called by :func:`isp.cli.main.main`)."""
     args = make_parser().parse_args(sys.argv[1:] if argv is None else argv)
     return run(args)
 
 
 if __name__ == "__main__":  # pragma: no cover
-    from isp.cli import _guarded
+    from isp.cli.main import _guarded
 
     sys.exit(_guarded(lambda: main(), debug="--debug" in sys.argv, where=""))

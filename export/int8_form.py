@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .onnx_export import prune_dead_nodes
+from export.onnx_export import prune_dead_nodes
 
 __all__ = ["float_form", "int8_form", "pad_thin_convs", "spread_broadcast_muls", "unpad_thin_convs",
            "unspread_broadcast_muls"]

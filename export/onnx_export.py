@@ -1,7 +1,7 @@
 """ONNX export of a restoration checkpoint for the ``correction`` stage.
 
 :func:`export_onnx` rebuilds the model of a checkpoint
-(:func:`restoration.checkpoint.load_model`), exports it with the
+(:func:`restoration.nn.checkpoint.load_model`), exports it with the
 TorchScript exporter (opset ≥ 17, dynamic ``H`` and ``W``), checks that
 every ``Conv`` has constant weights (initializers or ``Constant`` nodes:
 what static INT8 can quantise), writes the metadata the correction stage
@@ -290,7 +290,7 @@ def measure_tile_overlap(path, candidates=OVERLAP_CANDIDATES, tolerance: float =
     errors, tiles, found = {}, {}, None
     for m in sorted(candidates):
         tile = 2 * m + 128
-        # the reference is padded by reflection with the same margin (modules.tiling)
+        # the reference is padded by reflection with the same margin (modules._impl.tiling)
         whole = Correction(model=Path(path), tile_size=0, overlap=m).process(frame).data
         out = Correction(model=Path(path), tile_size=tile, overlap=m).process(frame).data
         errors[m], tiles[m] = float(np.abs(srgb_dn(out) - srgb_dn(whole)).max()), tile
@@ -310,7 +310,7 @@ def remeasure_overlap(path) -> dict:
     never match)."""
     import onnx
 
-    from isp.io import atomic_path
+    from isp.io.files import atomic_path
 
     proto = onnx.load(str(path))
     measured = _measure_into(proto, path)
@@ -373,7 +373,7 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
     Parameters
     ----------
     checkpoint : path
-        A restoration checkpoint (:mod:`restoration.checkpoint`).
+        A restoration checkpoint (:mod:`restoration.nn.checkpoint`).
     out_path : path
         The ``.onnx`` file to write (atomically; parents created).
     opset : int
@@ -388,8 +388,8 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
     parity_tolerance : float
         Max abs torch ↔ ONNX difference accepted.
     packed : bool
-        Export a :class:`~restoration.network.DOConvUNet` in its
-        space-to-depth form (:class:`~restoration.network.SpaceToDepthForm`:
+        Export a :class:`~restoration.nn.network.DOConvUNet` in its
+        space-to-depth form (:class:`~restoration.nn.network.SpaceToDepthForm`:
         the same function, input and output packed by its ``scale``;
         metadata ``space_to_depth``), which the stage packs while it tiles;
         other models are exported as they are.
@@ -411,9 +411,9 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
     import onnx
     import torch
 
-    from isp.io import atomic_path
+    from isp.io.files import atomic_path
     from modules.correction import model_info
-    from restoration.checkpoint import load_model
+    from restoration.nn.checkpoint import load_model
 
     t0 = time.perf_counter()
     if opset < MIN_OPSET:
@@ -431,7 +431,7 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
     if "receptive_radius" in meta:
         radius = int(meta["receptive_radius"])
     else:
-        from restoration.network import receptive_radius
+        from restoration.nn.network import receptive_radius
 
         radius = receptive_radius(model)
     md = {
@@ -456,7 +456,7 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
         md["tile_overlap"] = str(int(overlap))
     exported, packing = model, 1
     if packed and getattr(model, "config", {}).get("scale", 1) > 1 and hasattr(model, "run"):
-        from restoration.network import SpaceToDepthForm
+        from restoration.nn.network import SpaceToDepthForm
 
         exported = SpaceToDepthForm(model).eval()
         packing = exported.packing

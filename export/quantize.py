@@ -46,8 +46,8 @@ import numpy as np
 
 from isp.errors import ConfigError, InputError
 
-from .int8_form import float_form, int8_form
-from .onnx_export import ExportError, op_counts, prune_dead_nodes, set_metadata
+from export.int8_form import float_form, int8_form
+from export.onnx_export import ExportError, op_counts, prune_dead_nodes, set_metadata
 
 __all__ = ["SynthCalibration", "count_quantized_convs", "dequantize_qdq", "int8_psnr", "mobile_usability", "float_io_nodes",
            "quantize_int8", "synth_crops"]
@@ -61,7 +61,7 @@ PSNR_DROP_LIMIT = 0.2
 
 
 def _pairs(directory):
-    from restoration.dataset import SynthPairs
+    from restoration.train.dataset import SynthPairs
 
     d = Path(directory)
     if not (d / "manifest.json").is_file():
@@ -75,7 +75,7 @@ def synth_crops(directory, n: int, *, crop: int = 128, multiple: int = 4, fov: b
 
     Pairs are taken spread over the set (``indices`` overrides), one crop
     each at a random origin that is a multiple of ``multiple`` (the field
-    channels, from :class:`restoration.dataset.SynthPairs`, move with it).
+    channels, from :class:`restoration.train.dataset.SynthPairs`, move with it).
     """
     pairs = _pairs(directory)
     if n < 1:
@@ -209,7 +209,7 @@ class HighPass(NamedTuple):
 
 
 def highpass_chains(model) -> list[HighPass]:
-    """The residual high-passes of a graph (:class:`restoration.network.ResidualHighPass`):
+    """The residual high-passes of a graph (:class:`restoration.nn.network.ResidualHighPass`):
     each ``Sub(r, m)`` whose ``m`` comes from ``r`` through ``Pad`` and
     ``Conv`` nodes only."""
     producer = {o: n for n in model.graph.node for o in n.output}
@@ -506,7 +506,7 @@ def quantize_int8(fp32_path, out_path, calibration_reader, *, per_channel: bool 
     from onnxruntime.quantization import CalibrationMethod, QuantFormat, QuantType, quantize_static
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
-    from isp.io import atomic_path
+    from isp.io.files import atomic_path
 
     t0 = time.perf_counter()
     src = onnx.load(str(fp32_path))

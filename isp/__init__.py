@@ -11,12 +11,12 @@ points, sub-commands of the other packages are imported lazily.
 True
 """
 
-from .errors import ConfigError, InputError, IspError, PlacementError
-from .frame import CFA, Domain, Frame, Step
-from .meta import CameraMeta
-from .pipeline import DEFAULT_STAGES, Pipeline
-from .registry import create_stage, list_stages, register_stage
-from .stage import Stage, StageBase
+from isp.errors import ConfigError, InputError, IspError, PlacementError
+from isp.frame import CFA, Domain, Frame, Step
+from isp.meta import CameraMeta
+from isp.pipeline import DEFAULT_STAGES, Pipeline
+from isp.registry import create_stage, list_stages, register_stage
+from isp.stage import Stage, StageBase
 
 __all__ = [
     "CFA", "CameraMeta", "ConfigError", "DEFAULT_STAGES", "Domain", "Frame",

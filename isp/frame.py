@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .meta import CameraMeta
+    from isp.meta import CameraMeta
 
 
 class Domain(enum.Enum):

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from .frame import CFA
+from isp.frame import CFA
 
 #: EXIF LightSource codes used by CalibrationIlluminant1/2 (DNG spec 4.x,
 #: EXIF 2.32 table 6). 255 = "other" (DNG 1.6 IlluminantData).

@@ -29,10 +29,10 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError
-from .frame import Domain, Frame
-from .registry import create_stage
-from .stage import Stage
+from isp.errors import ConfigError
+from isp.frame import Domain, Frame
+from isp.registry import create_stage
+from isp.stage import Stage
 
 #: The built-in pipeline, by stage name (the stages live in ``modules``).
 DEFAULT_STAGES: tuple[str, ...] = (

@@ -22,8 +22,8 @@ from __future__ import annotations
 from importlib import metadata
 from typing import Any
 
-from .errors import ConfigError
-from .stage import Stage, build_stage
+from isp.errors import ConfigError
+from isp.stage import Stage, build_stage
 
 ENTRY_POINT_GROUP = "isp.stages"
 

@@ -33,8 +33,8 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from .errors import ConfigError
-from .frame import Domain, Frame
+from isp.errors import ConfigError
+from isp.frame import Domain, Frame
 
 
 @runtime_checkable

@@ -23,10 +23,10 @@ import numpy as np
 
 from isp.errors import InputError
 from isp.frame import Domain, Frame
-from isp.opcode_plan import area_slices, handled_by
+from isp.io.opcode_plan import area_slices, handled_by
 from isp.stage import StageBase
 
-from .mosaic import cfa_affine
+from modules._impl.mosaic import cfa_affine
 
 
 def linearize(data: np.ndarray, table: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ References
 The pixels are turned upright before encoding and the EXIF Orientation is
 written as 1, so every viewer shows the same image (viewers that ignore
 EXIF orientation are common). The stage returns the file's bytes; writing
-them (atomically) is the caller's job (:func:`isp.io.write_output`).
+them (atomically) is the caller's job (:func:`isp.io.files.write_output`).
 """
 
 from __future__ import annotations

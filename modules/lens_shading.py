@@ -39,7 +39,7 @@ from typing import Literal
 import numpy as np
 
 from isp.frame import Domain, Frame
-from isp.opcode_plan import area_slices, handled_by
+from isp.io.opcode_plan import area_slices, handled_by
 from isp.stage import StageBase
 
 

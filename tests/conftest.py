@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers import data_file
+from tests.helpers import data_file
 
 
 @pytest.fixture

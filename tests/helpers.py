@@ -24,8 +24,8 @@ def kernel_psf_map(kernel, *, height: int, width: int, grid=(3, 4), n: int = 16,
     ``pitch_um`` offsets (µm from the centre sample), normalised to sum 1."""
     import numpy as np
 
-    from calibration.lens import Sensor
-    from calibration.psf_map import PSFMap, region_centers_mm
+    from calibration.optics.lens import Sensor
+    from calibration.optics.psf.map import PSFMap, region_centers_mm
 
     sensor = Sensor(pixel_pitch_um=1.0, width_px=width, height_px=height)
     rows, cols = grid
@@ -49,10 +49,10 @@ def e9_device(names, u, *, grid, noise: float, rng, n: int = 48, pupil_samples: 
     observations)."""
     import numpy as np
 
-    from calibration.lens_io import read_lens
-    from calibration.proxy import parameter_space
-    from calibration.proxy_synth import synthetic_observations
-    from calibration.psf_map import psf_map
+    from calibration.optics.io.lens_json import read_lens
+    from calibration.fit.proxy import parameter_space
+    from calibration.fit.synthetic_devices import synthetic_observations
+    from calibration.optics.psf.map import psf_map
 
     lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
     space = parameter_space(lens, names)

@@ -69,8 +69,8 @@ checks and the interpolation conventions here were checked against it.
 
 from __future__ import annotations
 
-from .bad_pixels import FixBadPixelsConstant, FixBadPixelsList
-from .base import (
+from isp.opcodes.bad_pixels import FixBadPixelsConstant, FixBadPixelsList
+from isp.opcodes.base import (
     FLAG_OPTIONAL,
     FLAG_PREVIEW_SKIPPABLE,
     OPCODE_NAMES,
@@ -79,16 +79,16 @@ from .base import (
     OpcodeError,
     UnknownOpcode,
 )
-from .base import MAX_POLYNOMIAL_DEGREE as MAX_POLYNOMIAL_DEGREE
-from .base import MAX_TABLE_SIZE as MAX_TABLE_SIZE
-from .base import MAX_WARP_PLANES as MAX_WARP_PLANES
-from .gain_map import GainMap
-from .lists import parse_opcode_list, serialize_opcode_list
-from .per_line import DeltaPerColumn, DeltaPerRow, ScalePerColumn, ScalePerRow
-from .trim import TrimBounds
-from .value_maps import MapPolynomial, MapTable
-from .vignette import FixVignetteRadial
-from .warp import WarpFisheye, WarpRectilinear, WarpRectilinear2
+from isp.opcodes.base import MAX_POLYNOMIAL_DEGREE as MAX_POLYNOMIAL_DEGREE
+from isp.opcodes.base import MAX_TABLE_SIZE as MAX_TABLE_SIZE
+from isp.opcodes.base import MAX_WARP_PLANES as MAX_WARP_PLANES
+from isp.opcodes.gain_map import GainMap
+from isp.opcodes.lists import parse_opcode_list, serialize_opcode_list
+from isp.opcodes.per_line import DeltaPerColumn, DeltaPerRow, ScalePerColumn, ScalePerRow
+from isp.opcodes.trim import TrimBounds
+from isp.opcodes.value_maps import MapPolynomial, MapTable
+from isp.opcodes.vignette import FixVignetteRadial
+from isp.opcodes.warp import WarpFisheye, WarpRectilinear, WarpRectilinear2
 
 __all__ = [
     "AreaSpec", "DeltaPerColumn", "DeltaPerRow", "FLAG_OPTIONAL",

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import _U32_MAX, Opcode, OpcodeError, _expect_size, _frozen_array, _set, _u32
+from isp.opcodes.base import _U32_MAX, Opcode, OpcodeError, _expect_size, _frozen_array, _set, _u32
 
 # --------------------------------------------------------------------------
 # bad pixels

@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..errors import IspError
+from isp.errors import IspError
 
 #: Opcode ID -> name (DNG 1.7.1.0, chapter 7).
 OPCODE_NAMES: dict[int, str] = {

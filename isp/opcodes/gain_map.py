@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .base import AreaSpec, Opcode, OpcodeError, _expect_size, _frozen_array, _set
+from isp.opcodes.base import AreaSpec, Opcode, OpcodeError, _expect_size, _frozen_array, _set
 
 _GAIN_MAP_HEADER = struct.Struct(">II4dI")
 

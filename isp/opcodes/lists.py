@@ -9,14 +9,14 @@ from typing import Iterable
 
 import numpy as np
 
-from .bad_pixels import FixBadPixelsConstant, FixBadPixelsList
-from .base import _HEADER, OPCODE_NAMES, Opcode, OpcodeError, UnknownOpcode, _Reader
-from .gain_map import GainMap
-from .per_line import DeltaPerColumn, DeltaPerRow, ScalePerColumn, ScalePerRow
-from .trim import TrimBounds
-from .value_maps import MapPolynomial, MapTable
-from .vignette import FixVignetteRadial
-from .warp import WarpFisheye, WarpRectilinear, WarpRectilinear2
+from isp.opcodes.bad_pixels import FixBadPixelsConstant, FixBadPixelsList
+from isp.opcodes.base import _HEADER, OPCODE_NAMES, Opcode, OpcodeError, UnknownOpcode, _Reader
+from isp.opcodes.gain_map import GainMap
+from isp.opcodes.per_line import DeltaPerColumn, DeltaPerRow, ScalePerColumn, ScalePerRow
+from isp.opcodes.trim import TrimBounds
+from isp.opcodes.value_maps import MapPolynomial, MapTable
+from isp.opcodes.vignette import FixVignetteRadial
+from isp.opcodes.warp import WarpFisheye, WarpRectilinear, WarpRectilinear2
 
 _CLASSES: dict[int, type[Opcode]] = {cls.ID: cls for cls in (
     WarpRectilinear, WarpFisheye, FixVignetteRadial, FixBadPixelsConstant,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from .base import Opcode, OpcodeError, _expect_size, _set, _u32
+from isp.opcodes.base import Opcode, OpcodeError, _expect_size, _set, _u32
 
 # --------------------------------------------------------------------------
 # trim

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import (
+from isp.opcodes.base import (
     MAX_POLYNOMIAL_DEGREE,
     MAX_TABLE_SIZE,
     AreaSpec,

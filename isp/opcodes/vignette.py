@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Opcode, _check_center, _expect_size, _floats, _set
+from isp.opcodes.base import Opcode, _check_center, _expect_size, _floats, _set
 
 # --------------------------------------------------------------------------
 # vignette

@@ -8,7 +8,7 @@ import struct
 from dataclasses import dataclass
 from typing import ClassVar
 
-from .base import (
+from isp.opcodes.base import (
     MAX_WARP_PLANES,
     Opcode,
     OpcodeError,

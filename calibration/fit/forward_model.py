@@ -1,0 +1,626 @@
+"""A fast forward model of slanted-edge SFR over the field.
+
+Fitting a proxy camera (:mod:`calibration.fit.proxy`) evaluates the lens tens of
+times per iteration, so rendering a chart and measuring it per evaluation is
+out of the question. :class:`SfrModel` predicts the *noise-free* ISO 12233
+SFR of every observation directly from the lens:
+
+1. One PSF per field region holding observations (at the region's centre,
+   the grid of :attr:`Observations.grid`: the paper's 15 × 20 regions) by
+   the same tracing and Debye diffraction as
+   :func:`calibration.optics.psf.map.psf_map`, every region's pupil grid traced
+   in one call per wavelength. The object field of each region is found
+   once, at the nominal lens (a perturbation moves the image by
+   micrometres: immaterial to an SFR). Interpolating PSFs or transfers
+   from a coarser grid was measured and rejected: on e9, bilinear blending
+   from a 9 × 13 grid is 0.007 cycles/pixel RMS off in SFRA, and from a
+   polar grid with each node's PSF turned to the observation's azimuth
+   0.004 (20 × 8 nodes) — both above the measurement's own noise, because
+   a perturbed phone lens's sharpness changes fast across the field.
+2. "L" observations mix the R, G, B PSFs with the luminance weights of
+   :data:`calibration.sfr.esfr.LUMINANCE_WEIGHTS`.
+3. Its transfer along the edge normal n̂ is the projection-slice theorem:
+   ``OTF(f n̂) = Σ_i w_i exp(−2πi f n̂·v_i)`` over the PSF's samples
+   (masses ``w_i`` at offsets ``v_i``), exact below the first replica of
+   the sample lattice (≥ 1.6 cycles/pixel at the default half-pixel PSF
+   pitch, so exact on 0..1 cycles/pixel). It is computed by binning the
+   masses on the normal at Δ = 1/64 px with linear weights and one DFT
+   (the binning moves a mass by < Δ: transfer off by ≤ (πfΔ)²/3, 8e-4 at
+   1 cycle/pixel).
+4. ``SFR(f) = |OTF(f n̂)| · sinc(a f n_x) sinc(a f n_y)`` (square pixel
+   aperture of side ``a``), times any multiplicative transfer the caller
+   adds (the loop's effects: crosstalk, sharpening, glare).
+
+Defocus per node (``defocus_mm``: a focus shift, a tilted or curved sensor)
+moves the reference plane of the already traced rays; no retrace. Traced
+rays are cached per lens, so effects that only move the plane are cheap.
+
+The measured SFRA is raised by the measurement's own noise (paper eq. 14
+simulates it); :meth:`SfrModel.noise_bias` estimates that rise per
+observation by rendering its edge through the predicted PSF, adding the
+observation's own noise and measuring it as it was measured.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import NamedTuple
+
+import numpy as np
+
+from calibration.optics.lens import Lens, Sensor
+from calibration.optics.perturb import PerturbedLens, nominal
+from calibration.fit.observations import Observations
+from calibration.optics.psf.core import (
+    DEFAULT_CAMERA,
+    _debye_nodes,
+    _exit_pupil_z,
+    _grid_offsets_mm,
+    _mono,
+    _sphere,
+)
+from calibration.optics.psf.map import WINDOW_UM, _wavelength_plan, check_window, chief_ray_fields, default_psf_n, sensor_to_image
+from calibration.sfr.esfr import LUMINANCE_WEIGHTS
+from calibration.sfr.asymmetry import BANDS as ODD_BANDS
+from calibration.sfr.asymmetry import model_odd_bands, odd_bands, project_masses
+from calibration.sfr.edge import area_weights
+
+__all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "sfra_of"]
+
+BIN_STEP_PX = 1.0 / 64.0
+CHANNELS = ("R", "G", "B")
+
+
+@dataclass(frozen=True)
+class ModelSettings:
+    """Accuracy/speed settings of :class:`SfrModel`.
+
+``pupil_samples``: pupil grid across the stop. ``window_um``: the PSF
+    window's side, µm (a lens's PSF is as wide in µm whatever the pixel),
+    sampled at ``psf_pitch_um`` (default half the pixel pitch): an even
+    number of samples at least that wide; ``psf_n`` sets the samples
+    instead.
+    The PSF is normalised inside its window, so the light a window drops
+    is missing from the SFR's fall at low frequencies. The default 64 (a
+    32 µm window on 1 µm pixels) was 32 samples until 2026-11-25: on the four
+    phone lenses' devices (±1 tolerance) a 16 µm window dropped up to 30 %
+    of a corner PSF and put the corner SFR up to 0.116 RMS off a 64 µm
+    reference; 32 µm keeps it within 0.018 for 1.2–1.3× the evaluation time
+    (48 µm: 0.003 for 2.6–3×; ``benchmarks/psf_window.py``; at 15 × 20
+    regions on e9 a prediction went from 1.31 to 1.61 s CPU,
+    ``benchmarks/lens_eval.py --psf-n``). The window must
+    stay inside the sampled pupil's replica period ≈ λ·N·``pupil_samples``
+    (:func:`calibration.optics.psf.map.check_window`).
+    ``n_wavelengths``: Gauss nodes per channel. ``aiming``: "real" (the
+    pupil grid is aimed at the real stop once, at the nominal lens) or
+    "paraxial" (paraxial entrance pupil: 0.003 cycles/pixel RMS off on e9,
+    whose pupil is distorted at the edge of the field).
+    ``aperture_px``: side of the square pixel aperture, pixels.
+    ``noise_realisations``: noisy renders averaged per observation by
+    :meth:`SfrModel.noise_bias`.
+    """
+
+    pupil_samples: int = 48
+    window_um: float = WINDOW_UM
+    psf_n: int | None = None
+    psf_pitch_um: float | None = None
+    n_wavelengths: int = 2
+    aiming: str = "real"
+    method: str = "debye"
+    camera: str = DEFAULT_CAMERA
+    illuminant: str = "D65"
+    aperture_px: float = 1.0
+    noise_realisations: int = 4
+    seed: int = 0
+
+    def with_window(self, window_um: float) -> ModelSettings:
+        """These settings with a ``window_um`` window and the pupil grid grown
+        with it in this window's ratio (never shrunk), so that a window
+        these settings keep inside the pupil sampling's replica period stays
+        inside it (:func:`calibration.optics.psf.map.check_window`; ``isp calib fit --window-um``).
+
+        >>> ModelSettings().with_window(48.0).pupil_samples
+        72
+        """
+        grown = math.ceil(self.pupil_samples * float(window_um) / self.window_um)
+        return replace(self, window_um=float(window_um), pupil_samples=max(self.pupil_samples, grown))
+
+
+#: the cheaper model a fit may take its Jacobian from (``--fast-jacobian``): fewer pupil samples, and so a
+#: window inside their shorter replica period (:func:`calibration.optics.psf.map.check_window`)
+FAST_JACOBIAN = ModelSettings(pupil_samples=32, window_um=24.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Prediction:
+    """Predicted noise-free SFRA (N,) and SFR (N, F) on ``freq``."""
+
+    sfra: np.ndarray
+    sfr: np.ndarray
+    freq: np.ndarray
+
+
+def sfra_of(freq: np.ndarray, sfr: np.ndarray) -> np.ndarray:
+    """Area under each SFR row from 0 to 0.5 cycles/pixel (cycles/pixel),
+    as :func:`calibration.sfr.edge.area_to` computes it, for all rows by
+    one product with its weights (:func:`calibration.sfr.edge.area_weights`).
+
+    >>> f = np.linspace(0, 0.6, 7)
+    >>> float(sfra_of(f, np.ones((2, 7)))[1])
+    0.5
+    """
+    w = area_weights(np.asarray(freq, float), 0.5)
+    return np.atleast_2d(sfr)[:, :w.size] @ w
+
+
+def mtf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
+    """|:func:`otf_along`|: the MTF of sampled PSFs along edge normals.
+
+    Examples
+    --------
+    >>> p = np.zeros((9, 9)); p[4, 4] = 1.0
+    >>> bool(np.allclose(mtf_along(p, 0.5, [30.0], [0.0, 0.5, 1.0]), 1.0))
+    True
+    """
+    return np.abs(otf_along(psf, pitch_px, normal_deg, freq))
+
+
+def otf_along(psf: np.ndarray, pitch_px: float, normal_deg, freq) -> np.ndarray:
+    """OTF of sampled PSFs along edge normals (projection-slice theorem).
+
+    Parameters
+    ----------
+    psf : (N, m, m) or (m, m) ndarray
+        Masses (rows +y down the sensor), centred at ``m // 2``.
+    pitch_px : float
+        Sample spacing, pixels.
+    normal_deg : (N,) array_like
+        Normal directions, degrees CCW from +x with y down.
+    freq : (F,) array_like
+        Cycles/pixel.
+
+    Returns
+    -------
+    (N, F) complex ndarray
+        Phase relative to the PSF's centre sample.
+    """
+    hist, x = project_masses(psf, pitch_px, normal_deg, BIN_STEP_PX)
+    ph = 2.0 * np.pi * x[:, None] * np.asarray(freq, dtype=np.float64)[None, :]
+    return hist @ np.cos(ph) - 1j * (hist @ np.sin(ph))
+
+
+def aperture_mtf(freq, normal_deg, a: float = 1.0) -> np.ndarray:
+    """Transfer of a square pixel aperture of side ``a`` px along normals:
+    ``|sinc(a f cos θ) sinc(a f sin θ)|``, (N, F)."""
+    t = np.radians(np.asarray(normal_deg, dtype=np.float64))[:, None]
+    f = np.asarray(freq, dtype=np.float64)[None, :]
+    return np.abs(np.sinc(a * f * np.cos(t)) * np.sinc(a * f * np.sin(t)))
+
+
+class SfrModel:
+    """Predicts the observations' SFR for any perturbation of ``nominal``
+    (module docstring).
+
+    Parameters
+    ----------
+    nominal : Lens
+    obs : Observations
+    settings : ModelSettings, optional
+    """
+
+    def __init__(self, nominal_lens: Lens, obs: Observations, settings: ModelSettings | None = None):
+        self.nominal = nominal_lens
+        self.obs = obs
+        self.settings = s = settings or ModelSettings()
+        self.sensor: Sensor = obs.sensor
+        sen = self.sensor
+        # one node per field region holding observations, at the region's centre
+        reg = obs.region
+        self.regions, self.obs_node = np.unique(reg, axis=0, return_inverse=True)
+        self.obs_node = self.obs_node.reshape(-1)
+        rows, cols = obs.grid
+        x_px = (self.regions[:, 1] + 0.5) * sen.width_px / cols - 0.5
+        y_px = (self.regions[:, 0] + 0.5) * sen.height_px / rows - 0.5
+        xm, ym = sensor_to_image(x_px, y_px, sen)
+        self.node_px = np.stack([x_px, y_px], axis=1)
+        self.node_mm = np.stack([xm, ym], axis=1)
+        self.fields = chief_ray_fields(nominal(nominal_lens), self.node_mm)
+        self.pitch_um = 0.5 * sen.pixel_pitch_um if s.psf_pitch_um is None else float(s.psf_pitch_um)
+        self.pitch_px = self.pitch_um / sen.pixel_pitch_um
+        # until 2026-11-26 the window was 64 samples whatever the pixel: 2.8 µm pixels made it 90 µm,
+        # past the pupil sampling's replica period, and `isp calib loop` stopped with an internal error
+        self.psf_n = int(s.psf_n) if s.psf_n is not None else default_psf_n(self.pitch_um, s.window_um, minimum=2)
+        used = set(np.asarray(obs.channel).tolist())
+        self.channels = tuple(c for c in CHANNELS if c in used or "L" in used)
+        if not self.channels:
+            raise ValueError(f"observations have no R, G, B or L channel (got {sorted(used)})")
+        self.wavelengths, self.wl_weights = _wavelength_plan(self.channels, s.n_wavelengths, s.camera,
+                                                             s.illuminant)
+        check_window(nominal_lens, self.psf_n, self.pitch_um, s.pupil_samples, float(np.min(self.wavelengths)),
+                     fix="a smaller window_um")
+        self.mix = self._channel_mix()
+        self._aim = _real_aim(nominal(nominal_lens), self.fields, s.pupil_samples) if s.aiming == "real" else None
+        self._traced_key = None
+        self._traced = None
+        self._mtf_cache = (None, None)
+        self._psf_cache = (None, None)
+
+    # -- geometry ----------------------------------------------------------------------
+    def _channel_mix(self) -> np.ndarray:
+        """(N, channels) weights of each observation's colour."""
+        mix = np.zeros((len(self.obs), len(self.channels)))
+        lum = dict(zip(CHANNELS, LUMINANCE_WEIGHTS))
+        for i, ch in enumerate(np.asarray(self.obs.channel)):
+            for c, w in (lum.items() if ch == "L" else ((ch, 1.0),)):
+                if c in self.channels:
+                    mix[i, self.channels.index(c)] = w
+        return mix / mix.sum(axis=1, keepdims=True)
+
+    @staticmethod
+    def _trace_key_of(lens) -> tuple:
+        pl = nominal(lens)
+        return repr(pl.perturbation.as_dict()), id(pl.nominal)
+
+    def _trace(self, lens: PerturbedLens) -> list:
+        """Traced rays of every node, one :class:`calibration.optics.psf.core._TracedNodes`
+        per wavelength, cached for the last lens."""
+        key = self._trace_key_of(lens)
+        if self._traced_key == key:
+            return self._traced
+        s = self.settings
+        z_pupil = _exit_pupil_z(lens)
+        traced = _trace_nodes(lens, self.fields, self.wavelengths, s.pupil_samples, z_pupil, self._aim)
+        self._traced_key, self._traced = key, traced
+        return traced
+
+    def node_psfs(self, lens, defocus_mm=None) -> np.ndarray:
+        """(nodes, channels, m, m) PSFs, each node's centred on its chief
+        ray at the primary wavelength; ``defocus_mm`` (scalar or per node)
+        moves the image plane along the axis (+: away from the lens).
+
+        The traced rays (and their pupil fit,
+        :attr:`calibration.optics.psf.core._TracedNodes.jac`) are reused; a new plane
+        recomputes the reference spheres and the
+        diffraction sums, all nodes at once for the "debye" method
+        (:func:`calibration.optics.psf.core._debye_nodes`; the others node by node)."""
+        return self._node_psfs(lens, defocus_mm)[0]
+
+    def _node_psfs(self, lens, defocus_mm=None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`node_psfs` and each node's window energy per channel (nodes, channels)."""
+        pl = nominal(lens)
+        s = self.settings
+        traced = self._trace(pl)
+        k = len(self.regions)
+        dz = np.broadcast_to(np.asarray(0.0 if defocus_mm is None else defocus_mm, float), (k,))
+        o = _grid_offsets_mm(self.psf_n, self.pitch_um)
+        ref = int(np.argmin(np.abs(self.wavelengths - pl.nominal.primary_nm)))
+        z = traced[ref].z_image + dz
+        centre = traced[ref].chief_image_points(z)
+        out = np.zeros((k, len(self.channels), self.psf_n, self.psf_n))
+        energy = np.zeros((k, len(self.channels)))
+        for j, tn in enumerate(traced):
+            if not np.any(self.wl_weights[:, j]):
+                continue
+            if s.method == "debye":
+                data, e = _debye_nodes(tn, centre, z, o, o, energy=True)
+            else:
+                pairs = [_mono(_sphere(tn.node(i, z[i]), centre[i]), s.method, o, o, workers=1) for i in range(k)]
+                data, e = np.stack([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+            out += self.wl_weights[None, :, j, None, None] * data[:, None]
+            energy += self.wl_weights[None, :, j] * e[:, None]
+        return out, energy
+
+    # -- prediction ----------------------------------------------------------------------
+    def observation_psfs(self, lens, defocus_mm=None) -> np.ndarray:
+        """(N, m, m): each observation's PSF in its colour (its region's),
+        cached for the last lens and defocus (the SFR and the asymmetry of
+        one evaluation share them)."""
+        return self._observation_psfs(lens, defocus_mm)[0]
+
+    def window_energy(self, lens, defocus_mm=None) -> np.ndarray:
+        """(N,) the fraction of each observation's light that lands in its
+        PSF window (``PSF.window_energy`` of :mod:`calibration.optics.psf.core`, mixed
+        as the observation's colour): 1 − the far tails the window drops."""
+        return self._observation_psfs(lens, defocus_mm)[1]
+
+    def _observation_psfs(self, lens, defocus_mm=None) -> tuple[np.ndarray, np.ndarray]:
+        key = (self._trace_key_of(lens), None if defocus_mm is None else np.asarray(defocus_mm, float).tobytes())
+        if self._psf_cache[0] != key:
+            p, energy = self._node_psfs(lens, defocus_mm)
+            e = np.clip(np.einsum("nc,nc->n", self.mix, energy[self.obs_node]), 0.0, 1.0)
+            self._psf_cache = (key, (np.einsum("nc,ncij->nij", self.mix, p[self.obs_node]), e))
+        return self._psf_cache[1]
+
+    def predict_odd(self, lens, defocus_mm=None) -> np.ndarray:
+        """(N, K) noise-free LSF asymmetry of every observation: the band
+        means of :func:`calibration.sfr.asymmetry.model_odd_bands` (the odd part
+        of the transfer that SFR drops)."""
+        return model_odd_bands(self.observation_psfs(lens, defocus_mm), self.pitch_px, self.obs.normal_deg,
+                               aperture_px=self.settings.aperture_px)
+
+    def optical_mtf(self, lens, defocus_mm=None, shifts_px=None) -> np.ndarray:
+        """(N, F) |OTF| of the optics along each observation's normal.
+        ``shifts_px`` (N, channels, 2): extra lateral shift (x, y) of each
+        channel's PSF (lateral colour), which matters only where an
+        observation mixes channels ("L")."""
+        obs = self.obs
+        if shifts_px is None:
+            key = (self._trace_key_of(lens), None if defocus_mm is None else np.asarray(defocus_mm, float).tobytes())
+            if self._mtf_cache[0] != key:
+                self._mtf_cache = (key, mtf_along(self.observation_psfs(lens, defocus_mm), self.pitch_px,
+                                                  obs.normal_deg, obs.freq))
+            return self._mtf_cache[1]
+        p = self.node_psfs(lens, defocus_mm)[self.obs_node]            # (N, C, m, m)
+        t = np.radians(np.asarray(obs.normal_deg, float))
+        f = np.asarray(obs.freq, float)
+        total = np.zeros((len(obs), len(f)), complex)
+        for c in range(len(self.channels)):
+            w = self.mix[:, c]
+            if not np.any(w):
+                continue
+            d = shifts_px[:, c, 0] * np.cos(t) + shifts_px[:, c, 1] * np.sin(t)
+            total += w[:, None] * otf_along(p[:, c], self.pitch_px, obs.normal_deg, f) \
+                * np.exp(-2j * np.pi * f[None, :] * d[:, None])
+        return np.abs(total)
+
+    def predict(self, lens, *, defocus_mm=None, transfer=None, shifts_px=None) -> Prediction:
+        """Noise-free SFR and SFRA of every observation.
+
+        Parameters
+        ----------
+        lens : Lens or PerturbedLens
+        defocus_mm : float or (nodes,) array, optional
+            Image-plane shift per node (see :meth:`node_psfs`).
+        transfer : (N, F) array, optional
+            Extra multiplicative transfer (sensor MTF, sharpening, glare).
+        """
+        obs = self.obs
+        sfr = self.optical_mtf(lens, defocus_mm, shifts_px) * aperture_mtf(obs.freq, obs.normal_deg, self.settings.aperture_px)
+        if transfer is not None:
+            sfr = sfr * transfer
+        return Prediction(sfra_of(obs.freq, sfr), sfr, obs.freq)
+
+    # -- the measurement's own noise and method ---------------------------------------------
+    def noise_bias(self, lens, obs: Observations | None = None, *, psfs=None) -> np.ndarray:
+        """SFRA part of :meth:`measurement_bias` (N,), cycles/pixel."""
+        return self.measurement_bias(lens, obs, psfs=psfs)[0]
+
+    def measurement_bias(self, lens, obs: Observations | None = None, *, psfs=None) -> tuple[np.ndarray, np.ndarray]:
+        """What the measurement adds to each observation's SFRA (N,),
+        cycles/pixel: the mean SFRA of ``noise_realisations`` renders of its
+        edge through its predicted PSF with its own noise, measured as it
+        was measured (``obs.meta["measure"]``: "image", "bayer:<channel>" or
+        "raw", the mosaic, each edge on its own channel; ``obs.meta["cfa"]``),
+        minus the model's noise-free SFRA. It holds the noise's rise (paper
+        eq. 14) and the ISO method's own small bias (its binning and
+        derivative: +0.001 cycles/pixel on e9 noise-free). Returns
+        ``(sfra_bias (N,), sfr_bias (N, F))``, the second the same for the
+        SFR curves on ``obs.freq``; :meth:`measurement_biases` adds the
+        asymmetry's."""
+        b = self.measurement_biases(lens, obs, psfs=psfs)
+        return b.sfra, b.sfr
+
+    def measurement_biases(self, lens, obs: Observations | None = None, *, psfs=None,
+                           workers: int = 1) -> "MeasurementBias":
+        """:meth:`measurement_bias` and the same for the LSF asymmetry
+        (:mod:`calibration.sfr.asymmetry`; the model already carries ISO's
+        binning and derivative, so this is the noise's and the record's
+        small part), from the same renders. Each observation draws its
+        noise from its own seed, so ``workers`` processes (forked; 600
+        observations: 9.4 s on one, 5.4 s on two) give the same numbers as
+        one."""
+        obs = self.obs if obs is None else obs
+        s = self.settings
+        psfs = self.observation_psfs(lens) if psfs is None else psfs
+        exact = (mtf_along(psfs, self.pitch_px, obs.normal_deg, obs.freq)
+                 * aperture_mtf(obs.freq, obs.normal_deg, s.aperture_px))
+        exact_a = sfra_of(obs.freq, exact)
+        exact_odd = model_odd_bands(psfs, self.pitch_px, obs.normal_deg, aperture_px=s.aperture_px)
+        out = np.zeros(len(obs))
+        spread = np.zeros(len(obs))
+        curves = np.zeros_like(exact)
+        odd = np.zeros_like(exact_odd)
+        _BIAS_JOB.update(psfs=psfs, pitch_um=self.pitch_um, pixel_pitch_um=self.sensor.pixel_pitch_um, obs=obs,
+                         n_real=s.noise_realisations, seed=s.seed, aperture_px=s.aperture_px)
+        try:
+            results = _map_forked(_bias_task, range(len(obs)), workers)
+        finally:
+            _BIAS_JOB.clear()
+        for i, (m, c, sd, q) in enumerate(results):
+            out[i] = m - exact_a[i] if np.isfinite(m) else 0.0
+            curves[i] = np.where(np.isfinite(c), c - exact[i], 0.0)
+            odd[i] = np.where(np.isfinite(q), q - exact_odd[i], 0.0)
+            spread[i] = sd
+        self.last_sfra_noise = spread
+        return MeasurementBias(out, curves, odd)
+
+
+#: what :func:`_bias_task` measures, set by the parent before it forks its workers
+_BIAS_JOB: dict = {}
+
+
+def _bias_task(i: int) -> tuple:
+    j = _BIAS_JOB
+    return _measured_sfra(j["psfs"][i], j["pitch_um"], j["pixel_pitch_um"], j["obs"], i, j["n_real"],
+                          np.random.default_rng((j["seed"], i)), j["aperture_px"])
+
+
+def _map_forked(fn, items, workers: int) -> list:
+    """``[fn(x) for x in items]``, on ``workers`` forked processes where the
+    platform forks (they inherit the parent's state: nothing is pickled but
+    the items and results), else in this process."""
+    import multiprocessing as mp
+
+    items = list(items)
+    if workers <= 1 or len(items) < 2 * workers or "fork" not in mp.get_all_start_methods():
+        return [fn(x) for x in items]
+    from concurrent.futures import ProcessPoolExecutor
+
+    from isp.runtime.threads import one_blas_thread
+
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=one_blas_thread) as pool:
+        return list(pool.map(fn, items, chunksize=max(1, len(items) // (4 * workers))))
+
+
+class MeasurementBias(NamedTuple):
+    """What the measurement adds to the model's noise-free prediction:
+    SFRA (N,), SFR curves (N, F) and LSF asymmetry bands (N, K)."""
+
+    sfra: np.ndarray
+    sfr: np.ndarray
+    odd: np.ndarray
+
+
+def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per field: the paraxial entrance-pupil coordinates at which real
+    aiming (primary wavelength, nominal lens) puts the pupil grid and the
+    chief ray on the stop, (K, M + 1, 2), and the aiming status (K, M + 1)
+    — as ``_trace_set(aim_each=False)`` does, computed once: a perturbation
+    within tolerance moves these by far less than a pupil sample. All
+    fields are aimed together (:func:`calibration.optics.trace.field_pupil_rays`)."""
+    from calibration.optics.psf.core import _pupil_points
+    from calibration.optics.trace import field_pupil_rays, stop_and_pupil
+
+    pc = _pupil_points(samples)
+    pp = stop_and_pupil(pl)
+    f = np.asarray(fields, dtype=np.float64).reshape(-1, 2)
+    r0 = field_pupil_rays(pl, f, pc, float(pl.nominal.primary_nm), aiming="real")
+    t = (pp.z - r0.origin[:, 2]) / r0.direction[:, 2]
+    ep = (r0.origin[:, :2] + t[:, None] * r0.direction[:, :2]) / pp.radius
+    return ep.reshape(len(f), len(pc), 2), r0.status.reshape(len(f), len(pc))
+
+
+def _trace_nodes(pl: PerturbedLens, fields, wavelengths, samples: int, z_pupil: float, aim=None) -> list:
+    """:func:`calibration.optics.psf.core._trace` for many fields at once: every
+    field's pupil grid and chief ray generated and traced in one call per
+    wavelength (per call, the tracer's and the ray set-up's overhead would
+    dominate at a few thousand rays). ``aim``: the per-field entrance-pupil
+    points and statuses of :func:`_real_aim` (else paraxial aiming of the
+    plain grid). Returns one :class:`calibration.optics.psf.core._TracedNodes` per
+    wavelength."""
+    from calibration.optics.psf.core import _finish_nodes, _pupil_points
+    from calibration.optics.trace import field_pupil_rays, trace_to_exit
+
+    pupil = _pupil_points(samples)
+    ep, status = (pupil, None) if aim is None else aim
+    f = np.asarray(fields, dtype=np.float64).reshape(-1, 2)
+    out = []
+    for lam in wavelengths:
+        rays = field_pupil_rays(pl, f, ep, float(lam), status=status)
+        out.append(_finish_nodes(pl, rays, trace_to_exit(pl, rays), f, pupil[:-1], samples, z_pupil))
+    return out
+
+
+def measure_like(obs: Observations, i: int):
+    """The ISO 12233 measurement observation ``i`` had, as a function of an
+    ROI image: :func:`calibration.sfr.esfr.measure_sfr` on an image
+    (``obs.meta["measure"]`` "image", the default), or
+    :func:`calibration.sfr.esfr.measure_sfr_bayer` on the plane of one channel of
+    a mosaic ("bayer:<channel>"; "raw": each edge on its own channel's
+    plane, as `isp calib loop` and `isp calib fit` measure a raw capture),
+    its pattern ``obs.meta["cfa"]`` (default RGGB).
+
+    Until 2026-11-26 "raw" observations were re-rendered and measured as
+    images: on a 2.8 µm-pixel capture (`isp calib simulate`) the loop's
+    noise floor from their spread read 0.0026 cycles/pixel, where two noise
+    draws of the capture scatter by 0.011 per edge (0.0055 since;
+    ``benchmarks/capture_roundtrip.py``).
+    """
+    from calibration.sfr.esfr import measure_sfr, measure_sfr_bayer
+
+    how = str(obs.meta.get("measure", "image"))
+    if how == "raw":
+        how = f"bayer:{obs.channel[i]}"
+    if how.startswith("bayer:"):
+        cfa, channel = str(obs.meta.get("cfa", "RGGB")), how.split(":", 1)[1]
+        return lambda img: measure_sfr_bayer(img, cfa, channel=channel)
+    return measure_sfr
+
+
+def _roi_shape(obs: Observations, i: int) -> tuple[int, int]:
+    if obs.roi is not None:
+        w, h = int(obs.roi[i][2]), int(obs.roi[i][3])
+        return max(h, 16), max(w, 16)
+    return (96, 64) if obs.orientation[i] != "horizontal" else (64, 96)
+
+
+def render_observation(psf, pitch_um, pixel_pitch_um, obs, i, aperture_px) -> np.ndarray:
+    """Observation ``i``'s edge rendered noise-free through ``psf`` (sampled
+    at ``pitch_um``): its ROI's shape, its normal, and its step on a 0.25
+    floor, as the measurement saw it."""
+    from types import SimpleNamespace
+
+    from calibration.simulate.capture import render_slanted_edge
+
+    step = float(obs.step[i]) or 1.0
+    a = float(obs.normal_deg[i]) % 180.0
+    horizontal = 45.0 <= a < 135.0
+    angle = a - 90.0 if horizontal else (-a if a <= 45.0 else 180.0 - a)
+    h, w = _roi_shape(obs, i)
+    if horizontal:
+        h, w = min(h, w), max(h, w)
+    else:
+        h, w = max(h, w), min(h, w)
+    r = render_slanted_edge(SimpleNamespace(data=psf, pitch_um=pitch_um), ((w - 1) / 2.0, (h - 1) / 2.0), (h, w),
+                            angle, horizontal=horizontal, low=0.25, high=0.25 + step,
+                            pixel_pitch_um=pixel_pitch_um, fill_factor=aperture_px, noise=False)
+    return r.optical[:, :, 0]
+
+
+def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_px) -> tuple:
+    """Mean measured SFRA, SFR curve, SFRA spread and LSF asymmetry bands
+    of observation ``i``'s edge rendered through ``psf`` with its noise
+    (noise-free once if it has none)."""
+    from calibration.sfr.esfr import SfrError
+
+    noise = float(obs.noise[i])
+    clean = render_observation(psf, pitch_um, pixel_pitch_um, obs, i, aperture_px)
+    measure = measure_like(obs, i)
+
+    f = np.asarray(obs.freq)
+
+    n_odd = len(ODD_BANDS)
+
+    def sfra(img):
+        try:
+            r = measure(img)
+        except SfrError:
+            return np.nan, np.full(f.shape, np.nan), np.full(n_odd, np.nan)
+        return r.sfra, np.interp(f, r.freq, r.sfr, right=np.nan), odd_bands(r.lsf, r.esf_step_px)
+
+    imgs = [clean] if not noise > 0 else [clean + rng.normal(0.0, noise, clean.shape) for _ in range(max(1, n_real))]
+    vals = [sfra(img) for img in imgs]
+    a = np.array([v[0] for v in vals])
+    c = np.array([v[1] for v in vals])
+    q = np.array([v[2] for v in vals])
+    if not np.isfinite(a).any():
+        return float("nan"), np.full(f.shape, np.nan), float("nan"), np.full(n_odd, np.nan)
+    with np.errstate(invalid="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sd = float(np.nanstd(a, ddof=1)) if np.isfinite(a).sum() > 1 else float("nan")
+            return float(np.nanmean(a)), np.nanmean(c, axis=0), sd, np.nanmean(q, axis=0)
+
+
+#: frequency bands (cycles/pixel) whose mean SFR joins SFRA as a residual: SFRA
+#: alone (one number per edge) does not pin the curve's shape
+BANDS = ((0.02, 0.125), (0.125, 0.25), (0.25, 0.375), (0.375, 0.5))
+
+
+def band_means(freq, sfr, bands=BANDS) -> np.ndarray:
+    """Mean of each row of ``sfr`` (N, F) over each of ``bands`` (default
+    :data:`BANDS`), (N, K).
+
+    >>> import numpy as np
+    >>> band_means(np.linspace(0, 1, 129), np.ones((2, 129))).shape
+    (2, 4)
+    """
+    f = np.asarray(freq)
+    out = []
+    for lo, hi in bands:
+        m = (f >= lo) & (f <= hi)
+        out.append(np.nanmean(np.asarray(sfr)[:, m], axis=1))
+    return np.stack(out, axis=1)

@@ -1,0 +1,742 @@
+"""Proxy cameras: perturbed lenses fitted to measured slanted-edge SFR
+(paper §3.2, Algorithm 1).
+
+``fit_proxy(nominal, observations)`` finds the perturbation of the nominal
+lens whose simulated SFRA matches the measured SFRA over the field:
+residuals ``f_i = (SFRA*_i − SFRA_i(P) − b_i) / σ_i`` per observation (an
+edge at a field position, orientation and colour channel), where
+``SFRA_i(P)`` is the noise-free prediction of :class:`calibration.fit.forward_model.SfrModel`,
+``b_i`` the rise of SFRA that the observation's own noise causes (eq. 14
+simulates the noise; computed once at the nominal lens) and ``σ_i`` the
+measurement's uncertainty. The solver is :func:`calibration.fit.dls.damped_least_squares`
+(the paper's DLS with per-parameter dynamic damping); ``method="scipy"``
+runs ``scipy.optimize.least_squares`` (trust-region reflective) on the same
+residuals as a baseline.
+
+Parameters are the perturbation names of :mod:`calibration.optics.perturb`,
+scaled by their tolerances: the fit works in tolerance units, bounded to
+±``bound_factor`` tolerances. Focus (the last air gap) is fitted too: a
+real device's focus is set at assembly and unknown to the model.
+
+The Jacobian's columns are independent lens evaluations and run on a
+process pool (``workers``, default 2). By default (``n_params``) the fit
+keeps the :data:`N_PARAMS` parameters to which its residuals are most
+sensitive (:func:`screen_parameters`); screening and fit share the pool,
+and the screening's secants are the fit's first Jacobian, which Broyden
+updates refine between finite-difference ones (:data:`REFRESH`). Beyond
+SFRA, the residuals can carry the SFR's band means and the LSF's
+asymmetry (``residuals``; "auto" takes all three where measured).
+
+From the nominal lens, a local optimiser (DLS or TRF alike) settles on
+about a third of perturbed phone lenses in a minimum far above the noise
+floor. A fit that ends above :data:`RESTART_CHI2` χ² per residual
+therefore tries :data:`RESTARTS` other starts within the tolerance box and
+keeps the best (:func:`restart`).
+
+On many regions (the paper's 15 × 20) the screening, the fit and any
+restarts run first on a :data:`COARSE_GRID` sub-grid of them, and all the
+observations refine that fit (``coarse``): the basin shows on 35 regions
+at a tenth of the cost of 300 (an evaluation of e9: 0.17 against 1.74 s
+CPU, ``benchmarks/lens_eval.py``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import NamedTuple
+from pathlib import Path
+
+import numpy as np
+
+from calibration.fit.dls import DlsResult, damped_least_squares
+from calibration.optics.lens import Lens
+from calibration.optics.perturb import ParameterSpace, Perturbation, PerturbedLens, apply
+from calibration.fit.observations import Observations
+
+#: the focus parameter's tolerance (mm): assembly sets focus within a few µm,
+#: but the fit starts from the nominal lens, so allow a wide range
+FOCUS_TOLERANCE_MM = 0.010
+
+#: DLS finite-difference step (tolerance units): forward differences are
+#: biased by O(h); on e9 h = 0.1 stalled the fit where 0.03 did not, and the
+#: model is smooth well below that (central differences at 0.0125-tolerance
+#: steps matched the linear model to ρ = 1.000)
+DLS_STEP = 0.03
+#: parameters fitted by default (screened)
+N_PARAMS = 24   # 16 left the pixel-level fit ahead on e9; 24 put ours ahead of it on every lens (README)
+#: finite-difference Jacobians every this many accepted steps (Broyden updates between), and
+#: iterations at most. Measured on e9, 15 × 20 regions, 600 observations, 16 parameters, SFRA +
+#: asymmetry, --fast-jacobian, on one 2-core machine (``benchmarks/proxy.py``): a Jacobian every
+#: step, 10 iterations, screened apart: 89.5 s + 38.6 s screening, merit 71.5 k, SFR MSE ×10⁻³
+#: 0.23 / 0.74 / 1.60 at FoV 0.1 / 0.5 / 0.9; every 3rd step, 20 iterations, screening inside
+#: (its secants the first Jacobian): 91.7 s in all, merit 73.6 k, 0.22 / 0.75 / 1.55; and with
+#: today's defaults (24 parameters, shape residuals) 108.8 s in all, 0.14 / 0.33 / 0.71
+REFRESH = 3
+MAX_ITER = 20
+
+#: restarts of a fit (DLS or TRF) that ends far above the noise floor (merit per residual above
+#: RESTART_CHI2; at the floor it is about 1): that many Latin-hypercube starts within ±1
+#: tolerance, each PROBE_ITER iterations, the best continued for the rest of the budget
+#: (:func:`restart`). Measured on benchmarks/proxy.py's 24 devices (README, "Restarts").
+RESTARTS = 4
+RESTART_CHI2 = 4.0
+PROBE_ITER = 5
+#: the best probe is continued when its merit is below this many times the first fit's: after
+#: PROBE_ITER iterations a probe is still falling, where the first fit had the whole budget
+CONTINUE_WITHIN = 1.5
+
+#: coarse-to-fine: where a sub-grid of this many regions (rows, cols), spread over the whole field,
+#: at least halves the observations, the fit, its screening and any restarts run first on its
+#: observations (:func:`coarse_subset`), and all of them refine that fit. Why: a lens evaluation costs about
+#: in proportion to the observations (e9: 1.74 s CPU for 600, 0.17 s for the 70 of the sub-grid,
+#: ``benchmarks/lens_eval.py``), and which basin a fit ends in shows on a 5 × 7 sub-grid already
+#: (README, "Coarse to fine").
+COARSE_GRID = (5, 7)
+
+#: what :func:`fit_proxy` can fit to
+RESIDUALS = ("sfra", "bands", "odd", "shape")
+
+_WORKER = {}
+
+
+def default_names(lens: Lens, kinds=("decenter", "tilt", "thickness", "focus")) -> list[str]:
+    """The fitted parameters by default: each element's decenter (x, y) and
+    tilt (about x and y), the air gaps, and focus — the perturbations that
+    break the field symmetry or move focus, to which SFRA over the field is
+    most sensitive; curvatures, conics and materials can be added by name."""
+    space = ParameterSpace.default(lens, kinds=[k for k in kinds if k != "focus"])
+    names = list(space.names)
+    if "focus" in kinds:
+        names.append(focus_name(lens))
+    return names
+
+
+def screen_parameters(model, names, n_keep: int, *, bias=None, fun_many=None, h: float = 0.5,
+                      return_jacobian: bool = False):
+    """The ``n_keep`` parameters to which the fit's residuals (``bias``'s
+    kind: SFRA, or with the bands or the asymmetry) are most sensitive
+    (norm of the Jacobian column in tolerance units, one forward
+    difference of ``h`` tolerances each, at the nominal lens); focus is
+    always kept. With more parameters than the data constrain (e9 has 48
+    decenters, tilts and gaps), DLS wanders along weak directions; the most
+    sensitive ones make an equivalent proxy (paper §3.2 perturbs a chosen
+    subset too).
+
+    ``return_jacobian``: also return the kept columns, ``(M, n_kept)``
+    residual change per tolerance, in the order of the returned names: a
+    secant Jacobian at the nominal lens that :func:`fit_proxy` starts from
+    instead of computing a first finite-difference one."""
+    names = list(names)
+    space = parameter_space(model.nominal, names)
+    pts = [np.zeros(len(names))] + [np.eye(len(names))[j] * h for j in range(len(names))]
+    b = np.zeros(len(model.obs)) if bias is None else bias
+    if fun_many is None:
+        rs = [_residuals(model, space, b, u) for u in pts]
+    else:
+        rs = fun_many(pts)
+    sens = np.array([np.linalg.norm(r - rs[0]) for r in rs[1:]])
+    fname = focus_name(model.nominal)
+    order = [names[j] for j in np.argsort(-sens) if names[j] != fname]
+    keep = order[: max(0, n_keep - (fname in names))]
+    kept = [n for n in names if n in keep or n == fname]
+    if not return_jacobian:
+        return kept
+    cols = [(np.asarray(rs[1 + names.index(n)]) - rs[0]) / h for n in kept]
+    return kept, np.stack(cols, axis=1)
+
+
+def focus_name(lens: Lens) -> str:
+    """Name of the last gap (lens to image plane)."""
+    return f"s{len(lens.surfaces)}.thickness"
+
+
+def parameter_space(lens: Lens, names) -> ParameterSpace:
+    """The space of ``names`` with the default tolerances (focus: ±10 µm)."""
+    names = list(names)
+    fname = focus_name(lens)
+    overrides = {fname: FOCUS_TOLERANCE_MM} if fname in names else None
+    return ParameterSpace.default(lens, names, overrides=overrides)
+
+
+class FittedLens:
+    """The fitted lens of a fit holding ``nominal``, ``space`` and ``u``
+    (parameters in tolerance units): shared by every proxy fitter."""
+
+    @property
+    def perturbation(self) -> Perturbation:
+        return self.space.to_perturbation(self.u * self.space.tolerance)
+
+    @property
+    def lens(self) -> PerturbedLens:
+        return apply(self.nominal, self.perturbation)
+
+
+@dataclass
+class ProxyFit(FittedLens):
+    """A fitted proxy camera and how it was fitted."""
+
+    nominal: Lens
+    space: ParameterSpace
+    u: np.ndarray                       # parameters in tolerance units
+    result: DlsResult | None
+    observations: Observations
+    predicted_before: np.ndarray        # SFRA (with noise bias) of the nominal lens
+    predicted_after: np.ndarray         # SFRA (with noise bias) of the proxy
+    noise_bias: np.ndarray
+    method: str = "dls"
+    evaluations: int = 0
+    seconds: float = 0.0
+    settings: dict = field(default_factory=dict)
+    #: the least share of an observation's light inside the model's PSF window, fitted lens
+    #: (:meth:`calibration.fit.forward_model.SfrModel.window_energy`); well below 1, the window is too small
+    window_energy: float = 1.0
+    #: the restarts tried (:func:`restart`): start, probe merit; for the continued one its final merit
+    #: and whether it was kept
+    restarts: list = field(default_factory=list)
+    #: the coarse stage of a coarse-to-fine fit (``fit_proxy(coarse=...)``): its observations,
+    #: evaluations, seconds, merit and residual count; empty where the fit ran on all from the start
+    coarse: dict = field(default_factory=dict)
+
+    @property
+    def std(self) -> np.ndarray:
+        """1-σ uncertainty of each parameter, physical units."""
+        if self.result is None:
+            return np.full(len(self.u), np.nan)
+        return self.result.std * self.space.tolerance
+
+    def errors(self) -> dict:
+        """SFRA RMS error (cy/px), χ² per observation and the median |residual|
+        in σ (0.67 at the noise floor of Gaussian noise; a handful of failed
+        edges, which can dominate χ², move it little) of the nominal and
+        fitted models."""
+        obs = self.observations
+        out = {}
+        for label, pred in (("before", self.predicted_before), ("after", self.predicted_after)):
+            d = obs.sfra - pred
+            out[label] = {"sfra_rms": float(np.sqrt(np.mean(d ** 2))),
+                          "chi2_per_obs": float(np.mean((d / obs.sfra_std) ** 2)),
+                          "median_abs_z": float(np.median(np.abs(d) / obs.sfra_std))}
+        return out
+
+    def to_dict(self) -> dict:
+        tol = self.space.tolerance
+        return {
+            "method": self.method,
+            "parameters": [{"name": n, "value": float(v), "std": float(s), "tolerance": float(t)}
+                           for n, v, s, t in zip(self.space.names, self.u * tol, self.std, tol)],
+            "errors": self.errors(),
+            "evaluations": self.evaluations,
+            "seconds": round(self.seconds, 2),
+            "stop_reason": self.result.reason if self.result is not None else "",
+            "merit_history": [h["merit"] for h in (self.result.history if self.result else [])],
+            "observations": len(self.observations),
+            "settings": self.settings,
+            "window_energy_min": round(self.window_energy, 4),
+            "restarts": self.restarts,
+            "coarse": self.coarse,
+        }
+
+    def save(self, directory) -> dict:
+        """Write ``proxy.json`` (lens/v1: nominal + fitted perturbation),
+        ``fit.json`` and the plots into ``directory``; returns the paths."""
+        from isp.io.files import write_bytes_atomic
+
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        paths = {"proxy": save_proxy(d / "proxy.json", self.nominal, self.perturbation),
+                 "fit": write_bytes_atomic(d / "fit.json", json.dumps(self.to_dict(), indent=2).encode())}
+        paths.update(plot_fit(self, d))
+        return paths
+
+
+# -- evaluation (picklable: one model per worker process) -----------------------------
+def _init_worker(payload):
+    from isp.runtime.threads import one_blas_thread
+
+    from calibration.fit.forward_model import SfrModel
+
+    one_blas_thread()
+    nominal, obs, settings, names, bias, *rest = payload
+    _WORKER["model"] = SfrModel(nominal, obs, settings)
+    jac_settings = rest[0] if rest else None
+    _WORKER["cheap"] = SfrModel(nominal, obs, jac_settings) if jac_settings is not None else _WORKER["model"]
+    _WORKER["space"] = parameter_space(nominal, names)
+    _WORKER["bias"] = bias
+
+
+def _residual_task(u: np.ndarray) -> np.ndarray:
+    return _residuals(_WORKER["model"], _WORKER["space"], _WORKER["bias"], u)
+
+
+def _cheap_residual_task(u: np.ndarray) -> np.ndarray:
+    return _residuals(_WORKER["cheap"], _WORKER["space"], _WORKER["bias"], u)
+
+
+class ResidualBias(NamedTuple):
+    """What the measurement adds to the model's noise-free prediction, in
+    the parts a kind of residuals uses: SFRA bias (N,); for band residuals
+    the band bias (N, 4) and the measured band means (N, 4); for asymmetry
+    residuals the asymmetry-band bias (N, K)."""
+
+    sfra: np.ndarray
+    bands: np.ndarray | None = None
+    measured_bands: np.ndarray | None = None
+    odd: np.ndarray | None = None
+
+
+def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
+    """Residuals over their σ, (N, parts) flattened: SFRA; with band parts
+    in ``bias`` (a :class:`ResidualBias`), the mean SFR in four bands, each
+    over 4σ (a band mean of a quarter of the range: about four SFRA's worth
+    of noise); with asymmetry parts, the LSF asymmetry bands over their σ
+    (:mod:`calibration.sfr.asymmetry`). ``bias`` may be a plain (N,) SFRA bias."""
+    lens = space.apply(np.asarray(u) * space.tolerance)
+    pred = model.predict(lens)
+    obs = model.obs
+    if not isinstance(bias, ResidualBias):
+        bias = ResidualBias(np.asarray(bias, float))
+    parts = [((obs.sfra - pred.sfra - bias.sfra) / obs.sfra_std)[:, None]]
+    if bias.bands is not None:
+        from calibration.fit.forward_model import band_means
+
+        parts.append((bias.measured_bands - band_means(obs.freq, pred.sfr) - bias.bands)
+                     / (4.0 * obs.sfra_std[:, None]))
+    if bias.odd is not None:
+        from calibration.sfr.asymmetry import odd_sigma
+
+        parts.append((obs.odd - model.predict_odd(lens) - bias.odd) / odd_sigma(obs.odd_std))
+    r = np.concatenate(parts, axis=1).ravel()
+    return np.where(np.isfinite(r), r, 0.0)
+
+
+def resolve_residuals(residuals: str, obs: Observations) -> str:
+    """``residuals`` checked; "auto" is "shape" (SFRA, SFR bands and LSF
+    asymmetry) where the observations carry the asymmetry, else "sfra".
+
+    Why "shape": on 12 synthetic devices (4 phone lenses × 3, 24
+    parameters; ``benchmarks/proxy.py``) it ended closer to the measured
+    SFR than SFRA + asymmetry alone in 10 of the 12 lens × FoV means, with
+    the same edge-image SSIM."""
+    if residuals == "auto":
+        return "shape" if obs.odd is not None else "sfra"
+    if residuals not in RESIDUALS:
+        raise ValueError(f"unknown residuals {residuals!r}; valid: 'auto', {', '.join(map(repr, RESIDUALS))}")
+    if residuals in ("odd", "shape") and obs.odd is None:
+        raise ValueError(f"residuals {residuals!r} need the observations' LSF asymmetry (obs.odd): measure the "
+                         "edges again with this version, or use residuals='sfra'")
+    return residuals
+
+
+def residual_bias(model, lens, residuals: str, workers: int = 1) -> ResidualBias:
+    """The measurement's bias at ``lens`` with the parts ``residuals``
+    uses (:class:`ResidualBias`), measured on ``workers`` processes."""
+    mb = model.measurement_biases(lens, workers=workers)
+    obs = model.obs
+    out = ResidualBias(np.asarray(mb.sfra, float))
+    if residuals in ("bands", "shape"):
+        from calibration.fit.forward_model import band_means
+
+        out = out._replace(bands=band_means(obs.freq, mb.sfr), measured_bands=band_means(obs.freq, obs.sfr))
+    if residuals in ("odd", "shape"):
+        out = out._replace(odd=mb.odd)
+    return out
+
+
+def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
+              workers: int | None = None, max_iter: int = MAX_ITER, bound_factor: float = 2.0,
+              progress: bool = True, x0=None, n_params: int | None = N_PARAMS,
+              jacobian_settings=None, residuals: str = "auto", refresh: int = REFRESH,
+              bounds: str = "clip", prior: float | None = None, restarts: int = RESTARTS,
+              seed: int = 0, coarse=COARSE_GRID, floor_chi2: float = 1.0) -> ProxyFit:
+    """Fit a proxy camera to SFR observations (module docstring).
+
+    Parameters
+    ----------
+    nominal : Lens
+    obs : Observations
+    names : sequence of str, optional
+        Fitted parameters (default :func:`default_names`).
+    settings : calibration.fit.forward_model.ModelSettings, optional
+    method : {"dls", "scipy"}
+    workers : int, optional
+        Processes for the Jacobian (default up to 2).
+    max_iter : int
+        Iterations (DLS) at most; for scipy its ``max_nfev``, which TRF
+        counts without its finite differences (about ``max_iter``
+        iterations).
+    bound_factor : float
+        Bounds in tolerances.
+    progress : bool
+        Show a progress bar.
+    x0 : (N,) array_like, optional
+        Start (tolerance units); default the nominal lens (0).
+    n_params : int, optional
+        Without ``names``: fit the ``n_params`` most sensitive of
+        :func:`default_names` (:func:`screen_parameters`); None: all.
+    residuals : {"auto", "sfra", "bands", "odd", "shape"}
+        "auto" (default): "shape" where ``obs`` has the asymmetry, else
+        "sfra". "sfra": the paper's SFRA per observation; "bands": SFRA plus the
+        mean SFR in four frequency bands (:data:`calibration.fit.forward_model.BANDS`),
+        which pins the curve's shape; "odd": SFRA plus the LSF's asymmetry
+        in four bands (:mod:`calibration.sfr.asymmetry`; needs ``obs.odd``),
+        which the SFR's modulus drops: the direction of coma from a
+        decentered element; "shape": SFRA, bands and asymmetry (see
+        ``benchmarks/proxy.py``).
+    jacobian_settings : calibration.fit.forward_model.ModelSettings, optional
+        A cheaper forward model for the Jacobian only (DLS), e.g. one
+        wavelength and fewer pupil samples; steps are still accepted on the
+        full model's merit (``benchmarks/proxy.py --fast-jacobian`` measures
+        what it costs).
+    refresh : int
+        DLS: a finite-difference Jacobian every ``refresh`` accepted steps
+        at most, Broyden secant updates in between (:mod:`calibration.fit.dls`;
+        ``benchmarks/proxy.py --refresh`` measures what it costs).
+    bounds : {"clip", "box"}
+        DLS: how a step meets the ±``bound_factor`` box
+        (:func:`calibration.fit.dls.damped_least_squares`; ``benchmarks/proxy.py``'s
+        method ``ours_box`` measures it).
+    prior : float, optional
+        A Gaussian prior on every fitted perturbation, its standard
+        deviation in tolerances (``1/√3``: a perturbation uniform within
+        its tolerance): the residuals gain ``u_j / prior``, a maximum a
+        posteriori fit that holds directions the measurement cannot see
+        near the nominal design instead of letting them drift to the
+        bounds. None (default): no prior. At ``1/√3`` on the 12 devices of
+        ``benchmarks/proxy.py`` (method ``ours_prior``) the data outweighed
+        it: SFR error tied with no prior (1.05× / 1.03× / 1.01×).
+    restarts : int
+        When the fit ends with a merit above :data:`RESTART_CHI2` per
+        residual (far above the noise floor: a local minimum, or a model
+        that cannot fit), try this many other starts (:func:`restart`,
+        seeded by ``seed``); 0: none. A fit that reaches the floor from the
+        nominal lens costs nothing more.
+    seed : int
+        Seed of the restarts' starting points.
+    coarse : (int, int), optional
+        Fit first on the observations of a sub-grid of this many regions
+        (:func:`coarse_subset`; screening and restarts included), then
+        refine on all of them from there (no restarts); only where that
+        cuts the observations at least twofold and ``x0`` is not given.
+        None: fit on all observations from the start.
+    floor_chi2 : float
+        DLS stops at the noise floor: χ² per residual at most this, with
+        less than one unit of χ² left to gain in the linearised model
+        (:func:`calibration.fit.dls.damped_least_squares`'s ``target_chi2``).
+        ``inf``: on the gain left alone, as the fine stage of a
+        coarse-to-fine fit does.
+    """
+    from calibration.fit.forward_model import ModelSettings, SfrModel
+
+    kw = dict(names=names, settings=settings, method=method, workers=workers, max_iter=max_iter,
+              bound_factor=bound_factor, progress=progress, n_params=n_params, jacobian_settings=jacobian_settings,
+              residuals=residuals, refresh=refresh, bounds=bounds, prior=prior, seed=seed, coarse=None)
+    n_fit = len(names) if names is not None else (n_params or len(default_names(nominal)))
+    mask = coarse_subset(obs, coarse, min_obs=2 * n_fit) if coarse is not None and x0 is None else None
+    if mask is not None:
+        return _coarse_to_fine(nominal, obs, mask, restarts, kw)
+    settings = settings or ModelSettings()
+    t0 = time.perf_counter()
+    model = SfrModel(nominal, obs, settings)
+    residuals = resolve_residuals(residuals, obs)
+    workers = max(1, min(2, os.cpu_count() or 1)) if workers is None else int(workers)
+    bias = residual_bias(model, nominal, residuals, workers)
+    screen = names is None and n_params is not None
+    names = list(names) if names is not None else default_names(nominal)
+    cheap_model = None   # in this process, where there is no pool
+    pool = None
+    if workers > 1:
+        # one pool for screening and fit, its workers' models built once over every candidate
+        # parameter; the fit's points are embedded in that space (zeros elsewhere: the same lens)
+        import multiprocessing as mp
+
+        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+        pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+                                   initargs=((nominal, obs, settings, names, bias, jacobian_settings),))
+    elif jacobian_settings is not None:
+        cheap_model = SfrModel(nominal, obs, jacobian_settings)
+    all_names, where = names, None
+
+    def on_pool(task, points):
+        if where is not None:
+            full = np.zeros((len(points), len(all_names)))
+            full[:, where] = points
+            points = list(full)
+        return list(pool.map(task, points))
+
+    bar = None
+    tried: list = []
+    try:
+        jac0 = None
+        if screen and len(names) > n_params:
+            # screened on the residuals the fit will use (the asymmetry makes decenters visible
+            # that SFRA hides), by the Jacobian's model: a ranking, and the fit's first Jacobian
+            task = _residual_task if jacobian_settings is None else _cheap_residual_task
+            screen_model = model if cheap_model is None else cheap_model
+            names, jac0 = screen_parameters(screen_model, names, n_params, bias=bias,
+                                            return_jacobian=True,
+                                            fun_many=None if pool is None else (lambda pts: on_pool(task, pts)))
+        space = parameter_space(nominal, names)
+        n = len(space.names)
+        if names != all_names:
+            where = np.array([all_names.index(k) for k in names])
+        lower = np.full(n, -bound_factor)
+        upper = np.full(n, bound_factor)
+        u0 = np.zeros(n) if x0 is None else np.asarray(x0, float)
+        if x0 is not None:
+            jac0 = None   # screened at the nominal lens, not at x0
+
+        def with_prior(points, values):
+            if prior is None:
+                return values
+            return [np.concatenate([v, np.asarray(p, float) / prior]) for p, v in zip(points, values)]
+
+        def fun(u):
+            return with_prior([u], [_residuals(model, space, bias, u)])[0]
+
+        def fun_many(points):
+            if pool is None or len(points) == 1:
+                return [fun(p) for p in points]
+            return with_prior(points, on_pool(_residual_task, points))
+
+        def cheap_many(points):
+            if pool is None:
+                return with_prior(points, [_residuals(cheap_model, space, bias, p) for p in points])
+            return with_prior(points, on_pool(_cheap_residual_task, points))
+
+        jac_many = cheap_many if jacobian_settings is not None else None
+
+        if prior is not None and jac0 is not None:
+            jac0 = np.vstack([jac0, np.eye(n) / prior])
+
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=max_iter, unit="iter", desc=f"proxy fit ({n} parameters, {len(obs)} edges)")
+
+        def report(rec):
+            if bar is not None and rec["iteration"] > 0:
+                bar.update(1)
+                bar.set_postfix(merit=f"{rec['merit']:.4g}", evals=rec["evaluations"])
+
+        bias_sfra = bias.sfra
+        before = model.predict(nominal).sfra + bias_sfra
+        if method == "dls":
+            # central differences cure forward ones' O(h) bias, not a cheaper model's error: at a
+            # fitted e9 device (15 × 20 regions; a one-off check, 2026-11-26, not a benchmark) the
+            # cheap model's Jacobian is 7.9 % off the full
+            # model's central one forward, 7.5 % central (the full model forward: 2.8 %), and the
+            # two central iterations that ended the fit bought 0.1 χ² for 42 s
+            scheme = "auto" if jacobian_settings is None else "forward"
+
+            def local(start, iters, first_jacobian=None):
+                return damped_least_squares(fun, start, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
+                                            max_iter=iters, target_chi2=floor_chi2, trials=workers, jac_many=jac_many,
+                                            refresh=refresh, progress=report, jac0=first_jacobian, bounds=bounds,
+                                            jacobian=scheme)
+        elif method == "scipy":
+            from scipy.optimize import least_squares
+
+            def local(start, iters, first_jacobian=None):
+                calls = {"n": 0}
+
+                def counted(u):
+                    calls["n"] += 1
+                    return fun(u)
+
+                # TRF counts in max_nfev neither its finite differences nor the Jacobians, so
+                # max_iter here is about max_iter iterations: the same budget as DLS's Jacobians
+                ls = least_squares(counted, start, bounds=(lower, upper), method="trf", diff_step=DLS_STEP,
+                                   x_scale=1.0, max_nfev=iters)
+                jtj = ls.jac.T @ ls.jac
+                cov = np.linalg.pinv(jtj) * max(1.0, 2 * ls.cost / max(len(ls.fun) - n, 1))
+                return DlsResult(ls.x, ls.fun, ls.jac, cov, [], calls["n"], ls.message)
+        else:
+            raise ValueError(f"unknown method {method!r}; valid: 'dls', 'scipy'")
+        res = local(u0, max_iter, jac0)
+        if restarts > 0 and res.merit > RESTART_CHI2 * res.residuals.size:
+            if bar is not None:
+                bar.total += restarts * min(PROBE_ITER, max_iter) + max(max_iter - PROBE_ITER, 0)
+                bar.set_description(f"proxy fit ({n} parameters, {len(obs)} edges, {restarts} restarts)")
+            res, tried = restart(local, res, restarts, max_iter, seed)
+        u, evals = res.x, res.evaluations
+    finally:
+        if pool is not None:
+            pool.shutdown()
+        if bar is not None:
+            bar.close()
+    fitted = space.apply(u * space.tolerance)
+    after = model.predict(fitted).sfra + bias_sfra
+    return ProxyFit(nominal, space, np.asarray(u), res, obs, before, after, bias_sfra, method, evals,
+                    time.perf_counter() - t0, settings=_settings_dict(settings),
+                    window_energy=float(np.min(model.window_energy(fitted))), restarts=tried)
+
+
+def coarse_subset(obs: Observations, grid=COARSE_GRID, min_obs: int = 1) -> np.ndarray | None:
+    """Mask of the observations in a ``grid`` sub-grid of ``obs``'s regions:
+    rows and columns evenly spread from edge to edge, so the corners stay
+    in. None where that would not at least halve the observations, or
+    would leave fewer than ``min_obs``.
+
+    Examples
+    --------
+    A 15 × 20 grid keeps rows 0, 4, 7, 10, 14 and columns 0, 3, 6, 10, 13,
+    16, 19: 35 of its 300 regions.
+    """
+    rows, cols = obs.grid
+    keep_r = np.unique(np.round(np.linspace(0, rows - 1, min(int(grid[0]), rows))).astype(int))
+    keep_c = np.unique(np.round(np.linspace(0, cols - 1, min(int(grid[1]), cols))).astype(int))
+    region = obs.region
+    mask = np.isin(region[:, 0], keep_r) & np.isin(region[:, 1], keep_c)
+    if 2 * mask.sum() > len(obs) or mask.sum() < min_obs:
+        return None
+    return mask
+
+
+def _coarse_to_fine(nominal, obs, mask, restarts, kw) -> ProxyFit:
+    """:func:`fit_proxy` on ``obs.subset(mask)`` (screening, restarts), then on
+    all of ``obs`` from its result, with its parameters."""
+    import dataclasses
+
+    t0 = time.perf_counter()
+    first = fit_proxy(nominal, obs.subset(mask), restarts=restarts, **kw)
+    # the sub-grid chose the basin; on all observations the fit only has to move within it, by
+    # about the coarse fit's uncertainty: it stops once the linear model leaves less than one
+    # unit of χ² to gain, whatever χ² per residual the model's own error leaves (on e9 device 1 at
+    # 15 × 20 the merit stood within 0.01 % for its last 12 of 20 iterations, each rejected step
+    # costing up to 24 evaluations of all 600 observations)
+    fine = fit_proxy(nominal, obs, **{**kw, "names": list(first.space.names)}, x0=first.u, restarts=0,
+                     floor_chi2=np.inf)
+    stage = {"observations": int(mask.sum()), "evaluations": first.evaluations, "seconds": round(first.seconds, 2),
+             "merit": None if first.result is None else round(first.result.merit, 3),
+             "residuals": None if first.result is None else int(first.result.residuals.size)}
+    return dataclasses.replace(fine, evaluations=first.evaluations + fine.evaluations,
+                               seconds=time.perf_counter() - t0, restarts=first.restarts, coarse=stage)
+
+
+def restart(local, first, count: int, max_iter: int, seed: int = 0):
+    """Multistart for a fit ``first`` that ended far above the noise floor.
+
+    ``local(start, iterations)`` runs the local fit (a :class:`DlsResult`).
+    ``count`` starts spread over the ±1-tolerance box, where a device's
+    perturbations lie (a Latin hypercube, seeded), each fitted for
+    :data:`PROBE_ITER` iterations (at most ``max_iter``); the probe with the lowest merit,
+    if below :data:`CONTINUE_WITHIN` times ``first``'s, is continued for the rest of
+    ``max_iter``, and kept if it ends below ``first``. Why: DLS and TRF alike settle, from the nominal lens, in
+    minima of 15–84 χ² per residual, far above the noise floor, on 9 of the 24 devices of
+    ``benchmarks/proxy.py`` (the truth lens, within the fitted parameters,
+    sits at the floor); a few iterations tell the basins apart (the merit
+    falls 10–100× within five iterations into the truth's basin, README
+    "Restarts"). Returns the best result (its ``evaluations`` counting
+    every run) and one record per start.
+    """
+    import dataclasses
+
+    from scipy.stats import qmc
+
+    probe_iter = min(PROBE_ITER, max_iter)
+    starts = 2.0 * qmc.LatinHypercube(d=first.x.size, seed=seed).random(count) - 1.0
+    probes = [local(x, probe_iter) for x in starts]
+    tried = [{"start": k, "probe_merit": round(r.merit, 3)} for k, r in enumerate(probes)]
+    evals = first.evaluations + sum(r.evaluations for r in probes)
+    best = first
+    j = int(np.argmin([r.merit for r in probes]))
+    if probes[j].merit < CONTINUE_WITHIN * first.merit:
+        go_on = probes[j]
+        if max_iter > probe_iter:
+            go_on = local(probes[j].x, max_iter - probe_iter)
+            evals += go_on.evaluations
+        tried[j]["final_merit"] = round(go_on.merit, 3)
+        tried[j]["kept"] = bool(go_on.merit < first.merit)
+        if go_on.merit < first.merit:
+            best = dataclasses.replace(go_on, history=first.history + probes[j].history + go_on.history)
+    return dataclasses.replace(best, evaluations=evals), tried
+
+
+def _settings_dict(settings) -> dict:
+    import dataclasses
+
+    return dataclasses.asdict(settings) if dataclasses.is_dataclass(settings) else dict(settings)
+
+
+def plot_fit(fit: ProxyFit, directory) -> dict:
+    """merit.png (merit per iteration), sfra_maps.png (measured, nominal,
+    fitted SFRA over the field) and parameters.png (values ± 1σ in
+    tolerances)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from calibration.cli.main import save_figure
+
+    d = Path(directory)
+    out = {}
+    hist = fit.result.history if fit.result is not None else []
+    if hist:
+        fig, ax = plt.subplots(figsize=(5, 3.4))
+        ax.semilogy([h["evaluations"] for h in hist], [h["merit"] for h in hist], "o-")
+        ax.set(xlabel="lens evaluations", ylabel="merit Σ f² (χ²)", title=f"proxy fit ({fit.method})")
+        ax.axhline(len(fit.observations), color="gray", ls=":", label="noise floor (χ² = N)")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        save_figure(fig, d / "merit.png")
+        out["merit_plot"] = d / "merit.png"
+    obs = fit.observations
+    maps = [obs.region_map(), obs.region_map(fit.predicted_before), obs.region_map(fit.predicted_after)]
+    vmin = np.nanmin([np.nanmin(m) for m in maps])
+    vmax = np.nanmax([np.nanmax(m) for m in maps])
+    fig, axes = plt.subplots(1, 4, figsize=(17, 3.6))
+    for ax, m, title in zip(axes, maps, ("measured SFRA", "nominal lens", "proxy camera")):
+        im = ax.imshow(m, vmin=vmin, vmax=vmax, cmap="viridis")
+        ax.set_title(title)
+    fig.colorbar(im, ax=axes[:3], shrink=0.8, label="SFRA (cy/px)")
+    r = maps[0] - maps[2]
+    lim = np.nanmax(np.abs(r)) if np.isfinite(r).any() else 1.0
+    im = axes[3].imshow(r, cmap="coolwarm", vmin=-lim, vmax=lim)
+    axes[3].set_title("measured − proxy")
+    fig.colorbar(im, ax=axes[3], shrink=0.8)
+    save_figure(fig, d / "sfra_maps.png")
+    out["sfra_plot"] = d / "sfra_maps.png"
+    fig, ax = plt.subplots(figsize=(max(6, 0.22 * len(fit.u)), 3.4))
+    std_u = fit.result.std if fit.result is not None else np.zeros_like(fit.u)
+    ax.bar(range(len(fit.u)), fit.u, yerr=std_u, capsize=2)
+    ax.set_xticks(range(len(fit.u)))
+    ax.set_xticklabels(fit.space.names, rotation=90, fontsize=7)
+    ax.set_ylabel("fitted value / tolerance")
+    ax.axhline(0, color="k", lw=0.5)
+    fig.tight_layout()
+    save_figure(fig, d / "parameters.png")
+    out["parameters_plot"] = d / "parameters.png"
+    return out
+
+
+def save_proxy(path, nominal, perturbation: Perturbation | None = None) -> Path:
+    """Write ``nominal`` with ``perturbation`` as a proxy lens file (lens/v1
+    plus a ``perturbation`` object of {name: value}), atomically; what
+    :func:`load_proxy` reads back. A fitted proxy camera, or the true lens of
+    a simulated device (``isp calib simulate --save-lens``)."""
+    from isp.io.files import write_bytes_atomic
+
+    from calibration.optics.io.lens_json import lens_to_dict
+
+    doc = lens_to_dict(nominal)
+    doc["perturbation"] = {n: float(v) for n, v in (perturbation.as_dict() if perturbation else {}).items()}
+    return write_bytes_atomic(Path(path), json.dumps(doc, indent=2).encode())
+
+
+def load_proxy(path) -> PerturbedLens:
+    """A proxy lens file (lens/v1 with a ``perturbation`` object) as a
+    PerturbedLens; a plain lens/v1 file gives the nominal lens."""
+    from calibration.optics.io.lens_json import read_lens
+
+    lens = read_lens(path)
+    pert = lens.metadata.get("perturbation") or {}
+    return apply(lens, Perturbation.from_dict(pert))
+
+
+__all__ = ["FittedLens", "ProxyFit", "default_names", "screen_parameters", "fit_proxy", "focus_name", "load_proxy", "parameter_space", "save_proxy",
+           "plot_fit", "FOCUS_TOLERANCE_MM"]

@@ -1,0 +1,358 @@
+"""Base models for the loop closure (:mod:`calibration.loop.closure`).
+
+A base model predicts every observation's SFR from its own parameters plus
+the hooks of added effects (:mod:`calibration.loop.effects`):
+
+* :class:`LensBase` — a lens prescription and its perturbations
+  (:class:`calibration.fit.forward_model.SfrModel`); its parameters are the
+  screened lens perturbations of :mod:`calibration.fit.proxy` *without* focus,
+  so that a focus shift is something the loop must find.
+* :class:`ParametricBase` — no prescription (an unknown camera): a
+  diffraction-limited circular pupil at F-number N (ISO 12233 Annex /
+  Goodman eq. 6-33) × a Gaussian aberration blur of σ px × the square pixel
+  aperture. Defocus Δz adds a uniform disc of diameter |Δz|/N (geometric
+  optics); lateral colour shifts the colour planes of mixed ("L") edges
+  (:func:`colour_shift_mtf`). Its measurement bias renders the model's own
+  edge (:func:`edge_profile`) through the ISO measurement, so that what the
+  LSF record window does to the diffraction tails is in the model.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calibration.loop.effects import Geometry
+from calibration.fit.observations import Observations
+from calibration.fit.forward_model import Prediction, aperture_mtf, measure_like, sfra_of
+
+__all__ = ["LensBase", "ParametricBase", "area_weights", "colour_shift_mtf", "diffraction_mtf", "disc_mtf",
+           "disc_otf", "edge_profile"]
+
+
+def diffraction_mtf(f_cy_per_mm, wavelength_nm: float, f_number: float) -> np.ndarray:
+    """MTF of an aberration-free circular pupil (Goodman, *Introduction to
+    Fourier Optics*, eq. 6-33): (2/π)(φ − cos φ sin φ), φ = acos(f/fc),
+    fc = 1/(λN).
+
+    >>> float(diffraction_mtf(0.0, 550.0, 2.0)), round(float(diffraction_mtf(1e6 / 1100.0, 550.0, 2.0)), 12)
+    (1.0, 0.0)
+    """
+    fc = 1.0 / (wavelength_nm * 1e-6 * f_number)
+    v = np.clip(np.abs(np.asarray(f_cy_per_mm, float)) / fc, 0.0, 1.0)
+    phi = np.arccos(v)
+    return (2.0 / np.pi) * (phi - np.cos(phi) * np.sin(phi))
+
+
+def disc_otf(f, diameter) -> np.ndarray:
+    """2 J₁(πDf)/(πDf): the OTF of a uniform disc of diameter D (same length
+    unit as 1/f). Real and signed: it changes sign past each zero
+    (πDf = 3.83, 7.02, ...), where the blurred image's contrast reverses.
+    A PSF is built from the signed OTF; its modulus is :func:`disc_mtf`.
+
+    >>> float(disc_otf(0.0, 4.0)), bool(disc_otf(0.4, 4.0) < 0)
+    (1.0, True)
+    """
+    from scipy.special import j1
+
+    x = np.pi * np.asarray(diameter, float) * np.asarray(f, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(np.abs(x) < 1e-9, 1.0, 2.0 * j1(x) / np.where(x == 0, 1.0, x))
+
+
+def disc_mtf(f, diameter) -> np.ndarray:
+    """|2 J₁(πDf)/(πDf)|: the MTF of a uniform disc of diameter D (same
+    length unit as 1/f); the modulus of :func:`disc_otf`."""
+    return np.abs(disc_otf(f, diameter))
+
+
+def _geometry(obs: Observations, x_mm, y_mm, channels) -> Geometry:
+    cx, cy = (obs.sensor.width_px - 1) / 2.0, (obs.sensor.height_px - 1) / 2.0
+    half_px = 0.5 * math.hypot(obs.sensor.width_px, obs.sensor.height_px)
+    half_mm = half_px * obs.sensor.pixel_pitch_um * 1e-3
+    xy = np.stack([np.asarray(obs.x_px) - cx, np.asarray(obs.y_px) - cy], axis=1)
+    normal = np.asarray(obs.normal_deg, float)
+    ext = _roi_extent(obs)
+    across = None if ext is None else ext[0]
+    return Geometry(np.asarray(x_mm, float), np.asarray(y_mm, float), np.hypot(x_mm, y_mm) / half_mm,
+                    normal, np.asarray(obs.freq, float), np.asarray(obs.channel),
+                    np.asarray(obs.radius, float), xy, tuple(channels), half_px, across)
+
+
+def _roi_extent(obs: Observations):
+    """(across (N,), along (N,)) px of each edge ROI — across the edge: its
+    width for a near-vertical edge (normal near 0°/180°), else its height —
+    or None where the observations carry no ROIs."""
+    if obs.roi is None:
+        return None
+    roi = np.asarray(obs.roi, float)
+    t = np.radians(np.asarray(obs.normal_deg, float))
+    vertical = np.abs(np.cos(t)) >= np.abs(np.sin(t))
+    return np.where(vertical, roi[:, 2], roi[:, 3]), np.where(vertical, roi[:, 3], roi[:, 2])
+
+
+def _channel_mix(obs: Observations, channels) -> np.ndarray:
+    """(N, channels) weights of each observation's colour: its own channel,
+    or the luminance weights for "L" (as :class:`SfrModel` mixes them)."""
+    from calibration.sfr.esfr import LUMINANCE_WEIGHTS
+    from calibration.fit.forward_model import CHANNELS
+
+    lum = dict(zip(CHANNELS, LUMINANCE_WEIGHTS))
+    mix = np.zeros((len(obs), len(channels)))
+    for i, ch in enumerate(np.asarray(obs.channel)):
+        for c, w in (lum.items() if ch == "L" else ((ch, 1.0),)):
+            if c in channels:
+                mix[i, channels.index(c)] = w
+    s = mix.sum(axis=1, keepdims=True)
+    return np.divide(mix, s, out=np.zeros_like(mix), where=s > 0)
+
+
+def colour_shift_mtf(mix, shifts_px, normal_deg, freq) -> np.ndarray:
+    """(N, F) |Σ_c w_c exp(−2πi f d_c)|: the transfer of an edge whose
+    colour channels c (weights ``mix`` (N, C), summing to 1) share one PSF
+    but lie ``shifts_px`` (N, C, 2) apart (x, y px, y down); d_c is the shift
+    along the edge normal. 1 for a single-channel edge: lateral colour is
+    seen only where an edge mixes colours.
+
+    >>> float(colour_shift_mtf([[0.5, 0.5]], [[[0.0, 0.0], [1.0, 0.0]]], [0.0], [0.5])[0, 0]) < 1e-12
+    True
+    """
+    t = np.radians(np.asarray(normal_deg, float))
+    s = np.asarray(shifts_px, float)
+    d = s[:, :, 0] * np.cos(t)[:, None] + s[:, :, 1] * np.sin(t)[:, None]            # (N, C)
+    f = np.asarray(freq, float)
+    ph = np.exp(-2j * np.pi * d[:, :, None] * f[None, None, :])                       # (N, C, F)
+    return np.abs(np.einsum("nc,ncf->nf", np.asarray(mix, float), ph))
+
+
+class ParametricBase:
+    """Parametric optical MTF (module docstring). Parameters: ``sigma_px``
+    (aberration blur) and, with ``fit_f_number``, ``f_number``. Nodes are
+    the observations themselves (no PSFs to interpolate)."""
+
+    refit_in_cv = True     # cheap: the loop re-fits it with each candidate effect
+
+    def __init__(self, obs: Observations, *, f_number: float = 2.0, wavelength_nm: float = 550.0,
+                 fit_f_number: bool = False, aperture_px: float = 1.0):
+        self.obs = obs
+        self.f_number = float(f_number)
+        self.wavelength_nm = float(wavelength_nm)
+        self.aperture_px = aperture_px
+        self.names = ("sigma_px",) + (("f_number",) if fit_f_number else ())
+        self.x0 = np.array([0.5] + ([f_number] if fit_f_number else []))
+        self.lower = np.array([0.0] + ([0.7] if fit_f_number else []))
+        self.upper = np.array([6.0] + ([16.0] if fit_f_number else []))
+        self.scale = np.array([0.2] + ([0.2] if fit_f_number else []))
+        pitch_mm = obs.sensor.pixel_pitch_um * 1e-3
+        cx, cy = (obs.sensor.width_px - 1) / 2.0, (obs.sensor.height_px - 1) / 2.0
+        used = set(np.asarray(obs.channel).tolist())
+        channels = ("R", "G", "B") if "L" in used else tuple(c for c in ("R", "G", "B") if c in used) or ("G",)
+        self.geometry = _geometry(obs, (np.asarray(obs.x_px) - cx) * pitch_mm, (np.asarray(obs.y_px) - cy) * pitch_mm,
+                                  channels)
+        self._mix = _channel_mix(obs, channels)
+        self._ap = aperture_mtf(obs.freq, obs.normal_deg, aperture_px)
+        self._area_w = area_weights(obs.freq)
+        self.description = (f"parametric optics: diffraction at f/{self.f_number:g} ({self.wavelength_nm:g} nm) "
+                            "× Gaussian aberration blur × pixel aperture")
+
+    def predict(self, xb, *, defocus_mm=None, shifts_px=None, transfer=None) -> Prediction:
+        obs = self.obs
+        sigma = float(xb[0])
+        n = float(xb[1]) if len(xb) > 1 else self.f_number
+        f = np.asarray(obs.freq, float)[None, :]
+        pitch_mm = obs.sensor.pixel_pitch_um * 1e-3
+        sfr = diffraction_mtf(f / pitch_mm, self.wavelength_nm, n) * np.exp(-2 * np.pi ** 2 * sigma ** 2 * f ** 2)
+        sfr = sfr * self._ap
+        if defocus_mm is not None:
+            d_px = np.abs(np.asarray(defocus_mm, float)) / n / pitch_mm
+            sfr = sfr * disc_mtf(f, d_px[:, None])
+        if shifts_px is not None:
+            sfr = sfr * colour_shift_mtf(self._mix, shifts_px, obs.normal_deg, obs.freq)
+        if transfer is not None:
+            sfr = sfr * transfer
+        sfr = np.broadcast_to(sfr, (len(obs), f.shape[1])).copy()
+        return Prediction(sfr @ self._area_w, sfr, obs.freq)
+
+    def otf_along(self, xb, freq, normal_deg) -> np.ndarray:
+        """(F,) signed OTF of the model's optics and pixel along one edge
+        normal (no defocus): the transform of its line spread function."""
+        f = np.abs(np.asarray(freq, float))
+        sigma = float(xb[0])
+        n = float(xb[1]) if len(xb) > 1 else self.f_number
+        t = math.radians(float(normal_deg))
+        a = self.aperture_px
+        return (diffraction_mtf(f / (self.obs.sensor.pixel_pitch_um * 1e-3), self.wavelength_nm, n)
+                * np.exp(-2 * np.pi ** 2 * sigma ** 2 * f ** 2) * np.sinc(a * f * math.cos(t)) * np.sinc(a * f * math.sin(t)))
+
+    def measurement_bias(self, xb):
+        """What the measurement adds: the model's own edge (its exact
+        profile, :func:`edge_profile` of :meth:`otf_along`) rendered in each
+        observation's ROI with its noise and measured (ISO 12233). Besides
+        the noise's rise this holds what the LSF record window does to the
+        diffraction PSF's far tails: light beyond the ROI is not seen, so the
+        measured SFR sits ≈ 1 % above the exact MTF at low frequencies
+        (f/2, 64-px ROI) — a Gaussian edge of the same SFRA has no such
+        tails. Returns (sfra bias (N,), sfr bias (N, F), sfra noise std (N,))."""
+        return _edge_bias(self.obs, lambda nu, normal: self.otf_along(xb, nu, normal))
+
+    #: a diffraction × Gaussian × pixel-aperture LSF is symmetric: no asymmetry, none added by ISO
+    odd_bias = 0.0
+
+    def odd(self, xb, defocus_mm=None) -> np.ndarray:
+        """(N, K) zeros: the parametric MTF's LSF is symmetric."""
+        from calibration.sfr.asymmetry import BANDS as ODD_BANDS
+
+        return np.zeros((len(self.obs), len(ODD_BANDS)))
+
+
+class LensBase:
+    """A lens prescription and its perturbations (module docstring)."""
+
+    refit_in_cv = False    # every evaluation traces the lens: candidates are fitted with it held
+
+    def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int = 12,
+                 workers: int | None = None, progress: bool = False):
+        from calibration.optics.perturb import nominal as as_perturbed
+        from calibration.fit.proxy import default_names, focus_name, parameter_space, screen_parameters
+        from calibration.fit.forward_model import ModelSettings, SfrModel
+
+        self.model = SfrModel(nominal, obs, settings or ModelSettings())
+        self.obs = obs
+        self.nominal = nominal
+        if names is None:
+            names = [n for n in default_names(nominal) if n != focus_name(nominal)]
+            names = screen_parameters(self.model, names, n_params)
+        self.space = parameter_space(nominal, names)
+        self.names = tuple(self.space.names)
+        k = len(self.names)
+        self.x0, self.lower, self.upper = np.zeros(k), np.full(k, -2.0), np.full(k, 2.0)
+        self.scale = np.full(k, 0.1)
+        self.geometry = _geometry(obs, self.model.node_mm[:, 0], self.model.node_mm[:, 1], self.model.channels)
+        self._pl = as_perturbed(nominal)
+        self.description = f"lens {nominal.name or ''} with {k} perturbations (tolerance units)".replace("  ", " ")
+
+    def lens(self, xb):
+        return self.space.apply(np.asarray(xb, float) * self.space.tolerance)
+
+    def start(self, progress: bool = False) -> np.ndarray:
+        """Where the loop's base fit starts: :func:`calibration.fit.proxy.fit_proxy`
+        on SFRA over these parameters, whose coarse stage and restarts find
+        the basin. Why: from the nominal lens the loop's own DLS settled in a
+        local minimum on a device perturbed in all 48 parameters (e9 dev3 of
+        `isp calib simulate --perturb random --seed 3`, 24 parameters: SFRA
+        RMS 0.0222, where ``fit_proxy`` with the same parameters reaches
+        0.0133 and the device's own lens scores 0.0138)."""
+        from calibration.fit.proxy import fit_proxy
+        from calibration.fit.forward_model import FAST_JACOBIAN
+
+        fit = fit_proxy(self.nominal, self.obs, names=list(self.names), settings=self.model.settings,
+                        residuals="sfra", jacobian_settings=FAST_JACOBIAN, progress=progress)
+        return np.clip(fit.u, self.lower, self.upper)
+
+    def predict(self, xb, *, defocus_mm=None, shifts_px=None, transfer=None) -> Prediction:
+        return self.model.predict(self.lens(xb), defocus_mm=defocus_mm, shifts_px=shifts_px, transfer=transfer)
+
+    def measurement_bias(self, xb):
+        b = self.model.measurement_biases(self.lens(xb))
+        self.odd_bias = b.odd
+        return b.sfra, b.sfr, self.model.last_sfra_noise
+
+    def odd(self, xb, defocus_mm=None) -> np.ndarray:
+        """(N, K) noise-free LSF asymmetry (:mod:`calibration.sfr.asymmetry`)."""
+        return self.model.predict_odd(self.lens(xb), defocus_mm)
+
+
+def area_weights(freq, fmax: float = 0.5) -> np.ndarray:
+    """(F,) weights w with ``sfr @ w`` = the SFRA, the trapezoid area under
+    ``sfr`` from 0 to ``fmax`` with the end value interpolated — the same
+    number as :func:`calibration.fit.forward_model.sfra_of`, in one product (NaN
+    weights if ``freq`` stops short of ``fmax``).
+
+    >>> f = np.array([0.0, 0.2, 0.4, 0.6])
+    >>> bool(np.isclose(np.ones(4) @ area_weights(f), 0.5)), bool(np.isclose(f @ area_weights(f), 0.125))
+    (True, True)
+    """
+    f = np.asarray(freq, float)
+    w = np.zeros(len(f))
+    if f[-1] < fmax:
+        return np.full(len(f), np.nan)
+    n = int(np.searchsorted(f, fmax, side="right"))
+    for k in range(n - 1):                      # full trapezoids
+        dw = 0.5 * (f[k + 1] - f[k])
+        w[k] += dw
+        w[k + 1] += dw
+    if f[n - 1] < fmax:                         # the last piece up to fmax, its end interpolated
+        j = n - 1
+        t = (fmax - f[j]) / (f[j + 1] - f[j])
+        dw = 0.5 * (fmax - f[j])
+        w[j] += dw * (2.0 - t)
+        w[j + 1] += dw * t
+    return w
+
+
+def edge_profile(otf, du: float = 1.0 / 16.0, half_px: float = 256.0):
+    """(u px (M,), ESF (M,)) of a line spread function given by its real
+    transform ``otf(nu)`` (cycles/pixel, 1 at 0): the LSF is sampled every
+    ``du`` px over ±``half_px`` by an inverse FFT, the ESF is its running
+    sum (0 → 1), at the bin edges u.
+
+    >>> u, e = edge_profile(lambda nu: np.exp(-2 * np.pi ** 2 * nu ** 2))   # Gaussian, σ = 1 px
+    >>> round(float(np.interp(0.0, u, e)), 6), round(float(np.interp(1.0, u, e)), 4)
+    (0.5, 0.8413)
+    """
+    m = round(2 * half_px / du)
+    nu = np.fft.rfftfreq(m, d=du)
+    lsf = np.fft.fftshift(np.fft.irfft(np.asarray(otf(nu), float), n=m))      # masses, sum 1
+    u = (np.arange(m) - m // 2 + 0.5) * du                                      # upper edge of each bin
+    return u, np.cumsum(lsf)
+
+
+def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
+    """(sfra bias, sfr bias, sfra noise std) per observation: the edge of
+    transfer ``otf(nu, normal_deg)`` rendered (slanted as observed, in an ROI
+    of the observation's size, ``default_roi`` (across, along) px where it
+    has none) with the observation's noise and measured, minus the exact
+    SFR ``|otf|``."""
+    from calibration.sfr.esfr import SfrError
+
+    rng = np.random.default_rng(0)
+    n = len(obs)
+    f = np.asarray(obs.freq, float)
+    a_bias, sd, c_bias = np.zeros(n), np.zeros(n), np.zeros((n, len(f)))
+    ext = _roi_extent(obs)
+    cache = {}
+    for i in range(n):
+        normal = float(obs.normal_deg[i])
+        dev = (normal + 45.0) % 90.0 - 45.0                  # the edge's slant from the pixel axes
+        angle = abs(dev) if abs(dev) >= 1.0 else 5.0
+        across, along = default_roi if ext is None else (float(ext[0][i]), float(ext[1][i]))
+        key = (round(normal, 3), angle, across, along)
+        if key not in cache:
+            u, esf = edge_profile(lambda nu, normal=normal: otf(nu, normal))
+            h, w = int(along), int(across)
+            t = math.radians(angle)
+            xs = np.arange(w) - (w - 1) / 2.0
+            ys = np.arange(h) - (h - 1) / 2.0
+            d = math.cos(t) * xs[None, :] - math.sin(t) * ys[:, None]        # signed distance from the edge
+            exact = np.abs(otf(f, normal))
+            cache[key] = (np.interp(d, u, esf), exact, sfra_of(f, exact[None])[0])
+        prof, exact, exact_a = cache[key]
+        step = float(obs.step[i]) or 0.6
+        noise = float(obs.noise[i])
+        img = 0.2 + step * prof
+        vals, curves = [], []
+        measure = measure_like(obs, i)   # as it was measured: an image, or a mosaic's plane
+        for _ in range(4 if noise > 0 else 1):
+            try:
+                r = measure(img + rng.normal(0, noise, img.shape) if noise > 0 else img)
+            except SfrError:
+                continue
+            vals.append(r.sfra)
+            curves.append(np.interp(f, r.freq, r.sfr, right=np.nan))
+        if not vals:
+            continue
+        a_bias[i] = np.mean(vals) - exact_a
+        c_bias[i] = np.nan_to_num(np.nanmean(curves, axis=0) - exact)
+        sd[i] = np.std(vals, ddof=1) if len(vals) > 1 else 0.0
+    return a_bias, c_bias, sd

@@ -1,0 +1,452 @@
+"""Slanted-edge charts: find the edges, measure each, map SFR over the field.
+
+Detection (OpenCV): the image is normalised, lightly smoothed and split into
+dark and light by a threshold relative to the local mean; the outlines of dark shapes (squares,
+the blades of ISO 12233:2023 pinwheels, any polygon) are simplified to
+polygons, and every straight side long enough and slanted between 2° and
+40° from the nearest axis becomes an edge ROI: a rectangle centred on the
+side, covering its middle 60 % (corners stay out) and a band across it wide
+enough for the edge spread, checked to hold one edge only.
+
+Field position of an ROI: its centre relative to the optical centre (the
+image centre unless given), as a normalised radius (1 at the image corner)
+and an angle (degrees, counter-clockwise from +x, y up).
+
+Orientation, after the usual lens-testing convention (ISO 12233 does not
+name it): an edge whose normal points along the radius measures detail that
+varies radially, the *tangential* (meridional) SFR; an edge lying along the
+radius measures the *sagittal* SFR. Edges within 45° of either are assigned
+to the nearer one; at the centre (radius < 0.05) there is no distinction
+("axial").
+
+Field maps: the image is divided into the paper's 15 × 20 regions; each
+region holds the mean SFRA (and MTF50) of the edges whose ROI centre falls in
+it, for all edges and per orientation (NaN where there is none).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibration.sfr.esfr import SfrError, measure_sfr
+
+GRID = (15, 20)
+
+
+@dataclass(frozen=True)
+class EdgeROI:
+    """One slanted edge found on a chart.
+
+    Attributes
+    ----------
+    x, y, w, h : int
+        The ROI rectangle in image pixels (x right, y down).
+    angle_deg : float
+        Slant of the edge from the nearest image axis, degrees (from the
+        polygon; the SFR measurement refines it).
+    direction : {"vertical", "horizontal"}
+        Which axis the edge is near.
+    radius : float
+        Normalised field radius of the ROI centre (0 centre, 1 corner).
+    field_angle_deg : float
+        Direction of the ROI centre from the optical centre, degrees, CCW
+        from +x with y up.
+    orientation : {"sagittal", "tangential", "axial"}
+    shape : int
+        Index of the dark shape the edge belongs to.
+    """
+
+    x: int
+    y: int
+    w: int
+    h: int
+    angle_deg: float
+    direction: str
+    radius: float
+    field_angle_deg: float
+    orientation: str
+    shape: int
+
+    @property
+    def centre(self) -> tuple[float, float]:
+        return (self.x + self.w / 2.0, self.y + self.h / 2.0)
+
+    def as_dict(self) -> dict:
+        return {"roi": [self.x, self.y, self.w, self.h], "angle_deg_detected": round(self.angle_deg, 3),
+                "direction": self.direction,
+                "field": {"radius": round(self.radius, 5), "angle_deg": round(self.field_angle_deg, 3)},
+                "orientation": self.orientation, "shape": self.shape}
+
+
+def _gray(image, channel=None, encoding: str = "linear") -> np.ndarray:
+    """A float64 (H, W) image in linear units for detection and measurement."""
+    from calibration.sfr.esfr import LUMINANCE_WEIGHTS
+
+    a = np.asarray(image)
+    if a.ndim == 3:
+        if channel is None:
+            channel = "luminance"
+        if channel == "luminance":
+            lin = _linear(a[..., :3], encoding)
+            return np.tensordot(lin, np.asarray(LUMINANCE_WEIGHTS), axes=([-1], [0]))
+        a = a[..., int(channel)]
+    if a.ndim != 2:
+        raise SfrError(f"chart image must be (H, W) or (H, W, 3), got shape {a.shape}")
+    return _linear(a, encoding)
+
+
+def _linear(a: np.ndarray, encoding: str) -> np.ndarray:
+    """Codes to linear float64; integer sRGB codes through a table (the
+    per-pixel power costs a second per 12 MP)."""
+    from calibration.sfr.esfr import srgb_to_linear
+
+    if encoding != "srgb":
+        return _to_float(a)
+    if a.dtype in (np.uint8, np.uint16):
+        n = 256 if a.dtype == np.uint8 else 65536
+        table = srgb_to_linear(np.arange(n, dtype=np.float64) / (n - 1))
+        return table[a]
+    return srgb_to_linear(_to_float(a))
+
+
+def _to_float(a: np.ndarray) -> np.ndarray:
+    if a.dtype == np.uint8:
+        return a.astype(np.float64) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float64) / 65535.0
+    return a.astype(np.float64)
+
+
+def field_position(cx: float, cy: float, centre: tuple[float, float], half_diagonal: float) -> tuple[float, float]:
+    """(normalised radius, angle in degrees CCW from +x, y up) of a point."""
+    dx, dy = cx - centre[0], centre[1] - cy
+    return math.hypot(dx, dy) / half_diagonal, math.degrees(math.atan2(dy, dx))
+
+
+def classify_orientation(edge_dx: float, edge_dy: float, radius: float, field_angle_deg: float) -> str:
+    """"tangential" if the edge's normal is within 45° of the radial
+    direction, "sagittal" otherwise, "axial" near the centre (module notes).
+
+    >>> classify_orientation(0.0, 1.0, 0.8, 0.0)   # vertical edge right of centre
+    'tangential'
+    >>> classify_orientation(1.0, 0.0, 0.8, 0.0)   # horizontal edge right of centre
+    'sagittal'
+    """
+    if radius < 0.05:
+        return "axial"
+    t = math.radians(field_angle_deg)
+    radial = (math.cos(t), -math.sin(t))       # in image coordinates (y down)
+    norm = math.hypot(edge_dx, edge_dy)
+    normal = (-edge_dy / norm, edge_dx / norm)
+    c = abs(normal[0] * radial[0] + normal[1] * radial[1])
+    return "tangential" if c >= math.sqrt(0.5) else "sagittal"
+
+
+def find_edges(image, *, channel=None, encoding: str = "linear", min_length: float = 40.0,
+               centre: tuple[float, float] | None = None, max_slant_deg: float = 40.0,
+               min_slant_deg: float = 2.0) -> list[EdgeROI]:
+    """Find slanted edges of dark shapes on a chart image.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array_like
+    channel, encoding
+        As :func:`calibration.sfr.esfr.measure_sfr` (detection only needs the
+        luminance; the default for colour input).
+    min_length : float
+        Shortest polygon side used, pixels.
+    centre : (x, y), optional
+        Optical centre in pixels (default: the image centre).
+    min_slant_deg, max_slant_deg : float
+        Accepted slant from the nearest axis.
+
+    Returns
+    -------
+    list of EdgeROI, sorted top-to-bottom, left-to-right.
+    """
+    import cv2
+
+    g = _gray(image, channel, encoding)
+    if not np.all(np.isfinite(g)):
+        raise SfrError("chart image has NaN or inf pixels")
+    h, w = g.shape
+    lo, hi = np.percentile(g[::4, ::4], [1, 99])
+    if hi - lo <= 1e-9:
+        raise SfrError("chart image is uniform: no edges to find")
+    u8 = np.clip((g - lo) / (hi - lo) * 255.0, 0, 255).astype(np.uint8)
+    blur = cv2.GaussianBlur(u8, (0, 0), 1.2)
+    # dark relative to the local surround (a block ~1/8 of the image), so that
+    # grey shapes on grey charts with black borders separate as well
+    block = max(31, (min(h, w) // 8) | 1)
+    dark = cv2.adaptiveThreshold(blur, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 8)
+    contours, _ = cv2.findContours(dark, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    cx, cy = centre if centre is not None else (w / 2.0, h / 2.0)
+    half_diag = 0.5 * math.hypot(w, h)
+    found: list[EdgeROI] = []
+    for k, c in enumerate(contours):
+        if cv2.contourArea(c) < 0.5 * min_length ** 2:
+            continue
+        peri = cv2.arcLength(c, True)
+        poly = cv2.approxPolyDP(c, max(1.5, 0.01 * peri), True).reshape(-1, 2).astype(np.float64)
+        if len(poly) < 3 or len(poly) > 24:
+            continue
+        for i in range(len(poly)):
+            p, q = poly[i], poly[(i + 1) % len(poly)]
+            roi = _edge_roi(p, q, dark, min_length, min_slant_deg, max_slant_deg)
+            if roi is None:
+                continue
+            x, y, rw, rh, slant, direction = roi
+            radius, fang = field_position(x + rw / 2, y + rh / 2, (cx, cy), half_diag)
+            orient = classify_orientation(q[0] - p[0], q[1] - p[1], radius, fang)
+            found.append(EdgeROI(x, y, rw, rh, slant, direction, radius, fang, orient, k))
+    found = _deduplicate(found)
+    return sorted(found, key=lambda e: (round(e.centre[1] / 8), e.centre[0]))
+
+
+def _edge_roi(p, q, dark, min_length, min_slant, max_slant):
+    """Axis-aligned ROI around the middle of side p→q, or None."""
+    h, w = dark.shape
+    d = q - p
+    length = float(np.hypot(*d))
+    if length < min_length:
+        return None
+    ang = math.degrees(math.atan2(abs(d[1]), abs(d[0])))   # 0 horizontal, 90 vertical
+    vertical = ang > 45.0
+    slant = 90.0 - ang if vertical else ang
+    if not (min_slant <= slant <= max_slant):
+        return None
+    mid = (p + q) / 2.0
+    t = math.tan(math.radians(slant))
+    cos = math.cos(math.radians(slant))
+    # the largest ROI (middle 60 % of the side, ±40 px across) that holds
+    # this edge alone; narrower and shorter ones where shapes crowd
+    for frac_along, across in ((0.6, 40.0), (0.6, 28.0), (0.5, 20.0), (0.4, 14.0)):
+        across = min(across, max(10.0, 0.22 * length))
+        along = frac_along * length
+        if vertical:
+            rh = int(round(along * cos))
+            rw = int(round(2 * across + rh * t))
+        else:
+            rw = int(round(along * cos))
+            rh = int(round(2 * across + rw * t))
+        x, y = int(round(mid[0] - rw / 2)), int(round(mid[1] - rh / 2))
+        if x < 0 or y < 0 or x + rw > w or y + rh > h or min(rw, rh) < 8:
+            continue
+        if _one_edge(dark[y:y + rh, x:x + rw]):
+            return x, y, rw, rh, slant, "vertical" if vertical else "horizontal"
+    return None
+
+
+def _one_edge(patch: np.ndarray) -> bool:
+    """True if the binary patch splits into one dark and one light region."""
+    import cv2
+
+    n_dark, _ = cv2.connectedComponents((patch > 0).astype(np.uint8))
+    n_light, _ = cv2.connectedComponents((patch == 0).astype(np.uint8))
+    frac = float(np.mean(patch > 0))
+    return n_dark == 2 and n_light == 2 and 0.2 < frac < 0.8
+
+
+def _deduplicate(edges: list[EdgeROI]) -> list[EdgeROI]:
+    """Drop ROIs whose centres nearly coincide (a shape traced twice)."""
+    out: list[EdgeROI] = []
+    for e in edges:
+        ex, ey = e.centre
+        if any(abs(ex - o.centre[0]) < 4 and abs(ey - o.centre[1]) < 4 for o in out):
+            continue
+        out.append(e)
+    return out
+
+
+@dataclass
+class ChartResult:
+    """Every edge found on a chart with its SFR, and the field maps."""
+
+    width: int
+    height: int
+    centre: tuple[float, float]
+    edges: list = field(default_factory=list)      # (EdgeROI, SfrResult)
+    skipped: list = field(default_factory=list)    # (EdgeROI, reason)
+    grid: tuple[int, int] = GRID
+
+    def field_map(self, value: str = "sfra", orientation: str | None = None) -> np.ndarray:
+        """(rows, cols) mean ``value`` ("sfra" or "mtf50") per region; NaN
+        where the region has no (matching) edge."""
+        rows, cols = self.grid
+        total = np.zeros((rows, cols))
+        count = np.zeros((rows, cols))
+        for roi, res in self.edges:
+            if orientation is not None and roi.orientation != orientation:
+                continue
+            v = getattr(res, value)
+            if not np.isfinite(v):
+                continue
+            cx, cy = roi.centre
+            r = min(int(cy / self.height * rows), rows - 1)
+            c = min(int(cx / self.width * cols), cols - 1)
+            total[r, c] += v
+            count[r, c] += 1
+        with np.errstate(invalid="ignore"):
+            return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: ``edges`` (each with freq, sfr, mtf50, sfra, angle_deg,
+        roi, field, orientation, warnings), ``skipped`` and ``maps``."""
+        def grid_list(a):
+            return [[None if not np.isfinite(v) else round(float(v), 6) for v in row] for row in a]
+
+        edges = []
+        for roi, res in self.edges:
+            d = roi.as_dict()
+            r = res.to_dict()
+            d.update({"freq": r["freq_cy_per_px"], "sfr": r["sfr"], "mtf50": r["mtf50_cy_per_px"],
+                      "sfra": r["sfra_to_nyquist"], "angle_deg": r["angle_deg"],
+                      "mtf_nyquist_half": r["mtf_nyquist_half"], "mtf_nyquist": r["mtf_nyquist"],
+                      "contrast": r["contrast"], "noise": r["noise"], "step": esf_step(res),
+                      "edge_fit_linear": r["edge_fit_linear"], "warnings": r["warnings"]})
+            edges.append(d)
+        maps = {v: {o or "all": grid_list(self.field_map(v, o)) for o in (None, "sagittal", "tangential")}
+                for v in ("sfra", "mtf50")}
+        return {"size": [self.width, self.height], "centre": list(self.centre), "grid": list(self.grid),
+                "edges": edges,
+                "skipped": [{**roi.as_dict(), "reason": reason} for roi, reason in self.skipped],
+                "maps": maps}
+
+
+def esf_step(r) -> float:
+    """Bright − dark of an SfrResult's ESF plateaus (its outer tenths), in
+    the input's units: with ``noise``, the edge's signal-to-noise ratio."""
+    esf = np.asarray(r.esf, dtype=np.float64)
+    m = max(4, esf.size // 10)
+    return float(abs(esf[-m:].mean() - esf[:m].mean()))
+
+
+def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None, min_length: float = 40.0,
+                  edge_fit_order: int = 1, pixel_pitch_um: float | None = None, method: str = "iso",
+                  grid: tuple[int, int] = GRID, progress: bool = False) -> ChartResult:
+    """Find every slanted edge of a chart and measure its SFR.
+
+    Parameters are those of :func:`find_edges` and
+    :func:`calibration.sfr.esfr.measure_sfr`. Edges the measurement refuses are
+    listed in ``skipped`` with the reason, not dropped.
+    """
+    a = np.asarray(image)
+    g = _gray(a, channel, encoding)
+    h, w = g.shape
+    rois = find_edges(g, centre=centre, min_length=min_length)
+    res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid)
+    res.edges, res.skipped = measure_rois(
+        rois, lambda box: measure_sfr(g, box=box, edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um,
+                                      method=method), progress=progress)
+    return res
+
+
+def measure_rois(rois, measure, *, progress: bool = False) -> tuple[list, list]:
+    """``measure(box)`` (an SfrResult for ``box = (x, y, w, h)``) on every
+    ROI: ``(edges, skipped)``, edges as (roi, result) and skipped as (roi,
+    reason) — refused measurements and results that are not a clean edge
+    are listed with the reason, never dropped."""
+    it = rois
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(rois, unit="edge", desc="SFR")
+    edges, skipped = [], []
+    for roi in it:
+        try:
+            r = measure((roi.x, roi.y, roi.w, roi.h))
+        except SfrError as e:
+            skipped.append((roi, str(e)))
+            continue
+        why = _not_a_clean_edge(r)
+        if why:
+            skipped.append((roi, why))
+            continue
+        edges.append((roi, r))
+    return edges, skipped
+
+
+_RESIDUAL = re.compile(r"edge-fit residual ([0-9.]+) px")
+
+
+def _not_a_clean_edge(r) -> str:
+    """A reason to leave a detected ROI out of a chart's maps: what the
+    detector took for a straight edge is not one (a curved or broken
+    outline: large edge-fit residual), or the edge sits at the ROI's border.
+    A user's own ROI keeps these as warnings instead."""
+    for w in r.warnings:
+        m = _RESIDUAL.search(w)
+        if m and float(m.group(1)) > 1.0:
+            return f"not a straight edge ({w})"
+        if "plateau too narrow" in w:
+            return w
+    return ""
+
+
+def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane", centre=None,
+                        min_length: float = 40.0, edge_fit_order: int = 1, pixel_pitch_um: float | None = None,
+                        method: str = "iso", grid: tuple[int, int] = GRID, progress: bool = False) -> ChartResult:
+    """:func:`measure_chart` on a raw Bayer mosaic (linear, black removed):
+    edges are found on the 2×2-block average (half resolution, all colours)
+    and measured on the mosaic itself per colour with
+    :func:`calibration.sfr.esfr.measure_sfr_bayer` (``channel`` one of R, G, B,
+    Gr, Gb; frequencies per sensor pixel)."""
+    from calibration.sfr.esfr import measure_sfr_bayer
+
+    m = np.asarray(mosaic, dtype=np.float64)
+    if m.ndim != 2:
+        raise SfrError(f"mosaic must be (H, W), got shape {m.shape}")
+    h, w = m.shape
+    half = m[: h // 2 * 2, : w // 2 * 2].reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
+    c = None if centre is None else (centre[0] / 2.0, centre[1] / 2.0)
+    rois = find_edges(half, centre=c, min_length=min_length / 2.0)
+    res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid)
+    full = [EdgeROI(2 * r.x, 2 * r.y, 2 * r.w, 2 * r.h, r.angle_deg, r.direction, r.radius, r.field_angle_deg,
+                    r.orientation, r.shape) for r in rois]
+    res.edges, res.skipped = measure_rois(
+        full, lambda box: measure_sfr_bayer(m, cfa, channel=channel, mode=mode, box=box, edge_fit_order=edge_fit_order,
+                                            pixel_pitch_um=pixel_pitch_um, method=method), progress=progress)
+    return res
+
+
+def plot_chart(result: ChartResult, image=None, *, value: str = "mtf50"):
+    """A figure: detected ROIs on the image (if given), SFR curves coloured by
+    field radius, and the ``value`` map over the 15 × 20 field grid."""
+    import matplotlib.pyplot as plt
+
+    panels = 3 if image is not None else 2
+    fig, axes = plt.subplots(1, panels, figsize=(5.2 * panels, 4.2))
+    i = 0
+    if image is not None:
+        ax = axes[0]
+        g = _gray(np.asarray(image), None, "linear")
+        ax.imshow(g, cmap="gray")
+        for roi, _ in result.edges:
+            ax.add_patch(plt.Rectangle((roi.x, roi.y), roi.w, roi.h, fill=False, lw=0.8,
+                                       color="tab:orange" if roi.orientation == "sagittal" else "tab:cyan"))
+        ax.set_title(f"{len(result.edges)} edges ({len(result.skipped)} skipped)")
+        ax.axis("off")
+        i = 1
+    ax = axes[i]
+    cmap = plt.get_cmap("viridis")
+    for roi, res in result.edges:
+        ax.plot(res.freq, res.sfr, color=cmap(min(roi.radius, 1.0)), lw=0.7, alpha=0.8)
+    ax.set_xlim(0, 0.5)
+    ax.set_ylim(0, 1.1)
+    ax.set_xlabel("cycles / pixel")
+    ax.set_ylabel("SFR")
+    ax.set_title("SFR (colour: field radius)")
+    ax.grid(alpha=0.3)
+    ax = axes[i + 1]
+    m = result.field_map(value)
+    im = ax.imshow(m, cmap="magma", origin="upper")
+    fig.colorbar(im, ax=ax, label=f"{value} ({'cy/px' if value == 'mtf50' else 'cy/px area'})")
+    ax.set_title(f"{value} over the {result.grid[0]}×{result.grid[1]} field grid")
+    ax.set_xlabel("column")
+    ax.set_ylabel("row")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,171 @@
+"""`isp calib fit` end to end (kind: property): a perturbed e9 device
+measured on a small field grid; the fitted proxy file reads back as the
+nominal lens plus the fitted perturbation and predicts the measurement
+better than the nominal lens; bad input gives one line, exit code 2 and no
+output folder."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from isp.cli.main import main
+from tests.helpers import data_file
+
+
+@pytest.fixture(scope="module")
+def device_obs(tmp_path_factory):
+    from calibration.optics.io.lens_json import read_lens
+    from calibration.fit.proxy import parameter_space
+    from calibration.fit.synthetic_devices import synthetic_observations
+    from calibration.optics.psf.map import psf_map
+
+    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    names = ["e1.decenter_x", "s17.thickness"]
+    truth = parameter_space(lens, names).apply(np.array([0.8, 0.6]) * parameter_space(lens, names).tolerance)
+    pm = psf_map(truth, grid=(2, 3), channels=("G",), n=32, pupil_samples=32, n_wavelengths=2, progress=False)
+    obs = synthetic_observations(pm, noise=0.003, rng=1)
+    path = tmp_path_factory.mktemp("fit") / "obs.json"
+    obs.save(path)
+    return lens, path
+
+
+def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device_obs):
+    from calibration.fit.proxy import load_proxy
+
+    lens, obs_path = device_obs
+    out = tmp_path / "proxy"
+    code = main(["calib", "fit", "--lens", str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")),
+                 "--measured", str(obs_path), "-o", str(out), "--n-params", "3", "--max-iter", "4",
+                 "--workers", "1", "--restarts", "1"])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    for f in ("proxy.json", "fit.json", "merit.png", "sfra_maps.png", "parameters.png"):
+        assert (out / f).is_file(), f
+    fit = json.loads((out / "fit.json").read_text())
+    assert fit["errors"]["after"]["sfra_rms"] < 0.5 * fit["errors"]["before"]["sfra_rms"]
+    # the median |residual| (σ) falls with χ², above the floor's 0.67 here (three parameters), and is printed
+    e = fit["errors"]
+    assert 0.67 < e["after"]["median_abs_z"] < 0.5 * e["before"]["median_abs_z"]
+    assert e["after"]["median_abs_z"] ** 2 < e["after"]["chi2_per_obs"]
+    assert f"{e['after']['median_abs_z']:.2f} σ" in printed.out
+    assert all(np.isfinite(p["std"]) for p in fit["parameters"])
+    # three parameters cannot fit this device: the fit ends far above the noise floor and tries one restart
+    assert len(fit["restarts"]) == 1 and "1 other starts tried" in printed.out
+    proxy = load_proxy(out / "proxy.json")
+    # the proxy file reads back as the nominal lens plus exactly the fitted perturbation
+    assert len(proxy.nominal.surfaces) == len(lens.surfaces)
+    back = proxy.perturbation.as_dict()
+    fitted = {p["name"]: p["value"] for p in fit["parameters"]}
+    assert any(abs(v) > 0 for v in fitted.values())
+    for name, value in fitted.items():
+        assert back.get(name, 0.0) == pytest.approx(value, rel=1e-9, abs=1e-15)
+
+
+def test_missing_measurement_is_one_line_exit_2(capsys, tmp_path):
+    out = tmp_path / "proxy"
+    code = main(["calib", "fit", "--lens", str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")),
+                 "--measured", str(tmp_path / "nope.json"), "-o", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "nope.json" in err and "\n" not in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_screened_fit_on_two_workers_starts_from_the_screening_secants(device_obs):
+    """fit_proxy with its own screening on a pool: one pool serves the
+    screening (every candidate parameter) and the fit (its points embedded
+    in that space, zeros elsewhere, which is the same lens: checked to
+    1e-12); the fit's first Jacobian is the screening's, so its first record
+    holds one evaluation, and the proxy still beats the nominal lens."""
+    from calibration.fit.proxy import _residuals, fit_proxy, parameter_space, residual_bias
+    from calibration.fit.observations import Observations
+    from calibration.fit.forward_model import SfrModel
+
+    lens, obs_path = device_obs
+    obs = Observations.load(obs_path)
+    names = ["e1.decenter_x", "e2.tilt_zx", "s17.thickness", "e3.decenter_y"]
+    model = SfrModel(lens, obs)
+    bias = residual_bias(model, lens, "sfra", 1)
+    u = np.array([0.7, -0.4])
+    sub = _residuals(model, parameter_space(lens, ["e1.decenter_x", "s17.thickness"]), bias, u)
+    full = _residuals(model, parameter_space(lens, names), bias, np.array([0.7, 0.0, -0.4, 0.0]))
+    assert np.allclose(sub, full, rtol=0, atol=1e-12)
+
+    fit = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False, restarts=0)
+    assert len(fit.space.names) == 3 and "s17.thickness" in fit.space.names
+    assert fit.result.history[0]["evaluations"] == 1
+    e = fit.errors()
+    assert e["after"]["sfra_rms"] < 0.5 * e["before"]["sfra_rms"]
+
+
+def test_a_tolerance_prior_adds_one_residual_per_parameter_and_holds_them_near_nominal(device_obs):
+    """fit_proxy(prior=σ): the residuals end with u/σ (a Gaussian prior,
+    MAP), the screening's secant Jacobian gains the prior's rows (the first
+    record still one evaluation), and a tight prior keeps the parameters
+    far closer to the nominal lens than the free fit puts them."""
+    from calibration.fit.proxy import fit_proxy
+    from calibration.fit.observations import Observations
+
+    lens, obs_path = device_obs
+    obs = Observations.load(obs_path)
+    free = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False, restarts=0)
+    tight = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False, prior=0.005,
+                      restarts=0)
+    assert tight.result.residuals.size == free.result.residuals.size + 3
+    np.testing.assert_allclose(tight.result.residuals[-3:], tight.u / 0.005, rtol=1e-12)
+    assert tight.result.history[0]["evaluations"] == 1
+    assert np.linalg.norm(tight.u) < 0.5 * np.linalg.norm(free.u)
+
+
+def test_scipy_fits_restart_as_dls_fits_do(device_obs):
+    """The multistart is not tied to the optimiser: TRF that ends far above
+    the noise floor (three parameters for this device) tries the same
+    seeded starts, counts their evaluations, and keeps a start only if it
+    ends lower."""
+    from calibration.fit.proxy import fit_proxy
+    from calibration.fit.observations import Observations
+
+    lens, obs_path = device_obs
+    obs = Observations.load(obs_path)
+    names = ["e1.decenter_x", "s17.thickness", "e3.decenter_y"]
+    kw = dict(names=names, residuals="sfra", method="scipy", workers=1, max_iter=3, progress=False)
+    plain = fit_proxy(lens, obs, restarts=0, **kw)
+    again = fit_proxy(lens, obs, restarts=2, seed=5, **kw)
+    assert plain.restarts == [] and len(again.restarts) == 2
+    assert again.result.merit <= plain.result.merit
+    assert again.evaluations > plain.evaluations
+    kept = [t for t in again.restarts if t.get("kept")]
+    assert (again.result.merit < plain.result.merit) == bool(kept)
+
+
+@pytest.mark.parametrize("bad", [["--coarse", "-1", "7"], ["--coarse", "0", "7"], ["--bootstrap", "-1"]])
+def test_a_bad_option_is_one_line_exit_2(capsys, tmp_path, device_obs, bad):
+    _, obs_path = device_obs
+    out = tmp_path / "proxy"
+    code = main(["calib", "fit", "--lens", str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")),
+                 "--measured", str(obs_path), "-o", str(out), *bad])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and bad[0] in err and "\n" not in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_a_wider_window_grows_the_pupil_grid_with_it(capsys, tmp_path, device_obs):
+    """`--window-um 48`: past the default pupil grid's replica period on e9
+    (≈ 45 µm), so the pupil grid grows in proportion (48 → 72 samples) and
+    the fit runs and records both; a window out of range is one line."""
+    _, obs_path = device_obs
+    lens = str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    out = tmp_path / "proxy"
+    code = main(["calib", "fit", "--lens", lens, "--measured", str(obs_path), "-o", str(out), "--n-params", "2",
+                 "--max-iter", "1", "--workers", "1", "--restarts", "0", "--coarse", "0", "0",
+                 "--window-um", "48"])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    settings = json.loads((out / "fit.json").read_text())["settings"]
+    assert settings["window_um"] == 48.0 and settings["pupil_samples"] == 72
+    code = main(["calib", "fit", "--lens", lens, "--measured", str(obs_path), "-o", str(tmp_path / "p2"),
+                 "--window-um", "4"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--window-um" in err and "\n" not in err and not (tmp_path / "p2").exists()

@@ -1,0 +1,203 @@
+"""The fast SFR forward model against the full render-and-measure path."""
+
+import numpy as np
+import pytest
+
+from calibration.fit.forward_model import ModelSettings, SfrModel, mtf_along, sfra_of
+from tests.helpers import data_file
+
+
+def test_mtf_of_a_gaussian_psf_is_analytic():
+    """Projection-slice: a Gaussian PSF of σ px has MTF exp(−2π²σ²f²) along any normal."""
+    q, s = 0.25, 0.8
+    o = (np.arange(65) - 32) * q
+    g = np.exp(-(o[None] ** 2 + o[:, None] ** 2) / (2 * s * s))
+    f = np.linspace(0, 1, 33)
+    m = mtf_along(np.stack([g / g.sum()] * 3), q, [0.0, 30.0, 100.0], f)
+    np.testing.assert_allclose(m, np.exp(-2 * np.pi ** 2 * s * s * f ** 2)[None].repeat(3, 0), atol=1e-3)
+
+
+def test_sfra_of_flat_curve():
+    f = np.linspace(0, 1, 129)
+    assert sfra_of(f, np.ones((1, 129)))[0] == pytest.approx(0.5)
+
+
+@pytest.fixture(scope="module")
+def device():
+    from calibration.optics.psf import map as M
+    from calibration.optics.io.lens_json import read_lens
+    from calibration.optics.perturb import apply
+    from calibration.fit.synthetic_devices import synthetic_observations
+
+    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    pl = apply(lens, {"e1.decenter_x": 0.002, "e2.tilt_yz": 0.02})
+    pm = M.psf_map(pl, grid=(3, 4), channels=("G",), n=96, pupil_samples=64, n_wavelengths=3, cache=False,
+                   progress=False)
+    return lens, pl, synthetic_observations(pm, noise=0.0)
+
+
+def test_model_matches_render_and_measure(device):
+    """Noise-free: the model + its measurement bias reproduce the ISO-measured
+    SFRA of edges rendered through independent PSF maps (real aiming, 3
+    wavelengths) to ≤ 0.002 cycles/pixel RMS."""
+    lens, pl, obs = device
+    m = SfrModel(lens, obs, ModelSettings())
+    pred = m.predict(pl).sfra
+    bias = m.noise_bias(pl)
+    d = obs.sfra - pred - bias
+    assert np.sqrt(np.mean(d ** 2)) < 0.002
+    # and the perturbation matters far more than that: the nominal lens is off
+    d0 = obs.sfra - m.predict(lens).sfra
+    assert np.sqrt(np.mean(d0 ** 2)) > 5 * np.sqrt(np.mean(d ** 2))
+
+
+def _node_psfs_per_field(model, lens, defocus_mm=None, method="debye"):
+    """The oracle of SfrModel.node_psfs: every node traced alone (its real
+    aim, pupil_rays, _finish) and diffracted alone (_sphere, _mono)."""
+    import dataclasses
+
+    from calibration.optics.perturb import nominal
+    from calibration.optics.psf.core import (
+        _exit_pupil_z,
+        _finish,
+        _grid_offsets_mm,
+        _mono,
+        _pupil_points,
+        _sphere,
+    )
+    from calibration.optics.trace import Rays, pupil_rays, trace_to_exit
+
+    pl, s = nominal(lens), model.settings
+    pupil, z_pupil = _pupil_points(s.pupil_samples), _exit_pupil_z(pl)
+    k = len(model.fields)
+    dz = np.zeros(k) if defocus_mm is None else np.broadcast_to(defocus_mm, (k,))
+    o = _grid_offsets_mm(model.psf_n, model.pitch_um)
+    ref = int(np.argmin(np.abs(model.wavelengths - pl.nominal.primary_nm)))
+    ep, status = model._aim
+    out = np.zeros((k, len(model.channels), model.psf_n, model.psf_n))
+    for i, f in enumerate(model.fields):
+        fd = (float(f[0]), float(f[1]))
+        trs = []
+        for lam in model.wavelengths:
+            r = pupil_rays(pl, fd, s.pupil_samples, float(lam), aiming="paraxial", pupil=ep[i])
+            r = Rays(r.origin, r.direction, float(lam), r.opl, status[i], pupil, r.field_deg)
+            t = _finish(pl, r, trace_to_exit(pl, r), fd, s.pupil_samples, z_pupil)
+            trs.append(dataclasses.replace(t, z_image=t.z_image + dz[i]))
+        centre = trs[ref].chief_image_point()
+        for j, t in enumerate(trs):
+            out[i] += model.wl_weights[:, j, None, None] * _mono(_sphere(t, centre), method, o, o, workers=1)[0][None]
+    return out
+
+
+@pytest.mark.parametrize("defocus_um", [None, 3.0])
+def test_node_psfs_all_nodes_at_once_match_each_node_alone(device, monkeypatch, defocus_um):
+    """property: the batched node PSFs (one trace per wavelength for all
+    nodes, batched pupil fits and Debye sums) equal the per-node path, to
+    1e-9 of the peak with complex128 sums and 1e-6 with the default
+    complex64 ones; in focus and with a per-node defocus (the trace reused)."""
+    from calibration.optics.psf import core as psf
+    lens, pl, obs = device
+    m = SfrModel(lens, obs, ModelSettings(pupil_samples=32, psf_n=32))
+    dz = None if defocus_um is None else np.linspace(-1.0, 1.0, len(m.regions)) * defocus_um * 1e-3
+    ref = _node_psfs_per_field(m, pl, dz)
+    np.testing.assert_allclose(m.node_psfs(pl, dz), ref, rtol=0, atol=1e-6 * ref.max())
+    monkeypatch.setattr(psf, "DEBYE_SUM_DTYPE", np.complex128)
+    np.testing.assert_allclose(m.node_psfs(pl, dz), ref, rtol=0, atol=1e-9 * ref.max())
+
+
+def test_node_psfs_other_methods_go_node_by_node(device):
+    """property: a method other than "debye" takes the per-node PSFs on the
+    batched trace."""
+    lens, pl, obs = device
+    m = SfrModel(lens, obs, ModelSettings(pupil_samples=32, psf_n=32, method="fft"))
+    ref = _node_psfs_per_field(m, pl, method="fft")
+    np.testing.assert_allclose(m.node_psfs(pl), ref, rtol=0, atol=1e-9 * ref.max())
+
+
+def test_sfra_of_is_the_trapezoid_to_half_nyquist_on_every_row():
+    """The one-product SFRA equals, row by row, the trapezoid over the
+    samples up to 0.5 cycles/pixel with the end value interpolated
+    (written out here with numpy), on grids that end past 0.5, exactly on
+    it and irregular ones; samples past the end are not read (NaN there
+    changes nothing); NaN where a grid stops short of 0.5."""
+    from calibration.sfr.edge import area_to
+    from calibration.fit.forward_model import sfra_of
+
+    def trapezoid(f, s):
+        n = int(np.searchsorted(f, 0.5, side="right"))
+        x, y = np.append(f[:n], 0.5), np.append(s[:n], np.interp(0.5, f, s))
+        return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(x)))
+
+    rng = np.random.default_rng(5)
+    grids = [np.linspace(0, 1, 65), np.linspace(0, 0.5, 33), np.append(0.0, np.sort(rng.random(49)) * 0.9),
+             np.linspace(0, 0.6, 7)]
+    for f in grids:
+        s = rng.random((6, f.size))
+        want = [trapezoid(f, r) for r in s]
+        assert np.allclose(sfra_of(f, s), want, rtol=0, atol=1e-14)
+        assert np.allclose([area_to(f, r) for r in s], want, rtol=0, atol=1e-14)
+    f = np.linspace(0, 1, 65)
+    s = rng.random((2, f.size))
+    s[:, 40:] = np.nan
+    assert np.isfinite(sfra_of(f, s)).all() and np.isfinite(area_to(f, s[0]))
+    assert np.isnan(sfra_of(np.linspace(0, 0.4, 9), np.ones((2, 9)))).all()
+
+
+def test_a_window_past_the_pupil_replica_period_is_refused(device):
+    """32 pupil samples across e9 (N ≈ 1.95) repeat the diffracted field
+    every ≈ 0.48 µm · 1.95 · 32 ≈ 30 µm: a 32 µm window is refused (it would
+    fold the tails onto the core), a 24 µm one is not."""
+    from calibration.fit.forward_model import FAST_JACOBIAN
+
+    lens, _, obs = device
+    with pytest.raises(ValueError, match=r"replica period .*pupil_samples ≥ 3[3-6]"):
+        SfrModel(lens, obs, ModelSettings(pupil_samples=32, psf_n=64))
+    SfrModel(lens, obs, FAST_JACOBIAN)
+
+
+def test_window_energy_matches_the_psf_map_and_grows_with_the_window(device):
+    """SfrModel.window_energy (the batched Debye sums' share of the
+    exit-pupil power on the window) equals psf_map's per-region window
+    energy (per-field path, its own chief-ray aiming) within 0.01, is ≈ 1
+    on a generous window and falls on a small one."""
+    from calibration.optics.psf import map as M
+    lens, pl, obs = device
+    m = SfrModel(lens, obs, ModelSettings(psf_n=32))
+    e = m.window_energy(pl)
+    pm = M.psf_map(pl, grid=obs.grid, channels=("G",), n=32, pupil_samples=48, n_wavelengths=2, cache=False,
+                   progress=False)
+    ref = np.array([pm.window_energy[r, c, 0] for r, c in obs.region])
+    np.testing.assert_allclose(e, ref, atol=0.01)
+    wide = SfrModel(lens, obs, ModelSettings(psf_n=96, pupil_samples=64)).window_energy(pl)
+    small = SfrModel(lens, obs, ModelSettings(psf_n=12)).window_energy(pl)
+    assert np.all(wide > 0.97) and np.all(wide >= e - 1e-9) and np.all(e > small)
+    assert small.min() < 0.8
+
+
+def test_the_psf_window_is_as_wide_in_micrometres_whatever_the_pixel(device):
+    """The window is set in µm (``window_um``): 64 samples at half of a 1 µm
+    pixel, 24 at half of a 2.8 µm one, about 32 µm both times and inside the
+    pupil sampling's replica period (≈ 45 µm here). A 64-sample window on
+    2.8 µm pixels would be 90 µm, past it (`isp calib loop` on such a
+    capture stopped with an internal error)."""
+    from calibration.optics.lens import Sensor
+    from calibration.fit.observations import Observations
+
+    lens, pl, obs = device
+    fine = SfrModel(lens, obs)
+    assert fine.psf_n == 64 and fine.psf_n * fine.pitch_um == pytest.approx(32.0)
+    d = obs.to_dict()
+    scale = 2000 / obs.sensor.width_px
+    pitch = obs.sensor.pixel_pitch_um / scale
+    d["sensor"].update(width_px=2000, height_px=1500, pixel_pitch_um=pitch)
+    for o in d["observations"]:
+        o["x_px"] *= scale
+        o["y_px"] *= scale
+    coarse_obs = Observations.from_dict(d)
+    coarse_lens = lens.replace(sensor=Sensor(pixel_pitch_um=pitch, width_px=2000, height_px=1500))
+    coarse = SfrModel(coarse_lens, coarse_obs)
+    assert coarse.psf_n == 24 and 32.0 <= coarse.psf_n * coarse.pitch_um < 32.0 + 2 * coarse.pitch_um
+    with pytest.raises(ValueError, match="replica period"):
+        SfrModel(coarse_lens, coarse_obs, ModelSettings(psf_n=64))
+    sfra = coarse.predict(pl).sfra
+    assert np.all(np.isfinite(sfra)) and np.all(sfra > 0)

@@ -1,0 +1,103 @@
+"""Chart analysis: edge detection, field positions, sagittal/tangential
+orientation, field maps (kinds: property / analytic / reference)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from calibration.sfr.esfr import SfrError
+from calibration.sfr.chart import GRID, classify_orientation, find_edges, measure_chart
+from calibration.sfr.synthetic import mtf50_of
+from tests.helpers import data_file
+
+
+def _chart(h=600, w=800, rows=4, cols=5, angle=5.0, sigma=1.0, ss=8, dark=0.2, light=0.8):
+    """Slanted dark squares on a light ground, blurred by a Gaussian of
+    ``sigma`` px and integrated over square pixels (supersampled ×ss)."""
+    import cv2
+
+    big = np.full((h * ss, w * ss), light, np.float32)
+    side = 0.5 * min(h / rows, w / cols) * ss
+    centres = []
+    for r in range(rows):
+        for c in range(cols):
+            cy, cx = (r + 0.5) * h / rows * ss, (c + 0.5) * w / cols * ss
+            box = cv2.boxPoints(((cx, cy), (side, side), angle))
+            cv2.fillConvexPoly(big, np.round(box * 16).astype(np.int32), dark, lineType=cv2.LINE_AA, shift=4)
+            centres.append((cx / ss, cy / ss))
+    big = cv2.GaussianBlur(big, (0, 0), sigma * ss)
+    img = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA)
+    return img.astype(np.float64), centres
+
+
+def test_finds_every_side_of_every_square_and_measures_it():
+    img, centres = _chart()
+    res = measure_chart(img)
+    assert len(res.edges) == 4 * len(centres)          # 4 slanted sides per square, no extras
+    truth = mtf50_of(1.0, 5.0)
+    m = np.array([r.mtf50 for _, r in res.edges])
+    assert np.median(np.abs(m / truth - 1)) < 0.02      # supersampled rendering, not exact
+    assert all(3.0 < abs(r.angle_deg) < 7.0 for _, r in res.edges)
+
+
+def test_field_position_and_orientation():
+    img, _ = _chart()
+    rois = find_edges(img)
+    h, w = img.shape
+    for e in rois:
+        cx, cy = e.centre
+        r = math.hypot(cx - w / 2, cy - h / 2) / (0.5 * math.hypot(w, h))
+        assert e.radius == pytest.approx(r, abs=1e-9)
+        assert e.field_angle_deg == pytest.approx(math.degrees(math.atan2(h / 2 - cy, cx - w / 2)), abs=1e-9)
+        # on the horizontal axis through the centre, vertical edges are tangential
+        if abs(cy - h / 2) < 0.1 * h and abs(cx - w / 2) > 0.2 * w:
+            assert e.orientation == ("tangential" if e.direction == "vertical" else "sagittal")
+
+
+def test_orientation_convention():
+    # an edge perpendicular to the radius (normal along it): tangential
+    assert classify_orientation(0.0, 1.0, 0.6, 0.0) == "tangential"
+    assert classify_orientation(1.0, 0.0, 0.6, 90.0) == "tangential"   # above centre, horizontal edge
+    assert classify_orientation(0.0, 1.0, 0.6, 90.0) == "sagittal"
+    assert classify_orientation(0.0, 1.0, 0.01, 0.0) == "axial"
+
+
+def test_field_maps_on_the_15_by_20_grid():
+    img, centres = _chart()
+    res = measure_chart(img)
+    m = res.field_map("sfra")
+    assert m.shape == GRID
+    assert np.isfinite(m).sum() >= len(centres)          # every square's region has a value
+    assert np.isnan(m).sum() > 0                         # regions without edges stay NaN
+    t = res.field_map("mtf50", "tangential")
+    s = res.field_map("mtf50", "sagittal")
+    assert np.isfinite(t).any() and np.isfinite(s).any()
+    d = res.to_dict()
+    assert len(d["maps"]["sfra"]["all"]) == GRID[0] and len(d["maps"]["sfra"]["all"][0]) == GRID[1]
+    assert {"freq", "sfr", "mtf50", "sfra", "angle_deg", "roi", "field", "orientation", "warnings"} <= set(d["edges"][0])
+
+
+def test_real_charts():
+    import cv2
+
+    # reference: the "Camera SFR & OECF" chart's tilted dark square has four edges
+    img = cv2.imread(str(data_file("edges", "sfrmat3_ISO_DSC_300a.jpg")))[..., ::-1]
+    res = measure_chart(img, encoding="srgb")
+    assert len(res.edges) == 4
+    # the ISO 12233:2023 digital chart: pinwheel blades and the central square
+    img = cv2.imread(str(data_file("edges", "sfrmat5_ISO_12233-2023_chart_digital.jpg")))[..., ::-1]
+    res = measure_chart(img, encoding="srgb")
+    assert len(res.edges) >= 40
+    assert all(0.2 < r.mtf50 < 0.5 for _, r in res.edges)   # a sharp digital file
+
+
+def test_bad_chart_input():
+    with pytest.raises(SfrError, match="uniform"):
+        find_edges(np.full((100, 100), 0.5))
+    img, _ = _chart(h=200, w=200, rows=1, cols=1)
+    img[5, 5] = np.nan
+    with pytest.raises(SfrError, match="NaN"):
+        find_edges(img)

@@ -1,0 +1,173 @@
+"""Pipeline building and validation, the registry, entry-point plug-ins.
+
+Kinds: property tests (build-time refusals name the stage; round trips of
+configs; a plug-in from another installed package is listed and usable).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from isp import (CFA, CameraMeta, ConfigError, Domain, Frame, Pipeline, StageBase, create_stage,
+                 list_stages, register_stage)
+from isp.pipeline import DEFAULT_STAGES
+from isp.stage import coerce_param
+
+
+def test_default_pipeline_builds_and_chains_domains():
+    p = Pipeline.default()
+    assert [s.name for s in p.stages] == list(DEFAULT_STAGES)
+    assert p.domains[0] is Domain.RAW
+    assert p.output_domain is Domain.ENCODED
+    # each stage's input domain is the previous one's output
+    assert [d.value for d in p.domains] == [
+        "raw", "raw_linear", "raw_linear", "raw_linear", "camera_rgb", "camera_rgb",
+        "camera_rgb", "linear_rgb", "display_rgb", "encoded"]
+
+
+def test_builtin_stages_are_registered_through_entry_points():
+    names = set(list_stages())
+    assert set(DEFAULT_STAGES) <= names
+
+
+@pytest.mark.parametrize("name", DEFAULT_STAGES)
+def test_every_builtin_stage_declares_domains_and_defaults(name):
+    st = create_stage(name)
+    assert st.consumes and all(isinstance(d, Domain) for d in st.consumes)
+    for d in st.consumes:
+        assert isinstance(st.output_domain(d), Domain)
+    # default parameters survive a TOML round trip, at the first domain the
+    # stage accepts with them (the correction slot's packaged model: camera_rgb)
+    for start in st.consumes:
+        try:
+            p = Pipeline([st], start=start)
+            break
+        except ConfigError:
+            continue
+    again = Pipeline.from_toml(p.to_toml())
+    assert again.stages[0].params() == st.params()
+
+
+def test_domain_chain_error_names_both_stages():
+    with pytest.raises(ConfigError) as e:
+        Pipeline.from_names(["black_level", "gamma"])
+    msg = str(e.value)
+    assert "'gamma'" in msg and "'black_level'" in msg and "raw_linear" in msg
+
+
+def test_unknown_stage_lists_valid_names():
+    with pytest.raises(ConfigError, match=r"unknown stage 'sharpen'.*valid: .*black_level"):
+        Pipeline.from_toml('[[stage]]\nname = "sharpen"\n')
+
+
+def test_unknown_parameter_names_stage_and_valid_parameters():
+    with pytest.raises(ConfigError, match=r"stage #2 'demosaic': unknown parameter 'algo'; valid: method"):
+        Pipeline.from_toml('[[stage]]\nname = "black_level"\n[[stage]]\nname = "demosaic"\nalgo = "x"\n')
+
+
+def test_ill_typed_parameter_names_stage_and_value():
+    with pytest.raises(ConfigError, match=r"'jpeg': parameter 'quality': expected an integer, got 'high'"):
+        Pipeline.from_names(["jpeg"], {"jpeg": {"quality": "high"}}, start="display_rgb")
+    with pytest.raises(ConfigError, match=r"'white_balance': parameter 'mode': expected one of"):
+        Pipeline.from_names(["white_balance"], {"white_balance": {"mode": "auto"}}, start="raw_linear")
+    with pytest.raises(ConfigError, match=r"quality must be 1..100, got 300"):
+        Pipeline.from_names(["jpeg"], {"jpeg": {"quality": 300}}, start="display_rgb")
+
+
+def test_bad_toml_is_a_config_error(tmp_path):
+    f = tmp_path / "p.toml"
+    f.write_text("[[stage]\nname=")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        Pipeline.from_toml(f)
+    with pytest.raises(ConfigError, match="cannot read config"):
+        Pipeline.from_toml(tmp_path / "missing.toml")
+
+
+def test_coerce_param_types():
+    assert coerce_param(3, float) == 3.0
+    assert coerce_param([1, 2, 3], tuple[float, float, float]) == (1.0, 2.0, 3.0)
+    assert coerce_param(None, float | None) is None
+    with pytest.raises(TypeError):
+        coerce_param(True, float)  # a bool is not a number here
+    with pytest.raises(TypeError):
+        coerce_param([1, 2], tuple[float, float, float])
+
+
+def test_code_registered_stage_runs_and_records_history():
+    @register_stage
+    @dataclass(frozen=True)
+    class Halve(StageBase):
+        """Halve linear values (test stage)."""
+
+        name = "test_halve"
+        consumes = (Domain.RAW_LINEAR,)
+        factor: float = 0.5
+
+        def process(self, frame):
+            return frame.evolve(frame.data * self.factor, stage=self.name, note=f"x{self.factor}")
+
+    p = Pipeline.from_toml('start = "raw_linear"\n[[stage]]\nname = "test_halve"\nfactor = 0.25\n')
+    f = Frame(np.ones((4, 4), np.float32), Domain.RAW_LINEAR, CameraMeta(cfa=CFA.RGGB))
+    out = p.run(f)
+    assert np.allclose(out.data, 0.25)
+    assert [str(s) for s in out.history] == ["test_halve: x0.25"]
+    assert np.allclose(f.data, 1.0)  # frames are not modified in place
+
+
+def test_run_refuses_frame_in_wrong_domain():
+    p = Pipeline.from_names(["gamma"], start="linear_rgb")
+    f = Frame(np.ones((2, 2, 3), np.float32), Domain.CAMERA_RGB, CameraMeta())
+    with pytest.raises(ConfigError, match="starts at linear_rgb"):
+        p.run(f)
+
+
+PLUGIN = '''
+from dataclasses import dataclass
+from isp import Domain, StageBase
+@dataclass(frozen=True)
+class Invert(StageBase):
+    """Invert display values (a third-party plug-in)."""
+    name = "plugin_invert"
+    consumes = (Domain.DISPLAY_RGB,)
+    amount: float = 1.0
+
+    def process(self, frame):
+        return frame.evolve(self.amount - frame.data, stage=self.name)
+'''
+
+
+def test_entry_point_plugin_from_another_package(tmp_path):
+    """A stage declared in another distribution's entry points is listed by
+    `isp stages` and usable in a config (run in a subprocess so that the fake
+    distribution is on the path from the start)."""
+    pkg = tmp_path / "isp_plugin_demo"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text(textwrap.dedent(PLUGIN))
+    dist = tmp_path / "isp_plugin_demo-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: isp-plugin-demo\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[isp.stages]\nplugin_invert = isp_plugin_demo:Invert\n")
+    env = {"PYTHONPATH": str(tmp_path)}
+    import os
+
+    env = {**os.environ, **env}
+    out = subprocess.run([sys.executable, "-m", "isp", "stages"], capture_output=True, text=True,
+                         env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "plugin_invert" in out.stdout and "isp-plugin-demo" in out.stdout
+    code = textwrap.dedent('''
+        import numpy as np
+        from isp import Pipeline, Frame, Domain, CameraMeta
+        p = Pipeline.from_toml('start = "display_rgb"\\n[[stage]]\\nname = "plugin_invert"\\namount = 1.0\\n')
+        f = Frame(np.full((2, 2, 3), 0.25, np.float32), Domain.DISPLAY_RGB, CameraMeta())
+        print(float(p.run(f).data[0, 0, 0]))
+    ''')
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "0.75"
