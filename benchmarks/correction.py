@@ -94,7 +94,7 @@ def _run(stage, frame, memory: bool = False) -> dict:
 
 
 def _summary(tiling: tuple, frame, cold: dict, warm: list[dict]) -> dict:
-    from modules._impl.tiling import plan_tiles
+    from modules.common.tiling import plan_tiles
 
     secs = [r["seconds"] for r in warm]
     model = statistics.median(r["model_seconds"] for r in warm)

@@ -139,7 +139,7 @@ def main(argv=None) -> dict:
 
     from isp import CFA, CameraMeta, Domain, Frame
     from modules.correction import Correction
-    from modules._impl.tiling import plan_tiles
+    from modules.common.tiling import plan_tiles
 
     with tempfile.TemporaryDirectory() as tmp:
         path = tiny_model(Path(tmp) / "tiny.onnx", width=args.width, tile=args.tile, overlap=args.overlap)

@@ -5,5 +5,9 @@ the ``correction`` stage (torch).
   constant-weight check, torch ↔ ONNX parity, metadata, measured tile overlap;
 * :mod:`.quantize` — static INT8 (QDQ), conv counts after ORT's
   optimisation, INT8 vs FP32 PSNR, mobile-usability checker;
+* :mod:`.int8_form` — graph forms INT8 runs faster, and their inverses;
 * :mod:`.cli` — ``isp export``.
+
+May import: ``restoration`` (checkpoints and the network), ``modules`` (the
+correction stage that runs the file), ``isp``, torch, onnx, onnxruntime.
 """

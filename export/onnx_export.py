@@ -290,7 +290,7 @@ def measure_tile_overlap(path, candidates=OVERLAP_CANDIDATES, tolerance: float =
     errors, tiles, found = {}, {}, None
     for m in sorted(candidates):
         tile = 2 * m + 128
-        # the reference is padded by reflection with the same margin (modules._impl.tiling)
+        # the reference is padded by reflection with the same margin (modules.common.tiling)
         whole = Correction(model=Path(path), tile_size=0, overlap=m).process(frame).data
         out = Correction(model=Path(path), tile_size=tile, overlap=m).process(frame).data
         errors[m], tiles[m] = float(np.abs(srgb_dn(out) - srgb_dn(whole)).max()), tile

@@ -26,7 +26,7 @@ from isp.frame import Domain, Frame
 from isp.io.opcode_plan import area_slices, handled_by
 from isp.stage import StageBase
 
-from modules._impl.mosaic import cfa_affine
+from modules.common.mosaic import cfa_affine
 
 
 def linearize(data: np.ndarray, table: np.ndarray) -> np.ndarray:

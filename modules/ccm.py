@@ -11,7 +11,7 @@ The stage maps white-balanced camera RGB to linear sRGB (D65) in two steps:
 
 The colour model itself (the matrices, their interpolation and
 normalisations, white xy ↔ camera neutral, the domains and the references)
-lives in :mod:`modules._impl.dng_colour`, after *Adobe DNG Specification*
+lives in :mod:`modules.common.dng_colour`, after *Adobe DNG Specification*
 1.7.1.0, chapter 6, "Mapping Camera Color Space to CIE XYZ Space"; its
 public names are re-exported here. This module holds the stage,
 :class:`ColorCorrection`, and :func:`apply_ccm`.
@@ -29,8 +29,8 @@ from isp.frame import Domain, Frame
 from isp.meta import CameraMeta  # noqa: F401  (the doctests use it)
 from isp.stage import StageBase
 
-from modules._impl.dng_colour import DEFAULT_WHITE_XY as DEFAULT_WHITE_XY
-from modules._impl.dng_colour import (
+from modules.common.dng_colour import DEFAULT_WHITE_XY as DEFAULT_WHITE_XY
+from modules.common.dng_colour import (
     ILLUMINANT_CCT,
     PCS_WHITE_XY,
     SOURCES,
@@ -48,7 +48,7 @@ from modules._impl.dng_colour import (
     xy_to_camera_neutral,
     xy_to_cct,
 )
-from modules._impl.xp import apply_matrix
+from modules.common.xp import apply_matrix
 
 __all__ = [
     "ColorCorrection",

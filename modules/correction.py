@@ -8,7 +8,7 @@ The model runs through onnxruntime (never torch): two intra-op threads,
 one inter-op thread, sequential execution, all graph optimisations; one
 session per model file, shared by every stage that names it.
 
-Full frames run tile by tile (:mod:`modules._impl.tiling`, crop-centre
+Full frames run tile by tile (:mod:`modules.common.tiling`, crop-centre
 stitching): each tile is read with a context margin of ``tile_overlap``
 pixels on every side, the model runs on it, and only the tile's core is
 kept, so with a margin at least the model's receptive-field radius the
@@ -17,7 +17,7 @@ the extra memory is the output frame plus one tile. Frame borders are
 padded by reflection, in the whole-frame run as in the tiled one, by
 ``border_context`` pixels: the surround the model sees past the frame's
 edge, which is made up alike in both runs and so need not be the seam
-margin (:mod:`modules._impl.tiling`).
+margin (:mod:`modules.common.tiling`).
 
 Field-of-view encoding ``"xy"`` appends two channels holding each pixel's
 normalised position on the *full* active area, in [-1, 1] (x right, y
@@ -99,7 +99,7 @@ from isp.errors import ConfigError, PlacementError
 from isp.frame import Domain, Frame
 from isp.stage import StageBase
 
-from modules._impl.tiling import plan_tiles, run_tiled
+from modules.common.tiling import plan_tiles, run_tiled
 
 #: domains the slot can stand in (the model decides which one)
 SLOT_DOMAINS = (Domain.RAW_LINEAR, Domain.CAMERA_RGB, Domain.LINEAR_RGB, Domain.DISPLAY_RGB)
@@ -227,7 +227,7 @@ class ModelInfo:
 
 
 class Tiling(NamedTuple):
-    """How the stage cuts a frame (:mod:`modules._impl.tiling`), in pixels."""
+    """How the stage cuts a frame (:mod:`modules.common.tiling`), in pixels."""
 
     tile: int      #: window side, context included (0: the whole frame)
     margin: int    #: context between tiles, per side

@@ -27,7 +27,7 @@ import numpy as np
 from isp.frame import Domain, Frame
 from isp.stage import StageBase
 
-from modules._impl.xp import array_namespace, is_numpy_array
+from modules.common.xp import array_namespace, is_numpy_array
 
 _LUT_SIZE = 65536
 

@@ -33,7 +33,7 @@ from isp.errors import InputError
 from isp.frame import Domain, Frame
 from isp.stage import StageBase
 
-from modules._impl.xp import array_namespace, as_like, is_numpy_array
+from modules.common.xp import array_namespace, as_like, is_numpy_array
 
 #: luminance weights of linear sRGB / BT.709 primaries (ITU-R BT.709-6, 3.2)
 BT709_Y = (0.2126, 0.7152, 0.0722)
@@ -91,7 +91,7 @@ def luminance_weights(frame: Frame) -> np.ndarray:
     linear sRGB, the BT.709 weights.
     """
     if frame.domain is Domain.CAMERA_RGB:
-        from modules._impl.dng_colour import camera_to_xyz_d50
+        from modules.common.dng_colour import camera_to_xyz_d50
 
         meta = frame.meta
         neutral = frame.neutral

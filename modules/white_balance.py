@@ -32,7 +32,7 @@ from isp.errors import InputError
 from isp.frame import Domain, Frame
 from isp.stage import StageBase
 
-from modules._impl.mosaic import cfa_affine, channel_pattern
+from modules.common.mosaic import cfa_affine, channel_pattern
 
 
 def channel_means(data: np.ndarray, cfa_pattern: np.ndarray | None, low: float = 0.002,
@@ -128,7 +128,7 @@ class WhiteBalance(StageBase):
             n = np.asarray(meta.as_shot_neutral, dtype=np.float64)
             how = "as-shot neutral"
         elif self.mode == "as_shot" and meta.as_shot_white_xy is not None:
-            from modules._impl.dng_colour import xy_to_camera_neutral
+            from modules.common.dng_colour import xy_to_camera_neutral
 
             n = np.asarray(xy_to_camera_neutral(meta, meta.as_shot_white_xy), dtype=np.float64)
             how = f"as-shot white xy {tuple(round(v, 4) for v in meta.as_shot_white_xy)}"

@@ -13,7 +13,7 @@ runner *is* :class:`modules.correction.Correction` (onnxruntime, 2
 threads, tiles of the model's ``tile_size`` with crop-centre stitching,
 reflected borders, field channels of each window's pixels on the full
 frame); the torch runner feeds the same windows
-(:func:`modules._impl.tiling.run_tiled`, same tile size, margin and multiple,
+(:func:`modules.common.tiling.run_tiled`, same tile size, margin and multiple,
 field channels from :func:`modules.correction.field_coordinates_at`) to the
 torch model. So a checkpoint and its ONNX export see identical inputs and
 their evaluations differ only by float rounding (tested).
@@ -170,7 +170,7 @@ class TorchRunner:
         import torch
 
         from modules.correction import field_coordinates_at
-        from modules._impl.tiling import run_tiled
+        from modules.common.tiling import run_tiled
 
         extra = 2 if self.fov_encoding == "xy" else 0
 

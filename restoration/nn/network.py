@@ -470,7 +470,7 @@ class SpaceToDepthForm(nn.Module):
     :func:`padded_conv`): on the e9 model,
     INT8 on a 1,072² tile, 0.67 → 0.60 s (FP32 1.02 → 0.99 s) on this
     project's 2-core machine; the stage packs and unpacks while it copies
-    the tile anyway (:mod:`modules._impl.tiling`).
+    the tile anyway (:mod:`modules.common.tiling`).
 
     Input ``(N, 3s² [+ 2], H/s, W/s)``: channel ``(dy·s + dx)·3 + c`` is
     colour ``c`` of pixel ``(s·i + dy, s·j + dx)``; then the field ``(x, y)``

@@ -15,7 +15,7 @@ the slot's input ``J`` (white-balanced camera RGB, :class:`~isp.frame.Domain`
 with ``OETF`` the sRGB encoding (IEC 61966-2-1:1999, 5.2;
 :func:`modules.gamma.srgb_oetf`, inverse :func:`modules.gamma.srgb_eotf`),
 ``M`` the ccm stage's matrix (balanced camera RGB → linear sRGB,
-:func:`modules._impl.dng_colour.camera_to_linear_srgb` with the scene neutral as
+:func:`modules.common.dng_colour.camera_to_linear_srgb` with the scene neutral as
 the applied one, exactly as :class:`modules.ccm.ColorCorrection` builds it)
 and ``𝒯_g`` the luminance stage (:func:`modules.luminance.adjust_luminance`:
 gain ``g = 2^EV`` and an optional global tone curve; inverse
@@ -29,7 +29,7 @@ What is drawn per pair
 * the scene white: one of ``steps`` CCTs equally spaced in mired within
   ``cct_k`` on the Planckian locus (Kang et al. 2002, via colour-science),
   turned into the camera neutral by the DNG model (DNG 1.7.1.0 chapter 6,
-  :func:`modules._impl.dng_colour.xy_to_camera_neutral`); the neutral and the
+  :func:`modules.common.dng_colour.xy_to_camera_neutral`); the neutral and the
   matrix of every (camera, white) are computed once (:func:`colour_table`);
 * the *luminosity compression*: an exposure ``EV`` uniform in ``exposure_ev``;
   the raw-like image is ``2^−EV`` times darker (so it is noisier, as an
@@ -162,7 +162,7 @@ def camera_colour(meta: CameraMeta, xy) -> tuple[np.ndarray, np.ndarray]:
         Balanced camera RGB → linear sRGB, as :class:`modules.ccm.ColorCorrection`
         computes it for a frame balanced with ``neutral``.
     """
-    from modules._impl.dng_colour import camera_to_linear_srgb, xy_to_camera_neutral
+    from modules.common.dng_colour import camera_to_linear_srgb, xy_to_camera_neutral
 
     n = np.asarray(xy_to_camera_neutral(meta, xy), dtype=np.float64)
     n = n / n[1]

@@ -1,4 +1,4 @@
-"""Tests of modules/_impl/dng_colour.py, the DNG colour model, and modules/ccm.py,
+"""Tests of modules/common/dng_colour.py, the DNG colour model, and modules/ccm.py,
 the ``ccm`` stage.
 
 Kinds, as labelled on each test:
@@ -31,7 +31,7 @@ from hypothesis import strategies as st
 from isp import ConfigError, Domain, Frame, InputError, create_stage
 from isp.meta import CameraMeta
 from modules.ccm import ColorCorrection, apply_ccm
-from modules._impl.dng_colour import (
+from modules.common.dng_colour import (
     bradford_matrix,
     camera_neutral_to_xy,
     camera_to_linear_srgb,

@@ -10,7 +10,7 @@ from isp import CFA, CameraMeta, Domain, Frame, create_stage
 from isp.opcodes import AreaSpec, FixVignetteRadial, GainMap, MapPolynomial, parse_opcode_list
 from modules.gamma import encode, srgb_eotf, srgb_oetf
 from modules.luminance import adjust_luminance
-from modules._impl.mosaic import cfa_affine
+from modules.common.mosaic import cfa_affine
 
 
 def _frame(data, domain=Domain.RAW, **meta):

@@ -1,4 +1,4 @@
-"""Tiled execution (modules._impl.tiling): the tiles cover the frame once, the
+"""Tiled execution (modules.common.tiling): the tiles cover the frame once, the
 windows are aligned and padded by reflection, and a local operator run
 tile by tile equals the whole-frame run when the margin covers its radius,
 and not when it does not (kind: property)."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from modules._impl.tiling import plan_tiles, read_window, reflect_indices, run_tiled, split_axis, write_planes
+from modules.common.tiling import plan_tiles, read_window, reflect_indices, run_tiled, split_axis, write_planes
 
 
 @pytest.mark.parametrize("n", [1, 2, 5, 16])
@@ -141,7 +141,7 @@ def test_plane_copies_equal_numpy_on_strided_views(rng, dtype, channels):
 def test_windows_reaching_past_the_border_read_as_fancy_indexing(rng, dtype):
     # property: whatever the window (folded once by OpenCV's reflecting border, folded
     # several times, or inside), the gathered window is image[rows][:, cols]
-    from modules._impl.tiling import _gather
+    from modules.common.tiling import _gather
 
     image = (rng.random((30, 40, 3)) * 200).astype(dtype)
     for _ in range(500):
