@@ -31,9 +31,9 @@ srgb_highpass       placement_srgb with the high-pass (against highpass: the
                     placement on the packaged design; linear input, as sRGB
                     is gamma-encoded already)
 linear_highpass     highpass with the high-pass on the residual made linear
-                    (``highpass_domain="linear"``): the packaged design
-                    from 2026-11-26 until stop 25 (with the config's
-                    ``optim.highpass_penalty``)
+                    (``highpass_domain="linear"``, with the config's
+                    ``optim.highpass_penalty``): the depthwise form of the
+                    packaged design
 static_linear_hp    "static" with √x and the linear high-pass (against
                     linear_highpass: the dynamic convolution's gain on it)
 half_res_blocks     linear_highpass with a block at ½ resolution before and
@@ -44,8 +44,7 @@ large               linear_highpass 12× the size (widths 48/192, depths
 static_large        static_linear_hp at large's MACs
 dense               linear_highpass with dense DOConv kernels on 48
                     channels, three blocks (19.0 kMAC/px): the form that
-                    INT8 speeds up (``group_width = 0``), packaged since
-                    stop 25 (linear_highpass was until then)
+                    INT8 speeds up (``group_width = 0``)
 static_dense        dense static 3×3 convs on 84 channels, dense's MACs
 wide_attention      linear_highpass with the attention statistics over 31²
                     px at ¼ resolution (124² at full resolution) instead of
@@ -54,8 +53,8 @@ global_attention    linear_highpass with ODConv's global-mean attention
                     (per crop; not tile-consistent, not exported): the
                     widest statistics there are
 pixel_attention     dense with the attention statistics of each pixel
-                    alone (``window = 1``): the narrowest, packaged since
-                    stop 26 (the 7² box cost INT8 7 % of its time and its
+                    alone (``window = 1``): the narrowest, and the packaged
+                    design (the 7² box costs INT8 7 % of its time and its
                     tiles 36 px of receptive radius)
 linear_srgb_hp      linear_highpass placed between the colour matrix and
                     the gamma (linear sRGB at display exposure; against
@@ -64,16 +63,15 @@ linear_srgb_hp      linear_highpass placed between the colour matrix and
 ==================  ==========================================================
 
 Run (2.3–7 minutes of training per entry at 1,500 steps, 14–16 for the
-per-pixel spatial attention, two at a time on the two cores; the first ten
-and their evaluation took 34 minutes on an idle 2-core AMD EPYC, the three
-high-pass entries 10 more, the two linear ones 8, 2026-11-26)::
+per-pixel spatial attention, two at a time on the two cores; ten entries
+and their evaluation take about 34 minutes on an idle 2-core AMD EPYC)::
 
     python -m benchmarks.ablations --steps 1500
     python -m benchmarks.ablations --steps 300 --only doconv static   # a quick look
 
 On a GPU machine (``configs/e9_gpu.toml``: nine cameras, 4,000 pairs,
-batches of 32; one H200, 2026-11-26: 19–25 s of synthesis on 14 processes,
-then 52–78 ms a step for three entries or two large ones at once)::
+batches of 32; on one H200, 19–25 s of synthesis on 14 processes, then
+52–78 ms a step for three entries or two large ones at once)::
 
     python -m benchmarks.ablations --config configs/e9_gpu.toml --minutes 4 \
         --only linear_highpass static_linear_hp srgb_highpass --workers 3 \
@@ -81,8 +79,8 @@ then 52–78 ms a step for three entries or two large ones at once)::
     # then, anywhere (here: the CPU), the same command without --train-only
     # and with --samples 4: the trained entries are evaluated, not retrained
 
-The dense pair on an H100 (2026-11-26: 27 s of synthesis, 63.5 ms a step
-in the probe, 3,700 steps each)::
+The dense pair on an H100 (27 s of synthesis, 63.5 ms a step in the
+probe, 3,700 steps each)::
 
     python -m benchmarks.ablations --config configs/e9_gpu.toml --minutes 4 \
         --only dense static_dense --workers 2 --psf-workers 14 --train-only --out out/gpu_abl
@@ -92,19 +90,22 @@ real run, and sets the steps that fit the slowest into the minutes.
 
 Prints the table and, as its last line, one JSON object: per entry the
 PSNR/SSIM per ring (corrected and uncorrected), the validation PSNR at the
-end of training, kMAC/px and the training time. Models and logs go to
+end of training, kMAC/px and the training time; it is also written to
+``benchmarks/results/ablations.json`` (not by ``--train-only``, which
+evaluates nothing). Models and logs go to
 ``--out`` (default ``out/ablations``); an entry whose ``model.pt`` is there
 already is not retrained (``--retrain`` to force).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+from benchmarks import _harness
 
 #: the "large" entries' network: 12x the default's MACs, past the export's
 #: 2-core budget (is the gain at 0.9 bound by the network's size?)
@@ -176,7 +177,7 @@ def _train(args) -> dict:
 
 def _train_one(args) -> dict:
     name, config_path, out, steps, seed = args
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    _harness.pin_threads(1)   # entries train side by side, one core each
     from restoration.train.trainer import train
     from restoration.train.config import load_config
 
@@ -227,9 +228,9 @@ def _steps_for(minutes: float, todo: list, args, out: Path) -> int:
 
 
 def main(argv=None) -> dict:
-    from restoration.cli.synth import DATA  # ../shared/data, or $ISP_DATA as the training config's data: paths
+    from restoration.synth.defaults import DATA  # ../shared/data, or $ISP_DATA as the training config's data: paths
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = _harness.parser(__doc__)
     ap.add_argument("--config", default="configs/e9_default.toml", help="training config (data, optimiser)")
     ap.add_argument("--steps", type=int, default=1500, help="training steps per entry (default 1500)")
     ap.add_argument("--minutes", type=float,
@@ -249,6 +250,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--retrain", action="store_true")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    _harness.pin_threads(2)
     names = args.only or list(ENTRIES)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -328,8 +330,7 @@ def main(argv=None) -> dict:
     summary = {"steps": args.steps, "images": [p.name for p in imgs], "samples": args.samples,
                "config": args.config, "entries": results}
     (out / "ablations.json").write_text(json.dumps(summary, indent=1))
-    print(json.dumps(summary))
-    return summary
+    return _harness.publish("ablations", summary, args, argv)
 
 
 if __name__ == "__main__":

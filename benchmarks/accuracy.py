@@ -9,20 +9,23 @@
 * demosaic: CPSNR (dB) of each method on kodim19 (mosaicked, all four CFA
   phases averaged, 8-px border excluded).
 
-Prints one JSON object as its last line. Usage: python benchmarks/accuracy.py
+The peer, LibRaw, runs in the same process on the same files. Prints a
+summary, then one JSON object as its last line. Usage::
+
+    python -m benchmarks.accuracy
 """
 
 from __future__ import annotations
 
-import json
-import sys
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
 
-ROOT = Path(__file__).resolve().parents[1]
+import numpy as np  # noqa: E402
+
+ROOT = _harness.ROOT
 DATA = ROOT.parent / "shared" / "data"
-sys.path.insert(0, str(ROOT))
 
 
 def shading_errors() -> dict:
@@ -107,14 +110,18 @@ def demosaic_cpsnr() -> dict:
     return out
 
 
-def main() -> None:
+def main(argv=None) -> dict:
+    args = _harness.parser(__doc__).parse_args(argv)
     if not DATA.exists():
-        print(json.dumps({"error": f"{DATA} not found"}))
-        return
+        raise SystemExit(f"accuracy: {DATA} not found (the shared data folder is needed)")
     result = {"lens_shading_block_rel_error": shading_errors(),
               "delta_e00_vs_rawpy": rawpy_delta_e(),
               "demosaic_cpsnr_kodim19_db": demosaic_cpsnr()}
-    print(json.dumps(result))
+    print(f"lens shading, block relative error: {result['lens_shading_block_rel_error']}")
+    for name, row in result["delta_e00_vs_rawpy"].items():
+        print(f"mean CIEDE2000 against LibRaw, {name}: {row}")
+    print(f"demosaic CPSNR on kodim19 (dB): {result['demosaic_cpsnr_kodim19_db']}")
+    return _harness.publish("accuracy", result, args, argv)
 
 
 if __name__ == "__main__":

@@ -20,36 +20,32 @@ both DNGs are measured as ``isp calib loop``/``fit`` measure a capture
 
 Prints a line per figure and one JSON object as the LAST line. Usage::
 
-    python benchmarks/capture_roundtrip.py [--seed 3] [--size 2000 1500] [--fit 12 24]
+    python -m benchmarks.capture_roundtrip [--seed 3] [--size 2000 1500] [--fit 12 24]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-if __name__ == "__main__":   # one BLAS thread per fit worker
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+if __name__ == "__main__":   # one BLAS thread per fit worker, set before numpy loads
+    _harness.pin_threads(2, blas=1)
 
-import argparse  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
-import types  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+ROOT = _harness.ROOT
 
-from calibration.cli.main import _load, _perturbed  # noqa: E402
+from calibration.optics.io import read_lens  # noqa: E402
+from calibration.simulate.device import device_lens  # noqa: E402
 from calibration.simulate.capture import simulate_capture, write_capture  # noqa: E402
 from calibration.simulate.chart import slanted_square_chart  # noqa: E402
 from calibration.optics.lens import Sensor  # noqa: E402
-from calibration.cli.loop import load_measured, match_sensor  # noqa: E402
-from calibration.fit.proxy import fit_proxy, residual_bias  # noqa: E402
+from calibration.fit.measurements import load_measured, match_sensor  # noqa: E402
+from calibration.fit.proxy import ProxyFitSettings, fit_proxy, residual_bias  # noqa: E402
+from isp.runtime.executor import pool_executor  # noqa: E402
 from calibration.fit.forward_model import FAST_JACOBIAN, SfrModel  # noqa: E402
 
 LENS = ROOT.parent / "shared" / "data" / "lenses" / "phone" / "US-12210142-B2-e9.zmx"
@@ -60,7 +56,7 @@ def sfra_rms(obs, pred) -> float:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = _harness.parser(__doc__)
     ap.add_argument("--lens", default=str(LENS))
     ap.add_argument("--seed", type=int, default=3, help="the device (isp calib simulate --seed)")
     ap.add_argument("--size", type=int, nargs=2, default=[2000, 1500], metavar=("W", "H"))
@@ -72,11 +68,11 @@ def main(argv=None) -> dict:
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
-    lens = _load(args.lens)
+    lens = read_lens(args.lens)
     w, h = args.size
     lens = lens.replace(sensor=Sensor(pixel_pitch_um=lens.sensor.pixel_pitch_um * lens.sensor.width_px / w,
                                       width_px=w, height_px=h))
-    device, what = _perturbed(lens, types.SimpleNamespace(perturb="random", seed=args.seed))
+    device, what = device_lens(lens, "random", seed=args.seed)
     chart = slanted_square_chart(h, w)
     obs = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -85,7 +81,7 @@ def main(argv=None) -> dict:
             dng = write_capture(Path(tmp) / f"c{noise_seed}.dng",
                                 capture=simulate_capture(device, chart, exposure=args.exposure, rng=noise_seed))
             o, _ = load_measured(str(dng))
-            nominal, o = match_sensor(_load(args.lens), o)
+            nominal, o = match_sensor(read_lens(args.lens), o)
             obs.append(o)
     out = {"lens": Path(args.lens).stem, "device": what, "size": [w, h],
            "pixel_pitch_um": round(float(obs[0].sensor.pixel_pitch_um), 4), "edges": len(obs[0])}
@@ -101,7 +97,8 @@ def main(argv=None) -> dict:
     log(f"noise repeat: SFRA {out['noise_repeat_sfra']:.4f} per edge over {len(both)} edges")
 
     model = SfrModel(nominal, obs[0])
-    pred = model.predict(device).sfra + residual_bias(model, device, "sfra", 2).sfra
+    with pool_executor(2) as ex:
+        pred = model.predict(device).sfra + residual_bias(model, device, "sfra", ex).sfra
     out["device_lens_sfra_rms"] = sfra_rms(obs[0], pred)
     log(f"the device's own lens: SFRA RMS {out['device_lens_sfra_rms']:.4f}")
 
@@ -109,17 +106,19 @@ def main(argv=None) -> dict:
     for n in args.fit:
         from calibration.loop.base import LensBase
 
-        t0 = time.perf_counter()
-        base = LensBase(nominal, obs[0], n_params=n)
-        fit = fit_proxy(nominal, obs[0], names=list(base.names), residuals="sfra", progress=False,
-                        jacobian_settings=FAST_JACOBIAN)
+        def fit_one(n=n):
+            base = LensBase(nominal, obs[0], n_params=n)
+            with pool_executor(None) as ex:
+                return fit_proxy(nominal, obs[0], ProxyFitSettings(residuals="sfra", jacobian_model=FAST_JACOBIAN),
+                                 names=list(base.names), executor=ex)
+
+        fit, seconds = _harness.timed(fit_one)
         rec = {"n_params": n, "sfra_rms": fit.errors()["after"]["sfra_rms"],
-               "restart_kept": any(t.get("kept") for t in fit.restarts), "seconds": round(time.perf_counter() - t0, 1)}
+               "restart_kept": any(t.get("kept") for t in fit.restarts), "seconds": round(seconds, 1)}
         out["fits"].append(rec)
         log(f"fit_proxy over the loop base's {n}: SFRA RMS {rec['sfra_rms']:.4f}, restart kept "
             f"{rec['restart_kept']}, {rec['seconds']} s")
-    print(json.dumps(out))
-    return out
+    return _harness.publish("capture_roundtrip", out, args, argv)
 
 
 if __name__ == "__main__":

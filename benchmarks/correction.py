@@ -1,19 +1,19 @@
-"""FP32 vs INT8 correction on a 12 MP frame, 2 threads (issue 7, deliverable 4).
+"""FP32 vs INT8 correction on a 12 MP frame, 2 threads.
 
 Runs the ``correction`` stage (onnxruntime, its tiling, two intra-op
 threads, sequential) with an exported model and its INT8 copy on a
 4000 × 3000 camera-RGB frame: one cold run (memory: the process's peak
 resident set over the run, ``VmHWM`` reset through ``/proc/self/clear_refs``
-where allowed), then ``--runs`` warm runs whose median is reported. The
-peer in the same run is the FP32 model itself: ``speedup`` = FP32 / INT8.
+where allowed), then ``--runs`` warm runs whose median is reported, with
+the fastest and slowest (``min_s``, ``max_s``). The peer in the same run
+is the FP32 model itself: ``speedup`` = FP32 / INT8.
 
 **Each model at its own best tile size.** The tile size moves the two
 models in opposite directions: FP32's activations are 4× larger and fall
 out of cache first, so FP32 is fastest on 448–640 px tiles and INT8 on
-1,024–1,536 px (the README's speed table). Timing both at the INT8
-model's tile had flattered INT8 by a third (the model before the
-high-pass: 1.85× against 1.40×).
-So every model is timed at each of ``--tile-sizes`` (default
+1,024–1,536 px (the speed table of the results pages). Timing both at
+the INT8 model's tile flatters INT8 (by a third on a depthwise model:
+1.85× against 1.40×). So every model is timed at each of ``--tile-sizes`` (default
 :data:`SWEEP`, plus the model's own ``tile_size``) and ``fp32_s``,
 ``int8_s`` and ``speedup`` are each model's best; ``speedup_same_tile``
 is the ratio at the INT8 model's own tile, and ``sweep`` holds every
@@ -35,6 +35,7 @@ temporary folder.
 Run::
 
     python -m benchmarks.correction                       # the packaged model and its FP32 twin
+    python -m benchmarks.correction --size 1000x750 --runs 1 --tile-size 512   # a quick look
     python -m benchmarks.correction --fp32 out/e9_default/e9.onnx --int8 out/e9_default/e9.int8.onnx
 
 Last line: a JSON object with ``fp32_s``, ``int8_s``, ``speedup`` (each
@@ -45,12 +46,11 @@ at its best tile: ``tile_fp32``, ``tile_int8``), ``speedup_same_tile``,
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(var, "1")
+if __name__ == "__main__":   # before numpy: ONNX Runtime's own threads do the work, BLAS one
+    _harness.pin_threads(2, blas=1)
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import statistics  # noqa: E402
 import tempfile  # noqa: E402
@@ -97,15 +97,17 @@ def _summary(tiling: tuple, frame, cold: dict, warm: list[dict]) -> dict:
     from modules.common.tiling import plan_tiles
 
     secs = [r["seconds"] for r in warm]
+    run = _harness.spread(secs)
     model = statistics.median(r["model_seconds"] for r in warm)
     tiles = plan_tiles(frame.data.shape[:2], *tiling)
     computed = sum(t.window_shape[0] * t.window_shape[1] for t in tiles)  # overlap included
-    return {"median_s": round(statistics.median(secs), 3), "runs_s": secs, "cold_s": cold["seconds"],
+    return {"median_s": round(run.median, 3), "min_s": round(run.min, 3), "max_s": round(run.max, 3),
+            "runs_s": secs, "cold_s": cold["seconds"],
             "peak_rss_delta_mib": cold["peak_rss_delta_mib"], "tiles": tiling,
             # inside the model, per megapixel it computed (the network's own rate), and outside it
             "model_s": round(model, 3), "model_ms_per_computed_mp": round(1e9 * model / computed, 1),
             "computed_over_frame": round(computed / frame.data.shape[0] / frame.data.shape[1], 3),
-            "outside_model_s": round(statistics.median(secs) - model, 3)}
+            "outside_model_s": round(run.median - model, 3)}
 
 
 def sweep_models(paths: dict, frame, threads: int, runs: int, sizes: list[int], log=print) -> dict:
@@ -185,8 +187,7 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap = _harness.parser(__doc__)
     ap.add_argument("--fp32", help="exported FP32 model (.onnx)")
     ap.add_argument("--int8", help="its INT8 copy (.onnx); alone: the FP32 peer is its dequantized twin "
                     "(default: the packaged model)")
@@ -202,6 +203,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--profile", action="store_true",
                     help="also the share of each operator type in the model's time, on one 1,072² window")
     args = ap.parse_args(argv)
+    _harness.pin_threads(args.threads, blas=1)
     w, h = (int(v) for v in args.size.lower().split("x"))
 
     import onnx
@@ -252,6 +254,8 @@ def main(argv=None) -> dict:
               "speedup": round(r32["median_s"] / r8["median_s"], 3), "tile_fp32": t32, "tile_int8": t8,
               "speedup_same_tile": round(same["fp32"]["median_s"] / same["int8"]["median_s"], 3),
               "sweep": {str(t): {"fp32_s": v["fp32"]["median_s"], "int8_s": v["int8"]["median_s"],
+                                 "fp32_range_s": [v["fp32"]["min_s"], v["fp32"]["max_s"]],
+                                 "int8_range_s": [v["int8"]["min_s"], v["int8"]["max_s"]],
                                  "peak_rss_mb": _peak_mb(v["fp32"], v["int8"])} for t, v in sweep.items()},
               "ms_per_mp_fp32": round(1000 * r32["median_s"] / mp, 1),
               "ms_per_mp_int8": round(1000 * r8["median_s"] / mp, 1),
@@ -274,8 +278,7 @@ def main(argv=None) -> dict:
             print(f"  {name} operators on one 1,072² window ({p['ms']} ms): {top}")
             nodes = ", ".join(f"{k} {v} %" for k, v in list(p["top_nodes"].items())[:4])
             print(f"    slowest nodes: {nodes}")
-    print(json.dumps(result))
-    return result
+    return _harness.publish("correction", result, args, argv)
 
 
 if __name__ == "__main__":

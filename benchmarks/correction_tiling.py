@@ -8,9 +8,9 @@ shipped model: it measures what the *stage* adds (the output frame, one
 tile, the field channels, ORT's arena for one tile) and the tiling
 overhead (pixels computed twice in the margins, gathering and stitching).
 
-Two runs: the first (cold: ORT's arena and the output's pages fresh) for
-memory, the second (warm, as inside a pipeline whose earlier stages have
-warmed the allocator) for time. Times: wall seconds in all, wall seconds
+A cold run (ORT's arena and the output's pages fresh) for memory, then
+``--runs`` warm runs (as inside a pipeline whose earlier stages have
+warmed the allocator) for time: their median, fastest and slowest. Times: wall seconds in all, wall seconds
 inside the model's runs, and the CPU seconds of the stage's thread outside
 them (gathering tiles, field channels, stitching: the tiling's own cost,
 which a loaded machine does not inflate).
@@ -30,14 +30,17 @@ Last line: a JSON object.
 
 from __future__ import annotations
 
-import argparse
-import json
-import tempfile
-import time
-import tracemalloc
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
+if __name__ == "__main__":   # before numpy: ONNX Runtime's own threads do the work, BLAS one
+    _harness.pin_threads(2, blas=1)
+
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 
 def tiny_model(path: Path, *, width: int = 16, tile: int = 512, overlap: int | None = None,
@@ -128,13 +131,15 @@ def _measure(stage, frame, memory: bool = False) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = _harness.parser(__doc__)
     ap.add_argument("--size", default="4000x3000", help="W×H of the frame (default 4000x3000, 12 MP)")
     ap.add_argument("--tile", type=int, default=512, help="tile side incl. margins (0: whole frame)")
     ap.add_argument("--overlap", type=int, default=None, help="margin per side (default: the model's radius)")
     ap.add_argument("--width", type=int, default=16, help="channels of the stand-in model")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--runs", type=int, default=3, help="warm runs timed (median; default 3)")
     args = ap.parse_args(argv)
+    _harness.pin_threads(args.threads, blas=1)
     w, h = (int(v) for v in args.size.lower().split("x"))
 
     from isp import CFA, CameraMeta, Domain, Frame
@@ -153,25 +158,32 @@ def main(argv=None) -> dict:
 
         cold = _measure(stage, frame, memory=True)  # first run: ORT arena and output pages fresh
         del cold["out"]
-        warm = _measure(stage, frame)  # as inside a pipeline, whose earlier stages warmed the allocator
+        warm = []
+        for _ in range(args.runs):   # as inside a pipeline, whose earlier stages warmed the allocator
+            warm.append(_measure(stage, frame))
+            out_mib = round(warm[-1].pop("out").nbytes / 2 ** 20, 1)
+
+        def spread(key):
+            return _harness.spread(r[key] for r in warm).as_dict(3)
+
         result = {
             "size": f"{w}x{h}", "megapixels": round(w * h / 1e6, 2), "tile": tile, "overlap": margin,
             "multiple": mult, "tiles": len(tiles), "computed_over_frame": round(computed / (w * h), 3),
             "threads": args.threads, "width": args.width,
-            "seconds": warm["seconds"], "model_seconds": warm["model_seconds"],
-            "tiling_cpu_seconds": warm["tiling_cpu_seconds"],
+            "runs": args.runs, "seconds": spread("seconds"), "model_seconds": spread("model_seconds"),
+            "tiling_cpu_seconds": spread("tiling_cpu_seconds"),
             "cold_seconds": cold["seconds"], "cold_tiling_cpu_seconds": cold["tiling_cpu_seconds"],
             "peak_rss_delta_mib": cold["peak_rss_delta_mib"], "peak_reset": cold["peak_reset"],
             "tracemalloc_peak_mib": cold["tracemalloc_peak_mib"],
-            "output_frame_mib": round(warm["out"].nbytes / 2 ** 20, 1),
+            "output_frame_mib": out_mib,
         }
     r = result
     print(f"{r['tiles']} tiles of {tile} px (overlap {margin}); {r['computed_over_frame']}× the frame's "
-          f"pixels computed; {r['seconds']:.2f} s ({r['model_seconds']:.2f} s in the model, tiling "
-          f"{r['tiling_cpu_seconds']:.2f} s CPU; first run {r['cold_seconds']:.2f} s); peak RSS "
-          f"+{r['peak_rss_delta_mib']} MiB (output frame {r['output_frame_mib']} MiB)")
-    print(json.dumps(result))
-    return result
+          f"pixels computed; {r['seconds']['median']:.2f} s, median of {args.runs} "
+          f"({r['model_seconds']['median']:.2f} s in the model, tiling {r['tiling_cpu_seconds']['median']:.2f} s "
+          f"CPU; first run {r['cold_seconds']:.2f} s); peak RSS +{r['peak_rss_delta_mib']} MiB "
+          f"(output frame {r['output_frame_mib']} MiB)")
+    return _harness.publish("correction_tiling", result, args, argv)
 
 
 if __name__ == "__main__":

@@ -3,9 +3,10 @@
 For each variant: export (opset 17, dynamic H/W, TorchScript exporter),
 optionally a static INT8 QDQ copy (per-channel int8 weights, uint8
 activations, calibrated on random inputs — enough for timing, not for
-quality), then time all sessions *interleaved* on a 512 × 512 input and keep
-each one's best of ``--rounds`` (a shared machine's load moves every number;
-interleaving keeps the ratios honest). Also times one dense 3×3 conv 64→64
+quality), then time all sessions *interleaved* on a 512 × 512 input: one
+warm-up round, then the median of ``--rounds`` (with the fastest and
+slowest; a shared machine's load moves every number, interleaving keeps the
+ratios honest). Also times one dense 3×3 conv 64→64
 as a yardstick of what the machine sustains. Reports ms per megapixel
 (one 512² run × 1/0.262144) and the MAC rate achieved.
 
@@ -17,22 +18,27 @@ Run::
 
 A variant is ``name`` or ``name:{json overrides}``. This is a design aid for
 the network; the shipped model's export and benchmark belong to ``export/``.
+Last line: a JSON object, ``{"ms": {label: {median, min, max, n}},
+"int8_speedup": {variant: FP32 / INT8 of the medians}}``.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import tempfile
-import time
-import warnings
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
-import torch
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
 
-from restoration.nn.macs import macs_per_pixel
-from restoration.nn.network import build_model
+import json  # noqa: E402
+import tempfile  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from restoration.nn.macs import macs_per_pixel  # noqa: E402
+from restoration.nn.network import build_model  # noqa: E402
 
 SIZE = 512
 
@@ -112,15 +118,16 @@ def yardsticks(args, tmp: Path, rng) -> list:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = _harness.parser(__doc__)
     ap.add_argument("variants", nargs="*")
     ap.add_argument("--yardsticks", action="store_true",
                     help="also time single conv layers (dense 3×3, 1×1, depthwise) in FP32 and INT8: "
                          "what INT8 can buy on this CPU at best")
     ap.add_argument("--no-int8", action="store_true")
-    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--rounds", type=int, default=5, help="timed rounds (median; default 5)")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args(argv)
+    _harness.pin_threads(args.threads)
     tmp = Path(tempfile.mkdtemp())
     runs = []  # (label, session, input, MACs per run)
     ref = torch.nn.Conv2d(64, 64, 3, padding=1)
@@ -145,23 +152,21 @@ def main(argv=None):
             runs.append((f"{spec} INT8", session(q8, args.threads), x, macs))
     if args.yardsticks:
         runs += yardsticks(args, tmp, rng)
-    best = [float("inf")] * len(runs)
-    for rnd in range(args.rounds + 1):  # round 0 warms up
-        for i, (_label, sess, x, _macs) in enumerate(runs):
-            t = time.perf_counter()
-            sess.run(None, {sess.get_inputs()[0].name: x})
-            if rnd:
-                best[i] = min(best[i], time.perf_counter() - t)
+    times = _harness.interleaved({label: (lambda sess=sess, x=x: sess.run(None, {sess.get_inputs()[0].name: x}))
+                                  for label, sess, x, _macs in runs}, runs=args.rounds, warmup=1, log=False)
+    med = [times[label].median for label, *_ in runs]
     mp = SIZE * SIZE / 1e6
-    for (label, _, _, macs), t in zip(runs, best):
+    for (label, _, _, macs), t in zip(runs, med):
         per_mp = t * 1e3 / mp if "yardstick" not in label else float("nan")
         print(f"{label:56s} {t * 1e3:7.1f} ms  {per_mp:6.0f} ms/MP  {macs / t / 1e9:6.1f} GMAC/s", flush=True)
-    ratios = {runs[i][0][:-5]: round(best[i] / best[i + 1], 2) for i in range(len(runs) - 1)
+    ratios = {runs[i][0][:-5]: round(med[i] / med[i + 1], 2) for i in range(len(runs) - 1)
               if runs[i][0].endswith(" FP32") and runs[i + 1][0].endswith(" INT8")}
     for label, r in ratios.items():
         print(f"INT8 speed-up, {label}: {r:.2f}×")
-    print(json.dumps({"ms": {label: round(t * 1e3, 2) for (label, *_), t in zip(runs, best)},
-                      "int8_speedup": ratios}))
+    result = {"size": SIZE, "rounds": args.rounds, "threads": args.threads,
+              "ms": {label: times[label].map(lambda t: 1e3 * t).as_dict(2) for label, *_ in runs},
+              "int8_speedup": ratios}
+    return _harness.publish("doconv_speed", result, args, argv)
 
 
 if __name__ == "__main__":

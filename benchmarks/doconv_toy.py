@@ -19,27 +19,31 @@ Run::
     python -m benchmarks.doconv_toy --variants doconv static 'doconv:{"scale": 4, "widths": [64, 128]}'
 
 Prints one line per variant (PSNR, MACs/px, parameters, training time) and,
-for the first variant, the tile error against the full frame by overlap.
+for the first variant, the tile error against the full frame by overlap;
+then one JSON object as its last line with the same figures.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import math
-import time
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
-import torch
-import torch.nn.functional as F
-from PIL import Image
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(1)
 
-from restoration.nn.doconv import set_spatial, set_temperature, temperature_schedule
-from restoration.nn.macs import macs_per_pixel, n_parameters
-from restoration.nn.network import build_model, forward_padded
+import json  # noqa: E402
+import math  # noqa: E402
+import time  # noqa: E402
 
-KODAK = Path(__file__).resolve().parents[2] / "shared" / "data" / "latent" / "Kodak24"
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import torch.nn.functional as F  # noqa: E402
+from PIL import Image  # noqa: E402
+
+from restoration.nn.doconv import set_spatial, set_temperature, temperature_schedule  # noqa: E402
+from restoration.nn.macs import macs_per_pixel, n_parameters  # noqa: E402
+from restoration.nn.network import build_model, forward_padded  # noqa: E402
+
+KODAK = _harness.ROOT.parent / "shared" / "data" / "latent" / "Kodak24"
 GRID, KSIZE = 10, 21
 CHANNEL_SCALE = (1.15, 1.0, 0.9)
 
@@ -167,7 +171,7 @@ def tile_error(model, x: torch.Tensor, tile: int, overlap: int) -> float:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = _harness.parser(__doc__)
     ap.add_argument("--variants", nargs="+",
                     default=["doconv", "doconv_spatial_tap", "static", "equal_dilation", "no_field",
                              "doconv_global"])
@@ -178,24 +182,32 @@ def main(argv=None):
     ap.add_argument("--devices", type=int, default=2, help="degraded versions per latent image")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
-    torch.set_num_threads(args.threads)
+    _harness.pin_threads(args.threads)
     train, test = load(args.devices)
     base = float(np.mean([10 * math.log10(1 / F.mse_loss(x[:3], y).item()) for x, y in test]))
     print(f"{len(train)} training frames, {len(test)} test frames; input PSNR {base:.2f} dB (linear RGB)")
     print(f"{'variant':24s} {'PSNR dB':>8s} {'kMAC/px':>8s} {'params':>8s} {'train s':>8s}")
+    rows, tiles = [], {}
     for k, v in enumerate(args.variants):
         model, secs = train_one(v, train, test, args.steps, args.batch, args.crop, args.lr)
         macs = macs_per_pixel(model) / 1e3
-        print(f"{v:24s} {psnr(model, test):8.2f} {macs:8.1f} {n_parameters(model):8d} {secs:8.0f}", flush=True)
+        row = {"variant": v, "psnr_db": round(psnr(model, test), 3), "kmac_per_pixel": round(macs, 2),
+               "parameters": n_parameters(model), "train_s": round(secs, 1)}
+        print(f"{v:24s} {row['psnr_db']:8.2f} {macs:8.1f} {row['parameters']:8d} {secs:8.0f}", flush=True)
         if model.config["spatial"] == "tap":
             set_spatial(model, "frozen")
-            print(f"{v + ' → frozen':24s} {psnr(model, test):8.2f} {macs:8.1f}", flush=True)
+            row["psnr_frozen_db"] = round(psnr(model, test), 3)
+            print(f"{v + ' → frozen':24s} {row['psnr_frozen_db']:8.2f} {macs:8.1f}", flush=True)
             set_spatial(model, "tap")
+        rows.append(row)
         if k == 0:
             x = test[0][0][:model.in_channels]
             for ov in (0, 16, 32, 64, 128):
-                print(f"    tiles 128 px, overlap {ov:3d}: max |tiled − full| = "
-                      f"{tile_error(model, x, 128, ov):.2e}", flush=True)
+                tiles[str(ov)] = tile_error(model, x, 128, ov)
+                print(f"    tiles 128 px, overlap {ov:3d}: max |tiled − full| = {tiles[str(ov)]:.2e}", flush=True)
+    result = {"train_frames": len(train), "test_frames": len(test), "steps": args.steps, "input_psnr_db": round(base, 3),
+              "variants": rows, "tile_error_128px_by_overlap": {"variant": args.variants[0], **tiles}}
+    return _harness.publish("doconv_toy", result, args, argv)
 
 
 if __name__ == "__main__":

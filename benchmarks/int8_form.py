@@ -9,7 +9,8 @@ the one-hot copies left in). Calibration uses the export's sample frames
 quality. Then, with the stage's session options on 2 threads:
 
 * the wall time of one window per file, all files interleaved run by run,
-  the median of ``--runs``: INT8 on a 1,072² window (a 1,024-px tile with
+  the median of ``--runs`` with the fastest and slowest run
+  (``window_ms``): INT8 on a 1,072² window (a 1,024-px tile with
   its context), float on a 704² one (its fast tile size);
 * ONNX Runtime's profiler on the two INT8 files (1,072²): the time of
   every ``QLinearMul`` together, of the ones fed by the kernel attention
@@ -25,14 +26,15 @@ Last line: a JSON object.
 
 from __future__ import annotations
 
-import argparse
-import json
-import statistics
-import tempfile
-import time
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
+if __name__ == "__main__":   # before numpy: ONNX Runtime's own threads do the work, BLAS one
+    _harness.pin_threads(2, blas=1)
+
+import tempfile  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 
 def sample_reader(n: int = 8, size: int = 128):
@@ -59,19 +61,13 @@ def _feed(path: Path, side: int) -> tuple[object, dict]:
     return sess, {info.input_name: pack_input(x, info.packing)}
 
 
-def window_times(files: dict[str, tuple[Path, int]], runs: int) -> dict[str, float]:
-    """Median wall ms of one window per file (name → (path, side)), the
-    files interleaved run by run so that the machine's drift falls on all."""
+def window_times(files: dict[str, tuple[Path, int]], runs: int) -> dict[str, _harness.Spread]:
+    """Wall ms of one window per file (name → (path, side)), the files
+    interleaved run by run so that the machine's drift falls on all."""
     loaded = {k: _feed(p, side) for k, (p, side) in files.items()}
-    for sess, feed in loaded.values():
-        sess.run(None, feed)
-    times = {k: [] for k in files}
-    for _ in range(runs):
-        for k, (sess, feed) in loaded.items():
-            t = time.perf_counter()
-            sess.run(None, feed)
-            times[k].append(1e3 * (time.perf_counter() - t))
-    return {k: round(statistics.median(v), 1) for k, v in times.items()}
+    times = _harness.interleaved({k: (lambda sess=sess, feed=feed: sess.run(None, feed))
+                                  for k, (sess, feed) in loaded.items()}, runs=runs, warmup=1, log=False)
+    return {k: t.map(lambda s: 1e3 * s) for k, t in times.items()}
 
 
 def node_groups(path: Path, side: int = 1072) -> dict[str, float]:
@@ -90,7 +86,7 @@ def node_groups(path: Path, side: int = 1072) -> dict[str, float]:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = _harness.parser(__doc__)
     ap.add_argument("--int8", help="an INT8 file (default: the packaged model)")
     ap.add_argument("--runs", type=int, default=15, help="timed runs per file (median; default 15)")
     args = ap.parse_args(argv)
@@ -111,11 +107,13 @@ def main(argv=None) -> dict:
         onnx.save(spread, str(d / "float_int8_form.onnx"))
         for name, forms in (("int8.onnx", True), ("int8_plain.onnx", False)):
             quantize_int8(d / "float.onnx", d / name, sample_reader(), graph_forms=forms)
-        times = window_times({"int8_forms": (d / "int8.onnx", 1072), "int8_plain": (d / "int8_plain.onnx", 1072),
+        timing = window_times({"int8_forms": (d / "int8.onnx", 1072), "int8_plain": (d / "int8_plain.onnx", 1072),
                               "float": (d / "float.onnx", 704), "float_int8_form": (d / "float_int8_form.onnx", 704)},
                              args.runs)
         groups = {"int8_forms": node_groups(d / "int8.onnx"), "int8_plain": node_groups(d / "int8_plain.onnx")}
-    result = {"model": str(src), "runs": args.runs, "window_ms": times, "profile_1072": groups,
+    times = {k: round(t.median, 1) for k, t in timing.items()}
+    result = {"model": str(src), "runs": args.runs, "window_ms": {k: t.as_dict(1) for k, t in timing.items()},
+              "profile_1072": groups,
               "int8_gain": round(1 - times["int8_forms"] / times["int8_plain"], 3),
               "float_cost_of_int8_form": round(times["float_int8_form"] / times["float"] - 1, 3)}
     p, f = groups["int8_plain"], groups["int8_forms"]
@@ -126,8 +124,7 @@ def main(argv=None) -> dict:
           f"channels, {f['field_conv_ms']} ms on 4 (profiler)")
     print(f"float, 704² window: {times['float']} ms in its own form, {times['float_int8_form']} ms in INT8's "
           f"({100 * result['float_cost_of_int8_form']:+.1f} %)")
-    print(json.dumps(result))
-    return result
+    return _harness.publish("int8_form", result, args, argv)
 
 
 if __name__ == "__main__":

@@ -29,54 +29,34 @@ e.g. from the code before an optimisation): RMS and largest absolute
 difference of SFRA, and largest of SFR, over the 600 observations
 (cycles/pixel, resp. SFR units).
 
-Measured on a 2-core AMD EPYC shared with another job (load 2–3.4),
-OMP/OPENBLAS threads 1: CPU s per call, median of 3 calls, in three runs
-each (lowest / middle / highest); "before" is the code of the commit this
-script was written against, run from an export of it:
-
-===============================  ==================  ==================
-call                             before              after
-===============================  ==================  ==================
-predict, default (48 samples)    4.1 / 4.6 / 5.6     2.3 / 2.4 / 2.7
-predict, fast (32 samples)       2.1 / 2.3 / 2.5     1.0 / 1.2 / 1.3
-node_psfs with defocus (48)      1.7 / 2.0 / 2.6     0.40 / 0.44 / 0.50
-model set-up, both models        8.5 / 8.8 / 11.9    4.5 / 5.4 / 5.5
-===============================  ==================  ==================
-
-(set-up includes importing colour, ~3 s). In one more run the other
-core happened to be free: the tracer's two threads then ran in parallel,
-2.0 s wall for predict but 2.9 s CPU (1.3 fast), the price of two threads
-sharing caches; with the cores busy (a fit's worker processes) CPU ≈ wall.
-Accuracy of "after" against
-"before" on the same lenses: SFRA 4e-9 cycles/pixel RMS, 2e-8 max, SFR
-7e-8 max (the complex64 Debye sums, :data:`calibration.optics.psf.core.DEBYE_SUM_DTYPE`;
-with complex128 sums 1e-11 RMS, the tracer's Newton tolerance).
+Each timing is the median of the ``--repeats`` calls with the fastest and
+slowest (``{"median", "min", "max", "n"}``). A call on a machine whose
+other core is free runs the tracer's two threads in parallel: less wall
+time than CPU time (two threads sharing caches); with the cores busy (a
+fit's worker processes) CPU ≈ wall. Model set-up includes importing
+colour (~3 s).
 
 Prints a line per timing and one JSON object as the LAST line. Usage::
 
-    python benchmarks/lens_eval.py [--repeats 3] [--save-reference F.npz] [--reference F.npz]
+    python -m benchmarks.lens_eval [--repeats 3] [--save-reference F.npz] [--reference F.npz]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(var, "1")
+if __name__ == "__main__":   # one BLAS thread, as in a fit's worker processes; before numpy loads
+    _harness.pin_threads(2, blas=1)
 
-import argparse  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+ROOT = _harness.ROOT
 
-from calibration.optics.io.lens_json import read_lens  # noqa: E402
+from calibration.optics.io import read_lens  # noqa: E402
 from calibration.fit.proxy import COARSE_GRID, coarse_subset, default_names, parameter_space  # noqa: E402
 from calibration.fit.observations import FREQ, Observations  # noqa: E402
 from calibration.fit.synthetic_devices import edge_sites  # noqa: E402
@@ -127,9 +107,8 @@ def timed(fn):
 
 
 def summary(cpu, wall) -> dict:
-    """Median (and fastest) CPU and wall seconds of the timed calls."""
-    return {"cpu_s": round(float(np.median(cpu)), 3), "wall_s": round(float(np.median(wall)), 3),
-            "cpu_min_s": round(float(np.min(cpu)), 3)}
+    """CPU and wall seconds of the timed calls: median, fastest, slowest."""
+    return {"cpu_s": _harness.spread(cpu).as_dict(3), "wall_s": _harness.spread(wall).as_dict(3)}
 
 
 def run_predict(model, space, seed, offset, repeats, log):
@@ -171,7 +150,7 @@ def sfr_diff(model, a, b) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = _harness.parser(__doc__)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--save-reference", metavar="NPZ", help="save the timed lenses' SFRs and PSFs")
@@ -241,13 +220,12 @@ def main(argv=None) -> dict:
         }
     for k in ("predict_default", "predict_fast", "node_psfs_defocus", "predict_default_coarse",
               "predict_fast_coarse"):
-        print(f"{k:<20} {out[k]['cpu_s']:7.2f} s CPU (fastest {out[k]['cpu_min_s']:.2f}) "
-              f"{out[k]['wall_s']:7.2f} s wall")
+        c, w = out[k]["cpu_s"], out[k]["wall_s"]
+        print(f"{k:<22} {c['median']:7.2f} s CPU ({c['min']:.2f}–{c['max']:.2f}) {w['median']:7.2f} s wall")
     if "accuracy_vs_reference" in out:
         for k, v in out["accuracy_vs_reference"].items():
             print(f"accuracy {k}: {v}")
-    print(json.dumps(out))
-    return out
+    return _harness.publish("lens_eval", out, args, argv)
 
 
 if __name__ == "__main__":

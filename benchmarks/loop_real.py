@@ -7,7 +7,7 @@ pixel aperture, pixel pitch assumed 1 µm so only λN/pitch means anything)
 and the whole effect registry is tried, exactly as
 ``isp calib loop --lens parametric --measured FILE`` does (same loaders,
 same loop). Single-edge ROI files are split along the edge into segments
-(:mod:`calibration.cli.loop`).
+(:func:`calibration.fit.measurements.load_measured`).
 
 Encoding: JPEG and BMP files are camera output and measured as sRGB; the
 8-bit TIFF ROIs as linear codes, as the reference SFR tools measured them
@@ -25,26 +25,33 @@ Skipped, and why:
 
 Prints a Markdown table, writes ``docs/loop_real_edges.png`` (measured SFR
 against the base model before and the model with the kept effects after),
-then one JSON object as its last line.
-Usage: python benchmarks/loop_real.py [--no-plot]
+then one JSON object as its last line. Usage::
+
+    python -m benchmarks.loop_real [--no-plot]
 """
 
 from __future__ import annotations
 
-import json
-import sys
-import time
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
 
-ROOT = Path(__file__).resolve().parents[1]
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = _harness.ROOT
 DATA = ROOT.parent / "shared" / "data" / "edges"
 FIGURE = ROOT / "docs" / "loop_real_edges.png"
-sys.path.insert(0, str(ROOT))
 
 from calibration.loop.closure import close_loop  # noqa: E402
-from calibration.cli.loop import load_measured, make_base, model_sfr  # noqa: E402
+from calibration.fit.measurements import load_measured  # noqa: E402
+from calibration.loop.base import make_base  # noqa: E402
+from calibration.loop.closure import model_sfr  # noqa: E402
+from isp.runtime.executor import pool_executor  # noqa: E402
 
 # file, encoding, shortest chart edge (px)
 FILES = (
@@ -72,7 +79,8 @@ def run(name: str, encoding: str, min_edge: float) -> dict:
     obs, notes = load_measured(str(DATA / name), encoding=encoding, min_edge=min_edge)
     regions = len({tuple(r) for r in obs.region})
     base = make_base("parametric", obs)
-    rep = close_loop(base, obs, folds=max(2, min(3, regions)), progress=False)
+    with pool_executor(None) as ex:   # up to 2 worker processes, no progress bar
+        rep = close_loop(base, obs, folds=max(2, min(3, regions)), executor=ex)
     seconds = time.perf_counter() - t0
     xb0 = rep.base_x_before
     return {
@@ -178,10 +186,12 @@ def figure(rows: list[dict], path: Path) -> Path:
     return write_bytes_atomic(path, buf.getvalue())
 
 
-def main() -> None:
+def main(argv=None) -> dict:
+    ap = _harness.parser(__doc__)
+    ap.add_argument("--no-plot", action="store_true", help=f"do not write {FIGURE.relative_to(ROOT)}")
+    args = ap.parse_args(argv)
     if not DATA.exists():
-        print(json.dumps({"error": f"{DATA} not found"}))
-        return
+        raise SystemExit(f"loop_real: {DATA} not found (the shared data folder is needed)")
     t0 = time.perf_counter()
     rows = []
     for name, enc, min_edge in FILES:
@@ -197,11 +207,12 @@ def main() -> None:
         if len(d) == 2 and abs(d["vertical"] - d["horizontal"]) > 2 * r["noise_floor"]:
             print(f"{r['file']}: vertical vs horizontal edges left at {d['vertical']:+.4f} / "
                   f"{d['horizontal']:+.4f} cy/px SFRA")
-    if "--no-plot" not in sys.argv:
+    if not args.no_plot:
         print(f"wrote {figure(rows, FIGURE)}")
     total = time.perf_counter() - t0
-    print(json.dumps({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],
-                      "skipped": SKIPPED, "seconds": round(total, 1)}))
+    result = {"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows],
+              "skipped": SKIPPED, "seconds": round(total, 1)}
+    return _harness.publish("loop_real", result, args, argv)
 
 
 if __name__ == "__main__":

@@ -10,46 +10,46 @@ LibRaw: ``rawpy.imread`` + ``postprocess`` with camera white balance, 8-bit
 output, AHD (its default) and LINEAR demosaic.
 
 Prints progress, then one JSON object as its last line:
-``ours_s, ours_no_jpeg_s, rawpy_ahd_s, rawpy_linear_s, ratio_vs_ahd,
-ratio_vs_linear, peak_rss_mb`` (peak RSS of our pipeline alone, measured in
-a fresh child process), ``runs``, ``file``, ``threads``.
+``ours_s, ours_no_jpeg_s, rawpy_ahd_s, rawpy_linear_s`` (each ``{median,
+min, max, n}``), ``ratio_vs_ahd, ratio_vs_linear`` (of the medians),
+``peak_rss_mb`` (peak RSS of our pipeline alone, measured in a fresh child
+process), ``runs``, ``file``, ``threads``.
 
-Usage: python benchmarks/pipeline.py [--runs 5] [--file X.dng]
+The runs of the four take turns (ours, ours without JPEG, AHD, LINEAR,
+then again), so that the machine's drift falls on all alike: one warm-up
+of each, then the median of ``--runs`` (with the fastest and slowest run).
+
+Usage: python -m benchmarks.pipeline [--runs 5] [--file X.dng] [--threads 2]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-THREADS = "2"
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ[var] = THREADS
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
 
-import argparse  # noqa: E402
-import json  # noqa: E402
 import resource  # noqa: E402
-import statistics  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = _harness.ROOT
 DEFAULT_FILE = ROOT.parent / "shared" / "data" / "raw" / "SYNTHETIC_phone_S6meta_5328x3000.dng"
 
 
-def _setup_threads():
-    """2 threads everywhere, and the allocator setting `isp` itself uses."""
-    import cv2
+def _setup_threads(threads: int = 2):
+    """``threads`` threads everywhere, and the allocator setting `isp` itself uses."""
+    import cv2  # noqa: F401  (loaded, so that the pinning reaches its pool)
 
     from isp.runtime.threads import tune_allocator
 
-    cv2.setNumThreads(int(THREADS))
+    _harness.pin_threads(threads)
     tune_allocator()
 
 
-def run_ours(path: str, jpeg: bool = True) -> float:
+def run_ours(path: str, jpeg: bool = True) -> None:
     from isp import Pipeline
     from isp.io.read import read_raw
 
@@ -58,32 +58,22 @@ def run_ours(path: str, jpeg: bool = True) -> float:
     pipeline = Pipeline.default(correction={"model": "none"})
     if not jpeg:
         pipeline = pipeline.without("jpeg")
-    t0 = time.perf_counter()
-    out = pipeline.run(read_raw(path))
-    dt = time.perf_counter() - t0
-    assert out.data.size > 0
-    return dt
+    pipeline.run(read_raw(path))
 
 
-def run_rawpy(path: str, algorithm: str) -> float:
+def run_rawpy(path: str, algorithm: str) -> None:
     import rawpy
 
-    t0 = time.perf_counter()
     with rawpy.imread(path) as r:
-        rgb = r.postprocess(demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, algorithm),
-                            use_camera_wb=True, output_bps=8)
-    dt = time.perf_counter() - t0
-    assert rgb.size > 0
-    return dt
+        r.postprocess(demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, algorithm),
+                      use_camera_wb=True, output_bps=8)
 
 
-def child_peak_rss(path: str) -> float:
+def child_peak_rss(path: str, threads: int) -> float:
     """Peak RSS (MB) of one `read + default pipeline` in a fresh process."""
-    code = (f"import sys; sys.path.insert(0, {str(ROOT)!r}); import benchmarks.pipeline as b; "
-            f"b._setup_threads(); b.run_ours({path!r}); import resource; "
-            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    code = (f"import benchmarks.pipeline as b; b._setup_threads({threads}); b.run_ours({path!r}); "
+            "import resource; print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
     return float(out.stdout.strip().splitlines()[-1])
 
 
@@ -96,12 +86,13 @@ def synthesize(path: Path) -> None:
     write_dng(path, dn, meta)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv=None) -> dict:
+    ap = _harness.parser(__doc__)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--file", default=str(DEFAULT_FILE))
-    args = ap.parse_args()
-    _setup_threads()
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    _setup_threads(args.threads)
     path = Path(args.file)
     tmp = None
     if not path.exists():
@@ -111,34 +102,31 @@ def main() -> None:
         synthesize(path)
     path = str(path)
 
-    run_ours(path)  # warm-up: imports, caches, page cache
-    run_rawpy(path, "AHD")
-    times = {"ours": [], "ours_no_jpeg": [], "ahd": [], "linear": []}
-    for i in range(args.runs):
-        times["ours"].append(run_ours(path))
-        times["ours_no_jpeg"].append(run_ours(path, jpeg=False))
-        times["ahd"].append(run_rawpy(path, "AHD"))
-        times["linear"].append(run_rawpy(path, "LINEAR"))
-        print(f"run {i + 1}/{args.runs}: " + ", ".join(f"{k} {v[-1]:.3f}s" for k, v in times.items()),
-              file=sys.stderr)
-    med = {k: statistics.median(v) for k, v in times.items()}
-    rss = child_peak_rss(path)
+    # warm-up (imports, caches, page cache), then the four in turn, run by run
+    t = _harness.interleaved({"ours": lambda: run_ours(path), "ours_no_jpeg": lambda: run_ours(path, jpeg=False),
+                              "ahd": lambda: run_rawpy(path, "AHD"), "linear": lambda: run_rawpy(path, "LINEAR")},
+                             runs=args.runs)
+    rss = child_peak_rss(path, args.threads)
     result = {
-        "ours_s": round(med["ours"], 4),
-        "ours_no_jpeg_s": round(med["ours_no_jpeg"], 4),
-        "rawpy_ahd_s": round(med["ahd"], 4),
-        "rawpy_linear_s": round(med["linear"], 4),
-        "ratio_vs_ahd": round(med["ours"] / med["ahd"], 3),
-        "ratio_vs_linear": round(med["ours"] / med["linear"], 3),
+        "ours_s": t["ours"].as_dict(4),
+        "ours_no_jpeg_s": t["ours_no_jpeg"].as_dict(4),
+        "rawpy_ahd_s": t["ahd"].as_dict(4),
+        "rawpy_linear_s": t["linear"].as_dict(4),
+        "ratio_vs_ahd": round(t["ours"].median / t["ahd"].median, 3),
+        "ratio_vs_linear": round(t["ours"].median / t["linear"].median, 3),
         "peak_rss_mb": round(rss, 1),
         "runs": args.runs,
-        "threads": int(THREADS),
+        "threads": args.threads,
         "file": Path(args.file).name,
+        "synthesised": tmp is not None,
         "self_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
     }
-    print(json.dumps(result))
     if tmp is not None:
         tmp.cleanup()
+    print(f"ours {t['ours']} s ({t['ours_no_jpeg']} s without JPEG); LibRaw AHD {t['ahd']} s, LINEAR "
+          f"{t['linear']} s; ours / AHD {result['ratio_vs_ahd']}, ours / LINEAR {result['ratio_vs_linear']}; "
+          f"peak RSS {result['peak_rss_mb']} MB")
+    return _harness.publish("pipeline", result, args, argv)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Where does the sRGB → sRGB placement win? Its gain over the in-pipeline
-model, split by the pairs' exposure and field radius (restoration issue,
-ablations; README, "Ablations").
+model, split by the pairs' exposure and field radius (the ablations of
+``benchmarks/ablations.py``).
 
 The training pairs are compressed by ``exposure_ev`` (0–2 EV, the paper's
 luminosity compression) that the luminance stage after the slot brings back
@@ -25,11 +25,14 @@ Last line: one JSON object, ``{"pairs", "by_exposure": [...], "by_radius":
 
 from __future__ import annotations
 
-import argparse
-import json
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
+
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 EV_BINS = ((0.0, 0.7), (0.7, 1.4), (1.4, 2.01))
 RADIUS_BINS = ((0.0, 0.35), (0.35, 0.7), (0.7, 1.5))
@@ -61,8 +64,7 @@ def pair_gains(synth, models: dict, step: int = 4, size: int = 256) -> np.ndarra
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap = _harness.parser(__doc__)
     ap.add_argument("--synth", default="out/synth/e9_lenses9",
                     help="pairs to score (default: the nine-camera set, whose lenses no entry trained on)")
     ap.add_argument("--ablations", default="out/ablations64", help="folder of the ablation entries")
@@ -74,7 +76,7 @@ def main(argv=None) -> dict:
 
     from restoration.nn.checkpoint import load_model
 
-    torch.set_num_threads(2)
+    _harness.pin_threads(2)
     models = {}
     for spec in args.models:
         name, placement = spec.split(":")
@@ -103,8 +105,7 @@ def main(argv=None) -> dict:
                   + ", ".join(f"{n} {r[f'gain_{n}']:+.3f} dB" for n in names)
                   + f"; {other} − {ref} {r[f'{other}_minus_{ref}']:+.3f} dB")
     print(f"correlation of the exposure with {other} − {ref}: {result['correlation']:+.3f}")
-    print(json.dumps(result))
-    return result
+    return _harness.publish("placement_by_exposure", result, args, argv)
 
 
 if __name__ == "__main__":

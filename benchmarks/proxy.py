@@ -8,9 +8,8 @@ For each phone lens (``../shared/data/lenses/phone/*.zmx``) and each of
   uniformly within ±1 tolerance (seeded); its PSF map
   (``psf_map(grid=GRID, channels=("G",), n=96, pupil_samples=64,
   n_wavelengths=3)``: a 48 µm window, which holds ≥ 98 % of every corner
-  PSF, ``benchmarks/psf_window.py``; until 2026-11-25 it was 24 µm, which
-  cut up to 13 % off and made the truth itself unreachable for the
-  model) is the device;
+  PSF, ``benchmarks/psf_window.py``; a 24 µm window cuts up to 13 % off
+  and makes the truth itself unreachable for the model) is the device;
 * **measurement**: :func:`calibration.fit.synthetic_devices.synthetic_observations`
   — a vertical and a horizontal 5° edge at every region centre, rendered
   exactly through the truth PSFs, noise σ = ``noise``·(1 + r²) (r the
@@ -91,6 +90,9 @@ radius is within ±0.1 of it; the nearest radius where none is):
   ``--workers`` processes; ``scipy`` and ``pixel`` — ``--pixel-workers`` 1 —
   run scipy's own finite differences in one process).
 
+``--from-json`` and ``--rescore`` read earlier runs: a log whose last line
+is the run's JSON, or the ``benchmarks/results/proxy.json`` a run wrote.
+
 ``--rescore LOG...`` fits nothing: it measures every logged fit again (the
 devices drawn again from the logged seeds, each method's lens from its
 logged parameters) with today's figures, e.g. the registered SSIM on logs
@@ -103,21 +105,20 @@ at each level and fitted again; a summary table shows how the errors of
 ``ours`` and ``pixel`` grow with the noise.
 
 Prints a table per device, the summaries (over all devices and, with
-several lenses, per lens: the figures of the README's tables), and one JSON
-object as the LAST line. Usage:
-    python benchmarks/proxy.py [--lenses e9 e2] [--devices 2] [--grid 5 7]
+several lenses, per lens: the figures of the results pages' tables), and one JSON
+object as the LAST line. Usage::
+
+    python -m benchmarks.proxy [--lenses e9 e2] [--devices 2] [--grid 5 7]
                                [--noise 0.004] [--methods nominal pixel scipy ours]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-if __name__ == "__main__":   # one BLAS thread per fit worker; not when a test imports the helpers
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+if __name__ == "__main__":   # one BLAS thread per fit worker, before numpy loads; not when a test imports it
+    _harness.pin_threads(2, blas=1)
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -127,16 +128,16 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+ROOT = _harness.ROOT
 
-from calibration.optics.io.lens_json import read_lens  # noqa: E402
-from calibration.fit.proxy import (COARSE_GRID, N_PARAMS, RESTART_CHI2, RESTARTS, default_names, fit_proxy, parameter_space,  # noqa: E402
-                               residual_bias, screen_parameters)
+from calibration.optics.io import read_lens  # noqa: E402
+from calibration.fit.proxy import (COARSE_GRID, N_PARAMS, RESTART_CHI2, RESTARTS, ProxyFitSettings,  # noqa: E402
+                                   default_names, fit_proxy, parameter_space, residual_bias, screen_parameters)
 from calibration.fit.pixel import fit_pixel_mse, register_edge, render_edges  # noqa: E402
 from calibration.fit.synthetic_devices import synthetic_observations  # noqa: E402
-from calibration.optics.psf.map import psf_map  # noqa: E402
+from calibration.optics.psf.map import PSFMapSettings, psf_map  # noqa: E402
 from calibration.fit.forward_model import FAST_JACOBIAN, ModelSettings, SfrModel  # noqa: E402
+from isp.runtime.executor import pool_executor  # noqa: E402
 
 LENS_DIR = ROOT.parent / "shared" / "data" / "lenses" / "phone"
 GRID = (5, 7)
@@ -232,15 +233,12 @@ def screen(model, names, n_params, bias, workers) -> list[str]:
         return list(names)
     if workers <= 1:
         return screen_parameters(model, names, n_params, bias=bias)
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from calibration.fit import proxy as _proxy   # fit_proxy's own worker set-up and task
 
-    from calibration.fit import proxy as _proxy
-    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_proxy._init_worker,
-                             initargs=((model.nominal, model.obs, model.settings, names, bias),)) as pool:
+    payload = (model.nominal, model.obs, model.settings, names, bias)
+    with pool_executor(workers).bind(payload, setup=_proxy._worker_models) as pool:
         return screen_parameters(model, names, n_params, bias=bias,
-                                 fun_many=lambda pts: list(pool.map(_proxy._residual_task, pts)))
+                                 fun_many=lambda pts: pool.map(_proxy._residual_task, list(pts)))
 
 
 #: how a device's edges are rendered: its PSF map, wider and finer than the fits' forward model
@@ -251,7 +249,8 @@ def device_map(lens, grid):
     """``lens``'s PSF map as the benchmark renders a device (:data:`DEVICE_MAP`)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        pm = psf_map(lens, grid=grid, progress=False, **DEVICE_MAP)
+        with pool_executor(None) as ex:
+            pm = psf_map(lens, PSFMapSettings(grid=tuple(grid), **DEVICE_MAP), executor=ex)
     for w in caught:
         log(f"  warning: {w.message}")
     return pm
@@ -343,7 +342,8 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
     truth_sfr = model.predict(truth_lens).sfr
     t0 = time.perf_counter()
     # screened once for every method, on all the measurement holds (SFRA and the LSF's asymmetry)
-    bias = residual_bias(model, lens, "odd", args.workers)
+    with pool_executor(args.workers) as ex:
+        bias = residual_bias(model, lens, "odd", ex)
     names = screen(model, default_names(lens), args.n_params, bias, args.workers)
     t_screen = time.perf_counter() - t0
     case = {"observations": len(obs), "noise": noise, "names": names, "seconds_observe": round(t_obs, 2),
@@ -360,8 +360,9 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
         elif m == "truth":
             fitted, evals, secs, u = truth_lens, 0, 0.0, np.zeros(len(names))
         elif m == "pixel":
-            fit = fit_pixel_mse(lens, obs, edges, names=names, settings=settings, max_iter=args.max_iter,
-                                workers=args.pixel_workers)
+            with pool_executor(args.pixel_workers) as ex:
+                fit = fit_pixel_mse(lens, obs, edges, names=names, settings=settings, max_iter=args.max_iter,
+                                    executor=ex)
             fitted, evals, secs, u, stop = fit.lens, fit.evaluations, fit.seconds, fit.u, fit.message
             extra = {"pixel_mse_before": fit.mse_before, "pixel_mse_after": fit.mse_after}
         elif m.startswith(("scipy", "ours")):
@@ -374,15 +375,15 @@ def run_case(lens, pm, truth_lens, noise, seed, args, settings) -> dict:
             ours = m.startswith("ours")
             fast = FAST_JACOBIAN if (ours and args.fast_jacobian) else None
             own = ours and args.screen_in_fit   # fit_proxy screens itself: its time counts it
-            fit = fit_proxy(lens, obs, names=None if own else names, n_params=args.n_params,
-                            settings=settings, method="dls" if ours else "scipy",
-                            workers=args.workers if ours else 1, max_iter=iters, progress=False,
-                            jacobian_settings=fast, residuals=residuals_of(m),
-                            refresh=args.refresh if ours else 1, bounds="box" if m == "ours_box" else "clip",
-                            prior=PRIOR_SIGMA if m == "ours_prior" else None,
-                            restarts=args.restarts if (ours or m == "scipy_restart") else 0,
-                            coarse=args.coarse if (ours or m == "scipy_restart") and args.coarse[0] > 0 else None,
-                            seed=int(np.random.SeedSequence(seed).generate_state(1)[0]))
+            cfg = ProxyFitSettings(
+                model=settings, method="dls" if ours else "scipy", max_iter=iters, n_params=args.n_params,
+                residuals=residuals_of(m), jacobian_model=fast, refresh=args.refresh if ours else 1,
+                bounds="box" if m == "ours_box" else "clip", prior=PRIOR_SIGMA if m == "ours_prior" else None,
+                restarts=args.restarts if (ours or m == "scipy_restart") else 0,
+                coarse=(tuple(args.coarse) if (ours or m == "scipy_restart") and args.coarse[0] > 0 else None),
+                seed=int(np.random.SeedSequence(seed).generate_state(1)[0]))
+            with pool_executor(args.workers if ours else 1) as ex:
+                fit = fit_proxy(lens, obs, cfg, names=None if own else names, executor=ex)
             fitted, evals, secs, u = fit.lens, fit.evaluations, fit.seconds, fit.u
             if fit.restarts:
                 extra["restarts"] = fit.restarts
@@ -449,17 +450,32 @@ def summarise(cases: list[dict], methods) -> dict:
     return out
 
 
+def _run_of(path) -> dict:
+    """The results of one earlier run: a results file (``proxy.json``) or a
+    log whose last JSON line is the run's record (or, from runs before the
+    harness, its results alone)."""
+    text = Path(path).read_text()
+    try:
+        rec = json.loads(text)
+    except json.JSONDecodeError:
+        lines = [ln for ln in text.splitlines() if ln.startswith("{")]
+        if not lines:
+            raise SystemExit(f"{path}: no JSON line (not a benchmarks/proxy.py log?)") from None
+        rec = json.loads(lines[-1])
+    rec = rec.get("results", rec) if isinstance(rec, dict) else {}
+    if "cases" not in rec:
+        raise SystemExit(f"{path}: no cases (not a benchmarks/proxy.py log or result?)")
+    return rec
+
+
 def load_cases(paths) -> tuple[list[dict], list[str]]:
-    """The cases of earlier runs (the JSON object on each log's last line;
-    one device measured at one noise in several runs, with other methods, is
-    one case) and the union of their methods, in :data:`METHODS` order. The
-    runs must have drawn the same devices (same ``--lenses`` and ``--seed``)."""
+    """The cases of earlier runs (:func:`_run_of`; one device measured at
+    one noise in several runs, with other methods, is one case) and the
+    union of their methods, in :data:`METHODS` order. The runs must have
+    drawn the same devices (same ``--lenses`` and ``--seed``)."""
     merged: dict[tuple, dict] = {}
     for p in paths:
-        lines = [ln for ln in Path(p).read_text().splitlines() if ln.startswith("{")]
-        if not lines:
-            raise SystemExit(f"{p}: no JSON line (not a benchmarks/proxy.py log?)")
-        for c in json.loads(lines[-1])["cases"]:
+        for c in _run_of(p)["cases"]:
             # the same seeded device in two runs (other methods): one case
             key = (c["lens"], c["device"], c["noise"])
             if key in merged:
@@ -598,7 +614,7 @@ def print_summary(summary: dict, title: str) -> None:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = _harness.parser(__doc__)
     ap.add_argument("--lenses", nargs="*", default=None,
                     help="lens tokens (e9, e2, e1, e11) or name parts; default all in ../shared/data/lenses/phone")
     ap.add_argument("--devices", type=int, default=2, help="perturbed devices per lens")
@@ -658,10 +674,7 @@ def main(argv=None) -> dict:
     result = {"fast_jacobian": bool(args.fast_jacobian), "refresh": args.refresh, "grid": list(grid), "noise": args.noise, "devices": args.devices, "methods": args.methods,
               "max_iter": args.max_iter, "n_params": args.n_params, "seed": args.seed, "cases": [], "skipped": []}
     if not LENS_DIR.is_dir() and not args.from_json:
-        print(f"{LENS_DIR} not found")
-        result["skipped"].append({"lens": str(LENS_DIR), "reason": "not found"})
-        print(json.dumps(result))
-        return result
+        raise SystemExit(f"proxy: {LENS_DIR} not found (the shared data folder is needed)")
     cases = []
     t_all = time.perf_counter()
     if args.from_json or args.rescore:
@@ -732,8 +745,7 @@ def main(argv=None) -> dict:
     if comparison:
         result["paired"] = comparison
     result["seconds"] = round(time.perf_counter() - t_all, 1)
-    print(json.dumps(result))
-    return result
+    return _harness.publish("proxy", result, args, argv)
 
 
 if __name__ == "__main__":

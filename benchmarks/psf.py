@@ -1,13 +1,15 @@
-"""Speed and accuracy of the PSFs (calibration/optics/psf/core.py, calibration/optics/psf/map.py).
+"""Speed and accuracy of the PSFs (:mod:`calibration.optics.psf`, :mod:`calibration.optics.psf.map`).
 
 On US-12210142-B2-e9 (../shared/data/lenses/phone) and an aberration-free
 singlet:
 
-* single PSFs at 0.7 field, 587.6 nm, best of ``--runs``: Huygens (64 pupil
-  rays across, 128² samples) and FFT (128 across, 256²) — the settings of the
-  optiland figures quoted in the data README (≈ 1.5 s and ≈ 0.15 s there,
-  not re-measured: optiland is not installed) — Debye (64, 128²), and the
-  three at the map's setting (64, 32² at 0.5 µm);
+* single PSFs at 0.7 field, 587.6 nm, one warm-up then the median of
+  ``--runs`` (with the fastest and slowest): Huygens (64 pupil rays across,
+  128² samples) and FFT (128 across, 256²), Debye (64, 128²), and the three
+  at the map's setting (64, 32² at 0.5 µm); the peer in the same run:
+  optiland's ``HuygensPSF`` and ``FFTPSF`` at the same settings on the same
+  lens file (``pip install -e .[bench]``; left out, with the reason in the
+  JSON, where optiland is absent or with ``--no-peer``);
 * the 15 × 20 × 3 PSF map with the map defaults (Debye, 64 pupil samples,
   32² PSFs at half the 1 µm pixel, 3 Gauss wavelengths per channel, D65 ×
   Nikon 5100, aimed once per region), nominal lens (quadrant symmetry) and
@@ -21,42 +23,57 @@ singlet:
   5 nm sum (Debye PSFs 48² at 0.25 µm on axis, 0.7 and 1.0 field).
 
 The machine may be shared: the load average is printed with the timings.
-Prints progress, then one JSON object as its last line. Usage:
-python benchmarks/psf.py [--runs 3] [--quadrature] [--skip-map] [--skip-accuracy] [--plot map.png]
+Prints progress, then one JSON object as its last line. Usage::
+
+    python -m benchmarks.psf [--runs 3] [--quadrature] [--skip-map] [--skip-accuracy] [--no-peer] [--plot map.png]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-THREADS = "2"
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ[var] = THREADS
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
 
-import argparse
-import json
-import sys
-import time
-from pathlib import Path
+import json  # noqa: E402
+import os  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-import numpy as np
+import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = _harness.ROOT
 DATA = ROOT.parent / "shared" / "data" / "lenses" / "phone"
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
 LAM = 587.6
 
 
-def best_of(runs, fn):
-    ts = []
-    out = None
-    for _ in range(runs):
-        t = time.perf_counter()
-        out = fn()
-        ts.append(time.perf_counter() - t)
-    return min(ts), out
+def timing(runs, fn) -> dict:
+    """One warm-up call of ``fn``, then ``runs`` timed: seconds, median and range."""
+    return _harness.measure(fn, runs=runs, warmup=1).as_dict(4)
+
+
+def optiland_psfs(path: Path, runs: int, field: float = 0.7) -> dict:
+    """optiland's Huygens (64 rays, 128²) and FFT (128 rays, 256²) PSFs of
+    the lens file ``path`` at ``field`` of its maximum, 587.6 nm, timed as
+    :func:`timing` times ours; ``{"available": False, "reason"}`` without optiland."""
+    try:
+        from importlib.metadata import version
+
+        from optiland.fileio import load_zemax_file
+        from optiland.psf import FFTPSF, HuygensPSF
+    except ImportError as e:
+        return {"available": False, "reason": f"optiland not installed ({e.name}): pip install -e .[bench]"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")     # numba's compile-time notes
+        optic = load_zemax_file(str(path))
+        out = {"huygens_64_128": timing(runs, lambda: HuygensPSF(optic, (0.0, field), LAM * 1e-3, num_rays=64,
+                                                                   image_size=128)),
+               "fft_128_256": timing(runs, lambda: FFTPSF(optic, (0.0, field), LAM * 1e-3, num_rays=128,
+                                                           grid_size=256))}
+    return {"available": True, "version": version("optiland"), **out}
 
 
 def say(*a):
@@ -64,20 +81,22 @@ def say(*a):
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=3)
+    ap = _harness.parser(__doc__)
+    ap.add_argument("--runs", type=int, default=3, help="timed runs of each single PSF (median; default 3)")
+    ap.add_argument("--no-peer", action="store_true", help="leave optiland out")
     ap.add_argument("--quadrature", action="store_true")
     ap.add_argument("--skip-map", action="store_true")
     ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--plot", type=Path, default=None, help="write the perturbed map's G mosaic here (.png)")
     args = ap.parse_args(argv)
 
-    from test_psf import first_zero_um, perfect_lens, real_working_f_number
+    from tests.calibration.optics.psf.helpers import first_zero_um, perfect_lens, real_working_f_number
 
-    from calibration.optics.psf import core as P
+    import calibration.optics.psf as P
     from calibration.optics.psf import map as M
-    from calibration.optics.io.lens_json import read_lens
+    from calibration.optics.io import read_lens
     from calibration.optics.perturb import apply
+    from isp.runtime.executor import pool_executor
 
     e9 = read_lens(DATA / "US-12210142-B2-e9.zmx")
     out: dict = {"load_average": os.getloadavg(), "cpus": os.cpu_count()}
@@ -85,16 +104,24 @@ def main(argv=None) -> dict:
 
     # -- single PSFs ------------------------------------------------------------------
     P.fft_psf(e9, f07, LAM, pupil_samples=32, n=16)          # imports, warm caches
-    t_h, _ = best_of(args.runs, lambda: P.huygens_psf(e9, f07, LAM, pupil_samples=64, n=128))
-    t_f, _ = best_of(args.runs, lambda: P.fft_psf(e9, f07, LAM, pupil_samples=128, n=256))
-    t_d, _ = best_of(args.runs, lambda: P.debye_psf(e9, f07, LAM, pupil_samples=64, n=128))
     small = {"pupil_samples": 64, "n": 32, "pitch_um": 0.5}
-    t_h32, _ = best_of(args.runs, lambda: P.huygens_psf(e9, f07, LAM, **small))
-    t_f32, _ = best_of(args.runs, lambda: P.fft_psf(e9, f07, LAM, **small))
-    t_d32, _ = best_of(args.runs, lambda: P.debye_psf(e9, f07, LAM, **small))
-    out["single_psf_s"] = {"huygens_64_128": t_h, "fft_128_256": t_f, "debye_64_128": t_d,
-                           "huygens_64_32": t_h32, "fft_64_32": t_f32, "debye_64_32": t_d32}
+    out["single_psf_s"] = {
+        "huygens_64_128": timing(args.runs, lambda: P.huygens_psf(e9, f07, LAM, pupil_samples=64, n=128)),
+        "fft_128_256": timing(args.runs, lambda: P.fft_psf(e9, f07, LAM, pupil_samples=128, n=256)),
+        "debye_64_128": timing(args.runs, lambda: P.debye_psf(e9, f07, LAM, pupil_samples=64, n=128)),
+        "huygens_64_32": timing(args.runs, lambda: P.huygens_psf(e9, f07, LAM, **small)),
+        "fft_64_32": timing(args.runs, lambda: P.fft_psf(e9, f07, LAM, **small)),
+        "debye_64_32": timing(args.runs, lambda: P.debye_psf(e9, f07, LAM, **small))}
     say("single PSF (s):", out["single_psf_s"], "load", os.getloadavg())
+    peer = ({"available": False, "reason": "--no-peer"} if args.no_peer
+            else optiland_psfs(DATA / "US-12210142-B2-e9.zmx", args.runs))
+    out["optiland_single_psf_s"] = peer
+    if peer["available"]:
+        out["speedup_vs_optiland"] = {k: round(peer[k]["median"] / out["single_psf_s"][k]["median"], 2)
+                                      for k in ("huygens_64_128", "fft_128_256")}
+        say("optiland single PSF (s):", peer, "; ours faster by", out["speedup_vs_optiland"])
+    else:
+        say(f"optiland not compared: {peer['reason']}")
 
     if not args.skip_accuracy:
         # -- accuracy: perfect lens ------------------------------------------------------------
@@ -179,9 +206,8 @@ def main(argv=None) -> dict:
         pert = apply(e9, {"e1.decenter_y": 0.003, "e2.tilt_zx": 0.03, "s3.thickness": 0.005})
         for label, ln in (("nominal", e9), ("perturbed", pert)):
             for workers in (1, 2):
-                t = time.perf_counter()
-                mp = M.psf_map(ln, cache=False, progress=False, workers=workers)
-                dt = time.perf_counter() - t
+                with pool_executor(workers) as ex:   # "serial" for 1; the pool's start counts, as a user pays it
+                    mp, dt = _harness.timed(lambda ln=ln, ex=ex: M.psf_map(ln, cache=False, executor=ex))
                 maps[f"{label}_workers{workers}"] = {"s": dt, "load_average": os.getloadavg(),
                                                       "wavelengths_nm": list(mp.wavelengths_nm),
                                                       "min_window_energy": float(mp.window_energy.min())}
@@ -189,8 +215,7 @@ def main(argv=None) -> dict:
         out["map_15x20x3_s"] = maps
         if args.plot:
             M.plot_psf_map(mp, args.plot, channel="G")
-    print(json.dumps(out))
-    return out
+    return _harness.publish("psf", out, args, argv)
 
 
 if __name__ == "__main__":

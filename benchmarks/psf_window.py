@@ -20,7 +20,8 @@ at every region centre (green channel):
   SFR at that window and at the reference, over all observations and over
   the worst observation near FoV 0.9 (radius ≥ 0.8);
 * **SFRA error**: largest absolute difference of SFRA (cycles/pixel);
-* **predict**: CPU seconds per :meth:`SfrModel.predict` call (median).
+* **predict**: CPU seconds per :meth:`SfrModel.predict` call (median over
+  the lenses, with the fastest and slowest).
 
 The reference is ``psf_n=128`` with ``pupil_samples=96`` (a 64 µm window;
 the sampled pupil's replica period λ·N·P is ≥ 94 µm for these lenses);
@@ -29,31 +30,23 @@ to 32 µm, 64 beyond).
 
 Prints a line per lens × window and one JSON object as the LAST line::
 
-    python benchmarks/psf_window.py [--lenses e9 e2] [--devices 3] [--windows 32 48 64 96]
+    python -m benchmarks.psf_window [--lenses e9 e2] [--devices 3] [--windows 32 48 64 96]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-if __name__ == "__main__":
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+if __name__ == "__main__":   # one BLAS thread, as in a fit's worker processes; before numpy loads
+    _harness.pin_threads(2, blas=1)
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
 from benchmarks.lens_eval import observations  # noqa: E402
 from benchmarks.proxy import pick_lenses  # noqa: E402
-from calibration.optics.io.lens_json import read_lens  # noqa: E402
+from calibration.optics.io import read_lens  # noqa: E402
 from calibration.fit.proxy import default_names, parameter_space  # noqa: E402
 from calibration.fit.forward_model import ModelSettings, SfrModel  # noqa: E402
 
@@ -72,8 +65,7 @@ def outside_fraction(psfs: np.ndarray, n: int) -> np.ndarray:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap = _harness.parser(__doc__)
     ap.add_argument("--lenses", nargs="*", default=None, help="lens tokens (e1 e2 e9 e11); default all")
     ap.add_argument("--devices", type=int, default=3, help="perturbed devices per lens (default 3)")
     ap.add_argument("--windows", type=int, nargs="+", default=[32, 48, 64, 96],
@@ -111,17 +103,16 @@ def main(argv=None) -> dict:
                 rec["sfr_rms_corner"].append(float(np.sqrt(np.nanmean(d[corner] ** 2, axis=1)).max()))
                 rec["sfra_max"].append(float(np.nanmax(np.abs(p.sfra - sfra_ref))))
             row = {"pupil_samples": PUPIL_FOR[n], "window_um": n * model.pitch_um,
-                   "predict_cpu_s": round(float(np.median(cpu)), 3),
+                   "predict_cpu_s": _harness.spread(cpu).as_dict(3),
                    "nominal": {k: round(v[0], 5) for k, v in rec.items()},
                    "devices_worst": {k: round(max(v[1:]), 5) for k, v in rec.items()} if len(lenses) > 1 else None}
             rows[str(n)] = row
             w = row["devices_worst"] or row["nominal"]
             print(f"{path.stem:22s} n={n:3d} ({row['window_um']:4.0f} µm): outside nominal {row['nominal']['outside']:.3f}"
                   f" devices ≤ {w['outside']:.3f} | SFR RMS ≤ {w['sfr_rms']:.4f}, corner ≤ {w['sfr_rms_corner']:.4f}"
-                  f" | SFRA ≤ {w['sfra_max']:.4f} c/px | predict {row['predict_cpu_s']:.2f} s CPU", flush=True)
+                  f" | SFRA ≤ {w['sfra_max']:.4f} c/px | predict {row['predict_cpu_s']['median']:.2f} s CPU", flush=True)
         out["lenses"][path.stem] = rows
-    print(json.dumps(out))
-    return out
+    return _harness.publish("psf_window", out, args, argv)
 
 
 if __name__ == "__main__":

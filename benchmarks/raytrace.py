@@ -1,112 +1,143 @@
-"""Speed of the real-ray tracer, and its agreement with the published
-figures of the e9 phone lens.
+"""Speed of the real-ray tracer against optiland, and its agreement with the
+published figures of the e9 phone lens.
 
-Traces 1,000,000 uniformly random pupil rays (paraxial aiming, 587.6 nm) at
-0.7 field through US-12210142-B2-e9 (7 plastic aspheres + IR filter, 17
-surfaces) on 2 threads, best of ``--runs``; also times ray generation with
-real aiming. The peer figure (optiland 0.6.3, numpy backend, ≈ 80k rays/s on
-2 cores, 12.4 s per 1e6 rays) is quoted from ``../shared/data/lenses/README.md``;
-optiland is not installed here, so it is not re-measured.
+Traces ``--rays`` (default 1,000,000) uniformly random pupil rays
+(paraxial aiming, 587.6 nm) at 0.7 field through US-12210142-B2-e9 (7
+plastic aspheres + IR filter, 17 surfaces) on ``--threads`` threads: one
+warm-up, then the median of ``--runs``; also on one thread, and ray
+generation with real aiming.
+
+The peer runs in the same process on the same lens file, field, wavelength
+and ray count: optiland (``pip install -e .[bench]``), its numpy backend
+with the numba-compiled surface kernels, warm (the first trace compiles
+them), median of ``--runs``. ``speedup_vs_optiland`` is the ratio of the
+two medians. Without optiland installed the comparison is left out and
+the JSON says why.
 
 Also reports the on-axis RMS spot radius (centroid-referenced, 2e5 random
 rays) and the vignetted fractions at 0.7 and 1.0 field, against the
-README's 0.795 µm (optiland) / 0.799 µm (rayoptics) and 77 % / 46 %.
+lens README's 0.795 µm (optiland) / 0.799 µm (rayoptics) and 77 % / 46 %.
 
-Prints progress, then one JSON object as its last line. Usage:
-python benchmarks/raytrace.py [--rays 1000000] [--runs 3] [--threads 2]
+Prints progress, then one JSON object as its last line. Usage::
+
+    python -m benchmarks.raytrace [--rays 1000000] [--runs 3] [--threads 2] [--no-peer]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-THREADS = "2"
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ[var] = THREADS
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
 
-import argparse  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
-import time  # noqa: E402
+import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = _harness.ROOT
 DATA = ROOT.parent / "shared" / "data" / "lenses" / "phone"
-sys.path.insert(0, str(ROOT))
+LENS = DATA / "US-12210142-B2-e9.zmx"
+LAMBDA_NM = 587.6
+FIELD = 0.7
+
+
+def optiland_trace(path: Path, rays: int, runs: int, field: float = FIELD, wavelength_nm: float = LAMBDA_NM) -> dict:
+    """Time optiland tracing ``rays`` random pupil rays at ``field`` (of its
+    maximum field) through the lens file ``path``: a warm-up trace, then
+    the median of ``runs``. ``{"available": False, "reason"}`` without
+    optiland."""
+    try:
+        from importlib.metadata import version
+
+        import optiland.backend as be
+        from optiland.fileio import load_zemax_file
+    except ImportError as e:
+        return {"available": False, "reason": f"optiland not installed ({e.name}): pip install -e .[bench]"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")     # numba's compile-time notes
+        optic = load_zemax_file(str(path))
+
+        def trace():
+            return optic.trace(0.0, field, wavelength_nm * 1e-3, rays, distribution="random", record=False)
+
+        t = _harness.measure(trace, runs=runs, warmup=1, label="optiland")
+    return {"available": True, "version": version("optiland"), "backend": be.get_backend(),
+            "trace_s": t.as_dict(4), "rays_per_s": t.map(lambda s: rays / s).as_dict(0)}
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = _harness.parser(__doc__)
     ap.add_argument("--rays", type=int, default=1_000_000)
-    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--runs", type=int, default=3, help="timed runs of each tracer (median; default 3)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--chunk", type=int, default=None)
+    ap.add_argument("--no-peer", action="store_true", help="leave optiland out")
     args = ap.parse_args(argv)
+    _harness.pin_threads(args.threads)
 
     from calibration.optics import trace as tr
-    from calibration.optics.io.formats import read_zmx
+    from calibration.optics.io import read_lens
     from calibration.optics.spot import spot
+    from isp.runtime.executor import shared_threads
 
-    lens = read_zmx(DATA / "US-12210142-B2-e9.zmx")
-    lam = 587.6
-    field = (0.0, 0.7 * lens.half_fov_deg)
+    lens = read_lens(LENS)
+    field = (0.0, FIELD * lens.half_fov_deg)
     rng = np.random.default_rng(1)
-    t = time.perf_counter()
-    rays = tr.pupil_rays(lens, field, args.rays, lam, distribution="random", rng=rng)
-    gen_paraxial_s = time.perf_counter() - t
-    kw = {"workers": args.threads}
+    rays, gen_s = _harness.timed(lambda: tr.pupil_rays(lens, field, args.rays, LAMBDA_NM, distribution="random",
+                                                       rng=rng))
+    kw = {"executor": shared_threads(args.threads)}
     if args.chunk:
         kw["chunk"] = args.chunk
-    tr.trace_to_image(lens, rays, **kw)  # warm-up
-    times = []
-    for i in range(args.runs):
-        t = time.perf_counter()
-        res = tr.trace_to_image(lens, rays, **kw)
-        times.append(time.perf_counter() - t)
-        print(f"run {i + 1}: {times[-1]:.3f} s, {args.rays / times[-1]:,.0f} rays/s", file=sys.stderr)
-    best = min(times)
-    one = []
-    for i in range(2):
-        t = time.perf_counter()
-        tr.trace_to_image(lens, rays, workers=1)
-        one.append(time.perf_counter() - t)
+    res = tr.trace_to_image(lens, rays, **kw)
+    ours = _harness.measure(lambda: tr.trace_to_image(lens, rays, **kw), runs=args.runs, label="ours")
+    one = _harness.measure(lambda: tr.trace_to_image(lens, rays, executor=shared_threads(1)), runs=args.runs, label="ours, 1 thread")
     n_aim = 100_000
-    t = time.perf_counter()
-    tr.pupil_rays(lens, field, n_aim, lam, distribution="random", aiming="real", rng=rng)
-    aim_s = time.perf_counter() - t
+    _, aim_s = _harness.timed(lambda: tr.pupil_rays(lens, field, n_aim, LAMBDA_NM, distribution="random",
+                                                    aiming="real", rng=rng))
+    peer = ({"available": False, "reason": "--no-peer"} if args.no_peer
+            else optiland_trace(LENS, args.rays, args.runs))
 
-    on_axis = spot(lens, (0.0, 0.0), 200_000, lam, rng=np.random.default_rng(2))
+    on_axis = spot(lens, (0.0, 0.0), 200_000, LAMBDA_NM, rng=np.random.default_rng(2))
     vig = {}
     for f in (0.7, 1.0):
         fld = (0.0, f * lens.half_fov_deg)
         for aiming in ("paraxial", "real"):
-            r = tr.trace_to_image(lens, tr.pupil_rays(lens, fld, 100_000, lam, aiming=aiming,
+            r = tr.trace_to_image(lens, tr.pupil_rays(lens, fld, 100_000, LAMBDA_NM, aiming=aiming,
                                                       rng=np.random.default_rng(3)))
             vig[f"pass_{f:.1f}_{aiming}"] = round(r.fraction_valid, 4)
+    rate = ours.map(lambda s: args.rays / s)
     out = {
-        "lens": lens.name or "US-12210142-B2-e9",
+        "lens": lens.name or LENS.stem,
         "surfaces": len(lens.surfaces),
         "rays": args.rays,
+        "runs": args.runs,
         "threads": args.threads,
         "field_deg": field[1],
-        "trace_s": round(best, 4),
-        "rays_per_s": round(args.rays / best),
-        "rays_per_s_1_thread": round(args.rays / min(one)),
-        "ns_per_ray_surface_1_thread": round(min(one) / args.rays / (len(lens.surfaces) + 1) * 1e9, 1),
+        "trace_s": ours.as_dict(4),
+        "rays_per_s": rate.as_dict(0),
+        "rays_per_s_1_thread": one.map(lambda s: args.rays / s).as_dict(0),
+        "ns_per_ray_surface_1_thread": round(one.median / args.rays / (len(lens.surfaces) + 1) * 1e9, 1),
         "valid_fraction": round(res.fraction_valid, 4),
-        "generate_paraxial_s": round(gen_paraxial_s, 4),
+        "generate_paraxial_s": round(gen_s, 4),
         "generate_real_aiming_rays_per_s": round(n_aim / aim_s),
-        "peer_optiland_rays_per_s": 80_000,
-        "speedup_vs_optiland": round(args.rays / best / 80_000, 2),
+        "optiland": peer,
+        "speedup_vs_optiland": (round(peer["trace_s"]["median"] / ours.median, 2) if peer["available"] else None),
         "rms_on_axis_um": round(on_axis.rms_radius() * 1e3, 4),
         "rms_on_axis_ref_um": [0.795, 0.799],
         **vig,
         "pass_ref": {"0.7": 0.77, "1.0": 0.46},
     }
-    print(json.dumps(out))
-    return out
+    print(f"ours: {rate} rays/s on {args.threads} threads", file=sys.stderr)
+    if peer["available"]:
+        print(f"optiland {peer['version']} ({peer['backend']} backend): {peer['rays_per_s']['median']:,.0f} rays/s; "
+              f"ours {out['speedup_vs_optiland']}× faster")
+    else:
+        print(f"optiland not compared: {peer['reason']}")
+    print(f"ours: {out['rays_per_s']['median']:,.0f} rays/s ({args.threads} threads), "
+          f"{out['rays_per_s_1_thread']['median']:,.0f} on one")
+    return _harness.publish("raytrace", out, args, argv)
 
 
 if __name__ == "__main__":

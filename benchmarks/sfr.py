@@ -1,53 +1,46 @@
 """Speed of the e-SFR measurement (calibration.sfr.esfr), 2 threads.
 
 1. One edge: a 100×200 px ROI (100 rows along a 5° edge, σ = 1 px,
-   1 % noise, 10-bit codes in float32), median of ``--runs`` calls of
-   :func:`calibration.sfr.esfr.measure_sfr`; also with ``bootstrap=50``.
+   1 % noise, 10-bit codes in float32), three warm-up calls, then the
+   median of ``--runs`` calls of :func:`calibration.sfr.esfr.measure_sfr`
+   (with the fastest and slowest); also with ``bootstrap=50``.
 2. A whole simulated 12 MP chart: a 4000×3000 float32 image with ``--edges``
    slanted-edge ROIs (alternating vertical/horizontal, both polarities,
    angles 3–11°, blur σ 0.7–2 px growing towards the corners, 1 % noise)
    whose boxes are given. All ROIs are measured serially, with 2 threads and
-   with 2 forked processes; the best is the chart time. Each MTF50 is also
-   compared with the analytic truth.
+   with 2 processes (one run each); the fastest of the three ways is the
+   chart time. Each MTF50 is also compared with the analytic truth.
 3. The same 12 MP frame as a chart to be found: 6 × 8 slanted dark squares
    (192 edges), detection and measurement by
    :func:`calibration.sfr.chart.measure_chart`.
 
 Prints progress, then one JSON object as its last line:
-``per_edge_ms, per_edge_bootstrap50_ms, roi, chart_edges, chart_serial_s,
+``per_edge_ms, per_edge_bootstrap50_ms`` (each ``{median, min, max, n}``),
+``roi, chart_edges, chart_serial_s,
 chart_threads2_s, chart_procs2_s, chart_best_s, target_s, chart_ok,
 mtf50_median_abs_err_pct, mtf50_worst_abs_err_pct, detected_chart_edges,
 detected_chart_s, detected_chart_ok, runs, threads``.
 
-Usage: python benchmarks/sfr.py [--runs 50] [--edges 120]
+Usage: python -m benchmarks.sfr [--runs 50] [--edges 120]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-THREADS = "2"
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ[var] = THREADS
+THREADS = 2
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(THREADS)
 
-import argparse
-import json
-import multiprocessing as mp
-import statistics
-import sys
-import time
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
-from pathlib import Path
+import multiprocessing as mp  # noqa: E402
+import time  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor  # noqa: E402
 
-import cv2
-import numpy as np
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from calibration.sfr.esfr import measure_sfr
-from calibration.sfr.synthetic import mtf50_of, render_slanted_edge
-
-cv2.setNumThreads(int(THREADS))
+from calibration.sfr.esfr import measure_sfr  # noqa: E402
+from calibration.sfr.synthetic import mtf50_of, render_slanted_edge  # noqa: E402
 
 CHART = (3000, 4000)  # rows, columns: 12 MP
 ROI_ALONG, ROI_ACROSS = 200, 100  # ROI of the chart edges: 200 px along, 100 px across
@@ -61,22 +54,15 @@ def to_codes(img: np.ndarray, rng, bits: int = 10) -> np.ndarray:
     return (np.round(np.clip(noisy, 0, 1) * top) / top).astype(np.float32)
 
 
-def one_edge(runs: int) -> tuple[float, float]:
+def one_edge(runs: int) -> tuple[_harness.Spread, _harness.Spread]:
+    """Milliseconds per measurement of one ROI, without and with ``bootstrap=50``."""
     rng = np.random.default_rng(0)
     roi = to_codes(render_slanted_edge((100, 200), 5.0, 1.0), rng)
-    for _ in range(3):
-        measure_sfr(roi)
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        measure_sfr(roi)
-        times.append(time.perf_counter() - t0)
-    tb = []
-    for k in range(max(3, runs // 10)):
-        t0 = time.perf_counter()
-        measure_sfr(roi, bootstrap=50, rng=k)
-        tb.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times), 1e3 * statistics.median(tb)
+    plain = _harness.measure(lambda: measure_sfr(roi), runs=runs, warmup=3)
+    seeds = iter(range(10 ** 6))
+    boot = _harness.measure(lambda: measure_sfr(roi, bootstrap=50, rng=next(seeds)), runs=max(3, runs // 10),
+                            warmup=0)
+    return plain.map(lambda s: 1e3 * s), boot.map(lambda s: 1e3 * s)
 
 
 def make_chart(n_edges: int, seed: int = 1):
@@ -124,12 +110,12 @@ def chart(n_edges: int) -> dict:
     t_serial = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    with ThreadPoolExecutor(int(THREADS)) as ex:
+    with ThreadPoolExecutor(THREADS) as ex:
         threaded = list(ex.map(_measure_box, boxes))
     t_threads = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(int(THREADS), mp_context=mp.get_context("fork")) as ex:
+    with ProcessPoolExecutor(THREADS, mp_context=mp.get_context("fork")) as ex:
         procs = list(ex.map(_measure_box, boxes, chunksize=max(1, len(boxes) // 8)))
     t_procs = time.perf_counter() - t0
     assert np.allclose(serial, threaded) and np.allclose(serial, procs)
@@ -176,14 +162,15 @@ def detected_chart(grid=(6, 8), sigma=1.2, seed=2) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = _harness.parser(__doc__)
     ap.add_argument("--runs", type=int, default=50, help="timed runs of the single edge (≥ 20)")
     ap.add_argument("--edges", type=int, default=120, help="edges on the 12 MP chart (≥ 100)")
     args = ap.parse_args(argv)
     runs = max(20, args.runs)
     per_edge, per_edge_boot = one_edge(runs)
-    print(f"one 100×200 ROI: {per_edge:.2f} ms median of {runs}; bootstrap=50: {per_edge_boot:.0f} ms")
-    out = {"per_edge_ms": round(per_edge, 3), "per_edge_bootstrap50_ms": round(per_edge_boot, 1)}
+    print(f"one 100×200 ROI: {per_edge.median:.2f} ms median of {runs} ({per_edge.min:.2f}–{per_edge.max:.2f}); "
+          f"bootstrap=50: {per_edge_boot.median:.0f} ms")
+    out = {"per_edge_ms": per_edge.as_dict(3), "per_edge_bootstrap50_ms": per_edge_boot.as_dict(1)}
     out["roi"] = "100x200 (rows x cols)"
     res = chart(args.edges)
     print(
@@ -195,9 +182,8 @@ def main(argv=None) -> dict:
     print(f"chart with detection: {det['detected_chart_edges']} edges of {det['detected_chart_squares']} squares "
           f"found and measured in {det['detected_chart_s']} s")
     out.update(det)
-    out.update({"runs": runs, "threads": int(THREADS)})
-    print(json.dumps(out))
-    return out
+    out.update({"runs": runs, "threads": THREADS})
+    return _harness.publish("sfr", out, args, argv)
 
 
 if __name__ == "__main__":

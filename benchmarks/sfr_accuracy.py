@@ -1,6 +1,6 @@
 """Accuracy of the e-SFR (calibration.sfr.esfr) against analytic truth, both methods.
 
-The SFR issue's sweep: slanted edges rendered exactly
+The sweep: slanted edges rendered exactly
 (:func:`calibration.sfr.synthetic.render_slanted_edge`: Gaussian PSF σ ⊗ square
 pixel aperture, 100 % fill, to ~1e-12), from 0.2 to 0.8 of a 0..1 range
 
@@ -28,11 +28,11 @@ Reported per method × rows × noise level, and pooled over the sweep:
 median and worst |ΔMTF50| (relative, %), the largest |ΔSFR| up to Nyquist
 (0.5 cy/px) of any single measurement, the median of those maxima, and the
 largest |mean over the realisations − truth| ("mean err": the systematic
-part, still carrying the noise over √realisations). The issue's
-targets — median |ΔMTF50| ≤ 0.3 %, worst ≤ 2 % at SNR ≥ 50, |ΔSFR| ≤ 0.01
+part, still carrying the noise over √realisations). The targets — median |ΔMTF50| ≤ 0.3 %, worst ≤ 2 % at SNR ≥ 50, |ΔSFR| ≤ 0.01
 up to Nyquist — are checked two ways: pooled over the whole sweep (every
 noise level is SNR ≥ 60), and at each noise level separately (strict: SNR 60
-alone must meet them). Also: the time per measurement for both methods, and
+alone must meet them). Also: the time per measurement for both methods
+(three warm-up calls, then the median of 30 with the fastest and slowest), and
 whether the bootstrap standard deviation of MTF50 matches the spread over
 independent noise realisations in both methods.
 
@@ -44,32 +44,27 @@ modulus is Rayleigh-distributed and biased up by about that much. The
 largest |ΔSFR| up to Nyquist of a few hundred edges, ≈ 0.026 on 400 rows,
 falls as 1/√R: ≤ 0.01 would take ≈ 2700 rows.
 
-Prints a table, then one JSON object as its last line. Usage:
-    python benchmarks/sfr_accuracy.py [--rows 100 200 300 400] [--realisations 5]
+Prints a table, then one JSON object as its last line. Usage::
+
+    python -m benchmarks.sfr_accuracy [--rows 100 200 300 400] [--realisations 5]
                                       [--width 128] [--workers N]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(var, "1")
+if __name__ == "__main__":   # one BLAS thread per worker process; before numpy loads
+    _harness.pin_threads(2, blas=1)
 
-import argparse
-import json
-import statistics
-import sys
-import time
-from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
+import os  # noqa: E402
+import time  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 
-import numpy as np
+import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from calibration.sfr.esfr import measure_sfr
-from calibration.sfr.synthetic import edge_mtf, mtf50_of, render_slanted_edge
+from calibration.sfr.esfr import measure_sfr  # noqa: E402
+from calibration.sfr.synthetic import edge_mtf, mtf50_of, render_slanted_edge  # noqa: E402
 
 SIGMAS = (0.5, 1.0, 1.5, 2.0)
 ANGLES = (2.0, 4.0, 5.0, 7.0, 9.0, 11.0, 12.0)
@@ -140,18 +135,13 @@ def meets(summary) -> dict:
     return {"mtf50": bool(mtf), "sfr": bool(summary["max_abs_dsfr_to_nyquist"] <= TARGET_SFR)}
 
 
-def timing(rows: int, width: int, method: str, runs: int = 30) -> float:
+def timing(rows: int, width: int, method: str, runs: int = 30) -> dict:
+    """Milliseconds per measurement of one ROI: median, fastest, slowest."""
     rng = np.random.default_rng(0)
     clean = render_slanted_edge((rows, width), 5.0, 1.0, low=LOW, high=HIGH)
     img = quantise(clean + rng.normal(0.0, 0.01, clean.shape), 16)
-    for _ in range(3):
-        measure_sfr(img, method=method)
-    ts = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        measure_sfr(img, method=method)
-        ts.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(ts)
+    return _harness.measure(lambda: measure_sfr(img, method=method), runs=runs, warmup=3).map(
+        lambda s: 1e3 * s).as_dict(2)
 
 
 def bootstrap_check(task):
@@ -169,13 +159,13 @@ def bootstrap_check(task):
     return sigma, method, emp, float(np.median(boots))
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv=None) -> dict:
+    ap = _harness.parser(__doc__)
     ap.add_argument("--rows", type=int, nargs="+", default=[100, 200, 300, 400])
     ap.add_argument("--width", type=int, default=128)
     ap.add_argument("--realisations", type=int, default=5)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
 
     tasks = [
         (rows, args.width, s, ia, args.realisations, 1000 * rows + 10 * int(4 * s) + ia)
@@ -229,11 +219,7 @@ def main() -> None:
                 ]
                 smallest[f"{method}_{reading}_{part}"] = min(ok) if ok else None
 
-    speed = {
-        f"{m}_{rows}x{args.width}_ms": round(timing(rows, args.width, m), 2)
-        for m in METHODS
-        for rows in (100, 400)
-    }
+    speed = {f"{m}_{rows}x{args.width}_ms": timing(rows, args.width, m) for m in METHODS for rows in (100, 400)}
     bootstrap = [
         {"sigma": s, "method": m, "empirical_std": round(e, 5), "bootstrap_std": round(b, 5)}
         | {"ratio": round(b / e, 2)}
@@ -242,7 +228,7 @@ def main() -> None:
     print("\nsmallest rows meeting the targets (None: not within the sizes run):")
     for k, v in smallest.items():
         print(f"  {k:28s} {v}")
-    print("\ntime per measurement:", speed)
+    print("\ntime per measurement (ms, median):", {k: v["median"] for k, v in speed.items()})
     print("bootstrap std / empirical std (σ px, method): " + ", ".join(
         f"{b['sigma']}/{b['method']}: {b['ratio']}" for b in bootstrap))
     result = {
@@ -258,7 +244,7 @@ def main() -> None:
         "bootstrap": bootstrap,
         "elapsed_s": round(elapsed, 1),
     }
-    print(json.dumps(result))
+    return _harness.publish("sfr_accuracy", result, args, argv)
 
 
 if __name__ == "__main__":

@@ -20,21 +20,21 @@ records SFRA's mean and spread and the spread and bias of the blur each
 method estimates.
 
 Writes a plot (``--plot``, default ``sfr_noise.png``) and prints one JSON
-object as its last line. Usage:
-    python benchmarks/sfr_noise.py [--realisations 40] [--plot sfr_noise.png]
+object as its last line. Usage::
+
+    python -m benchmarks.sfr_noise [--realisations 40] [--plot sfr_noise.png]
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import sys  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 from calibration.sfr.esfr import measure_sfr  # noqa: E402
 from calibration.sfr.synthetic import render_slanted_edge  # noqa: E402
@@ -52,11 +52,11 @@ def simulate(sigma, shift=0.0, gain=1.0):
     return gain * render_slanted_edge(SHAPE, ANGLE, sigma, low=LOW, high=HIGH, center=c)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv=None) -> dict:
+    ap = _harness.parser(__doc__)
     ap.add_argument("--realisations", type=int, default=40)
     ap.add_argument("--plot", default="sfr_noise.png")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     rng = np.random.default_rng(2024)
 
     sims = {s: simulate(s) for s in CANDIDATES}
@@ -135,8 +135,9 @@ def main() -> None:
         a.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(args.plot, dpi=120)
-    print(json.dumps({"edge": {"shape": SHAPE, "angle_deg": ANGLE, "sigma_px": SIGMA_TRUE},
-                      "realisations": args.realisations, "plot": args.plot, "rows": rows}))
+    result = {"edge": {"shape": SHAPE, "angle_deg": ANGLE, "sigma_px": SIGMA_TRUE},
+              "realisations": args.realisations, "plot": args.plot, "rows": rows}
+    return _harness.publish("sfr_noise", result, args, argv)
 
 
 if __name__ == "__main__":

@@ -6,21 +6,30 @@ MTF Mapper curves on the whole image as ROI), measure the SFR with our code
 and order 1) and compare: MTF50, SFRA to Nyquist, and the RMS difference of
 the curves up to Nyquist on the reference's frequency axis.
 
-Prints a Markdown table, then one JSON object as its last line.
-Usage: python benchmarks/sfr_reference.py
+The reference tools are not run here (sfrmat is MATLAB code, MTF Mapper
+a C++ program with no Python package): their curves are the ones they
+computed on these images, stored in ``edges/reference/`` (one JSON per
+image: frequency axis, SFR, MTF50 and SFRA of each tool).
+
+Prints a Markdown table, then one JSON object as its last line. Usage::
+
+    python -m benchmarks.sfr_reference
 """
 
 from __future__ import annotations
 
-import json
-import sys
-from pathlib import Path
+from benchmarks import _harness
 
-import numpy as np
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
 
-ROOT = Path(__file__).resolve().parents[1]
+import json  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = _harness.ROOT
 DATA = ROOT.parent / "shared" / "data" / "edges"
-sys.path.insert(0, str(ROOT))
 
 from calibration.sfr.esfr import measure_sfr  # noqa: E402
 
@@ -47,10 +56,10 @@ def compare(image: Path, ref: dict) -> dict:
     return out
 
 
-def main() -> None:
+def main(argv=None) -> list:
+    args = _harness.parser(__doc__).parse_args(argv)
     if not DATA.exists():
-        print(json.dumps({"error": f"{DATA} not found"}))
-        return
+        raise SystemExit(f"sfr_reference: {DATA} not found (the shared data folder is needed)")
     rows = []
     for ref_file in sorted((DATA / "reference").glob("*.json")):
         image = DATA / (ref_file.stem + ".tif")
@@ -64,7 +73,7 @@ def main() -> None:
             t = o[tool]
             print(f"| {row['image']} | {tool} | {t['mtf50']:.4f} | {o['mtf50']:.4f} | {t['d_mtf50_pct']:+.2f} % | "
                   f"{t['d_sfra_pct']:+.2f} % | {t['rms_to_nyquist']:.4f} |")
-    print(json.dumps(rows))
+    return _harness.publish("sfr_reference", rows, args, argv)
 
 
 if __name__ == "__main__":

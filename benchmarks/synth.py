@@ -1,5 +1,5 @@
 """Speed of data synthesis, and the error of the blur's shortcuts
-(restoration/synth*.py, issue 6 deliverable 1).
+(:mod:`restoration.synth`).
 
 * Speed: ``--pairs`` (default 1,000) pairs of 256 × 256 from one proxy
   camera (the e9 lens of ../shared/data/lenses/phone, single sample) with
@@ -17,6 +17,8 @@
   PSF, the region of the crop's centre, for the whole 256-px crop), and
   the FFT path against the direct-convolution oracle
   (:func:`calibration.simulate.capture.blur_image`).
+* Blur per 256² crop (``blur_per_crop``): each path, one warm-up, then the
+  median of 5 crops at other positions (with the fastest and slowest).
 
   Errors are RMS over the window in % of the RMS of the blur itself
   (reference − sharp), and max |Δ| on the 0..1 scale.
@@ -25,30 +27,29 @@ Reference PSFs are cached in ``$ISP_CACHE/synth-bench`` (else
 ``~/.cache/phone-isp/synth-bench``). The machine may be shared: the load
 average is printed. Prints progress, then one JSON object as its last line.
 
-Usage: python benchmarks/synth.py [--pairs 1000] [--workers 2] [--skip-speed] [--skip-error]
+Usage: python -m benchmarks.synth [--pairs 1000] [--workers 2] [--skip-speed] [--skip-error]
 """
 
 from __future__ import annotations
 
-import os
+from benchmarks import _harness
 
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ[var] = "1"
+if __name__ == "__main__":   # one BLAS thread per worker process; before numpy loads
+    _harness.pin_threads(2, blas=1)
 
-import argparse
-import hashlib
-import json
-import shutil
-import sys
-import tempfile
-import time
-from pathlib import Path
+import hashlib  # noqa: E402
+import json  # noqa: E402
+import os  # noqa: E402
+import shutil  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-import numpy as np
+import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = _harness.ROOT
 DATA = ROOT.parent / "shared" / "data"
-sys.path.insert(0, str(ROOT))
 
 LENS = DATA / "lenses" / "phone" / "US-12210142-B2-e9.zmx"
 CAMERAS = [DATA / "raw" / "SYNTHETIC_phone_S6meta_512x384.dng", DATA / "raw" / "skia_sample_1mp.dng"]
@@ -81,12 +82,8 @@ def reference_map(pl, psfmap, origin, size, step, workers):
     from concurrent.futures import ProcessPoolExecutor
 
     from calibration.optics.lens import Sensor
-    from calibration.optics.psf.map import (
-        PSFMap,
-        _wavelength_plan,
-        chief_ray_fields,
-        sensor_to_image,
-    )
+    from calibration.optics.psf.map import PSFMap, chief_ray_fields, sensor_to_image
+    from calibration.optics.psf.spectral import channel_quadrature
 
     st = psfmap.settings
     k = size // step
@@ -99,7 +96,7 @@ def reference_map(pl, psfmap, origin, size, step, workers):
     if path.exists():
         psfs = np.load(path)["psfs"]
     else:
-        nodes, weights = _wavelength_plan(tuple(st["channels"]), st["n_wavelengths"], st["camera"], st["illuminant"])
+        nodes, weights = channel_quadrature(tuple(st["channels"]), st["n_wavelengths"], st["camera"], st["illuminant"])
         fields = chief_ray_fields(pl, centers.reshape(-1, 2))
         tasks = [(pl, fields[i], centers.reshape(-1, 2)[i], nodes, weights, st["method"], st["pupil_samples"],
                   st["n"], st["pitch_um"], st["aiming"], st["aim_each_wavelength"], 1) for i in range(k * k)]
@@ -183,28 +180,26 @@ def blur_speed(psfmap) -> dict:
     for label, fn in (("bilinear_fft", lambda o: CropBlur(psfmap)(img, o)),
                       ("nearest_fft", lambda o: CropBlur(psfmap, "nearest")(img, o)),
                       ("bilinear_direct", lambda o: blur_image(img, psfmap, size_px=size, origin=o))):
-        fn((2000, 3000))
-        t = time.perf_counter()
-        for i in range(5):
-            fn((2000 + 37 * i, 3000 + 53 * i))
-        out[label + "_ms"] = round(1000 * (time.perf_counter() - t) / 5, 1)
+        origins = iter([(2000, 3000)] + [(2000 + 37 * i, 3000 + 53 * i) for i in range(5)])
+        t = _harness.measure(lambda fn=fn, origins=origins: fn(next(origins)), runs=5, warmup=1)
+        out[label + "_ms"] = t.map(lambda s: 1000 * s).as_dict(1)
     return out
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv=None) -> dict:
+    ap = _harness.parser(__doc__)
     ap.add_argument("--pairs", type=int, default=1000)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-error", action="store_true")
     ap.add_argument("--dense-grid", metavar="ROWS,COLS", action="append", default=[],
                     help="also measure bilinear interpolation of a denser PSF map (e.g. 30,40; computed once, cached)")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
 
     from restoration.synth.pairs import generate, plan
     from restoration.synth.optics import load_lens
 
-    out = {"lens": LENS.name, "load_average_start": os.getloadavg()}
+    out = {"lens": LENS.name}
     t = time.perf_counter()
     pl = load_lens(LENS)
     p = plan(pl, latent_dir=DATA / "latent", cameras=CAMERAS, progress=False, workers=args.workers)
@@ -222,23 +217,24 @@ def main():
             out["speed"] = {"pairs": args.pairs, "size": 256, "workers": args.workers, "seconds": round(s, 1),
                             "pairs_per_s": round(args.pairs / s, 2),
                             "seconds_per_1000": round(1000 * s / args.pairs, 1),
-                            "target_s_per_1000": 300, "load_average_end": os.getloadavg(),
+                            "target_s_per_1000": 300,
                             "bytes_on_disk": sum(f.stat().st_size for f in (tmp / "pairs").iterdir())}
             say(f"{args.pairs} pairs: {s:.1f} s ({args.pairs / s:.2f} pairs/s; load {os.getloadavg()})")
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     if not args.skip_error:
+        from isp.runtime.executor import pool_executor
         from restoration.synth.optics import psf_maps
 
         dense = {}
         for g in args.dense_grid:
             rows, cols = (int(v) for v in g.split(","))
             t = time.perf_counter()
-            dense[f"{rows}x{cols}"] = psf_maps([pl], workers=args.workers, progress=False, grid=(rows, cols))[0]
+            with pool_executor(args.workers) as ex:
+                dense[f"{rows}x{cols}"] = psf_maps([pl], executor=ex, grid=(rows, cols))[0]
             say(f"PSF map {rows}×{cols}: {time.perf_counter() - t:.0f} s")
         out["shortcut_error"] = shortcut_errors(pl, psfmap, args.workers, dense)
-    print(json.dumps(out))
-    return out
+    return _harness.publish("synth", out, args, argv)
 
 
 if __name__ == "__main__":

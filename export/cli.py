@@ -1,18 +1,24 @@
 """``isp export``: a restoration checkpoint → ONNX for the ``correction``
 stage (FP32, optionally a static INT8 copy), with a JSON report.
 
-Reached from ``isp export ...`` and imported only then (it needs torch).
-Errors print one line and exit with code 2, like the rest of ``isp``.
+Reached from ``isp export ...`` and imported only then; torch is imported
+when it runs, so importing this module is cheap: :data:`EXPORT`, the
+command's record, is here (the ``isp.commands`` entry point names it).
+Errors print one line and exit with code 2, like the rest of ``isp``
+(:mod:`isp.cli.run`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
+from isp.cli.commands import Command
 from isp.errors import ConfigError
+
+EXPORT = Command("export", "checkpoint -> ONNX (FP32, static INT8) for the correction stage, with parity checks",
+                 module="export.cli")
 
 EPILOG = """\
 examples:
@@ -32,11 +38,12 @@ held-out synth pairs, and what onnxruntime's mobile-usability checker says.
 """
 
 
-def make_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="isp export", description="Export a restoration checkpoint to ONNX for the correction stage "
-                                       "(opset ≥ 17, dynamic H/W, metadata the stage checks).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``isp export``."""
+    p.description = ("Export a restoration checkpoint to ONNX for the correction stage "
+                     "(opset ≥ 17, dynamic H/W, metadata the stage checks).")
+    p.epilog = EPILOG
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("checkpoint", help="restoration checkpoint (.pt) written by `isp train`")
     p.add_argument("-o", "--output", required=True, help="the FP32 .onnx file to write")
     p.add_argument("--opset", type=int, default=17, help="ONNX opset, ≥ 17 (default 17)")
@@ -57,8 +64,9 @@ def make_parser() -> argparse.ArgumentParser:
     q.add_argument("--eval-pairs", type=int, default=16,
                    help="held-out synth pairs (the last ones) for the INT8 vs FP32 PSNR (default 16; 0: skip)")
     p.add_argument("--no-mobile-check", action="store_true", help="skip onnxruntime's mobile-usability checker")
-    p.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
-    return p
+    # SUPPRESS: not given here, `isp --debug export ...` keeps its value
+    p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                   help="show tracebacks of internal errors")
 
 
 def _summary_line(text: str) -> str:
@@ -66,7 +74,8 @@ def _summary_line(text: str) -> str:
     return lines[-1].removeprefix("INFO:").strip() if lines else ""
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Export FP32 (and INT8), check them, write the JSON report."""
     from export.onnx_export import export_onnx
 
     out = Path(args.output)
@@ -131,14 +140,3 @@ def run(args) -> int:
     print(f"report: {rep}")
     return 0
 
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``isp export`` (called by :func:`isp.cli.main.main`)."""
-    args = make_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    return run(args)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from isp.cli.main import _guarded
-
-    sys.exit(_guarded(lambda: main(), debug="--debug" in sys.argv, where=""))

@@ -116,9 +116,15 @@ def spread_broadcast_muls(model) -> int:
 
     Examples
     --------
+    The float twin of the shipped INT8 model has the exported graph's
+    products:
+
+    >>> from pathlib import Path
     >>> import onnx
-    >>> m = onnx.load("out/e9_export/e9.onnx")  # doctest: +SKIP
-    >>> spread_broadcast_muls(m)  # doctest: +SKIP
+    >>> import modules
+    >>> from export.quantize import dequantize_qdq
+    >>> shipped = Path(modules.__file__).parent / "models" / "e9_default.int8.onnx"
+    >>> spread_broadcast_muls(dequantize_qdq(onnx.load(shipped)))
     12
     """
     from onnx import helper, numpy_helper

@@ -48,11 +48,11 @@ re-export after training. An INT8 copy is measured on its own
 (:func:`measure_tile_overlap` on the quantised file): a context change
 that moves an activation across a rounding step moves the output by a
 whole step of the residual's quantisation, so INT8 needs more margin than
-its float model: the e9 model packaged at stop 25, 80 px against 32; at
-32 px its INT8 tiles differed from the whole frame by up to 5.7 DN on a
-photograph, the float ones by 0.3 (``python -m benchmarks.seams``), and
-at 80 px, short of its 98 px radius, still 2.5 DN on 512-px tiles, whose
-many seams met rare flips that the sample had not. So an INT8 file's
+its float model: for an e9 model with a 98 px receptive radius, 80 px
+against 32; at 32 px its INT8 tiles differed from the whole frame by up
+to 5.7 DN on a photograph, the float ones by 0.3 (``python -m
+benchmarks.seams``), and at 80 px, short of its radius, still 2.5 DN on
+512-px tiles, whose many seams met rare flips that the sample had not. So an INT8 file's
 margin is at least its receptive radius (:func:`remeasure_overlap`):
 integer arithmetic then makes its tiles the whole frame's result bit for
 bit (the package: 64 px for a 62 px radius; 0.0 DN).
@@ -337,8 +337,8 @@ def _measure_into(proto, path) -> dict:
     if meta.get("precision") == "int8" and radius:
         # integer arithmetic: a tile whose margin covers the receptive radius is the whole frame's
         # result bit for bit, and one short of it leaves rare rounding flips that a sample can miss
-        # (the package of stop 25, 80 px of its 98: 0.23 DN on its own 1,024-px tiles, 2.5 DN on
-        # 512-px ones: python -m benchmarks.seams)
+        # (80 px of a 98 px radius: 0.23 DN on 1,024-px tiles, 2.5 DN on 512-px ones:
+        # python -m benchmarks.seams)
         m = int(meta.get("input_multiple", 1)) or 1
         margin = max(margin, -(-radius // m) * m)
         measured["overlap_int8"] = margin

@@ -34,12 +34,9 @@ from __future__ import annotations
 import dataclasses
 import enum
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-
-if TYPE_CHECKING:  # pragma: no cover
-    from isp.meta import CameraMeta
 
 
 class Domain(enum.Enum):
@@ -144,9 +141,10 @@ class Frame:
         float32 pixels, (H, W) mosaic or (H, W, 3); (N,) uint8 when encoded.
     domain : Domain
         How far processing got; see the module table.
-    meta : CameraMeta
+    meta : isp.meta.CameraMeta
         What the file said about the camera, and where this data sits on the
-        sensor (``meta.origin``).
+        sensor (``meta.origin``). Named, not imported: :mod:`isp.meta` builds
+        on this module's :class:`CFA`, so this module imports nothing of it.
     history : tuple of Step
         Stages applied so far, oldest first.
     neutral : tuple of 3 float or None

@@ -228,3 +228,58 @@ def _toml_value(v: Any) -> str:
         return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
     s = str(v).replace("\\", "\\\\").replace('"', '\\"')
     return f'"{s}"'
+
+
+def pipeline_config(path: str | Path | None = None, overrides: Iterable[tuple[str, str, Any]] = (), *,
+                    no_correction: bool = False) -> dict[str, Any]:
+    """A pipeline config (a parsed TOML document) with parameter overrides.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        A pipeline TOML file (``[[stage]]`` tables); none: the default
+        pipeline (:data:`DEFAULT_STAGES`).
+    overrides : iterable of (stage, parameter, value)
+        Set ``parameter`` of every stage named ``stage`` to ``value``
+        (``isp process --set STAGE.PARAM=VALUE``).
+    no_correction : bool
+        Every ``correction`` stage runs without a model (the identity),
+        whatever the file or the overrides say.
+
+    Returns
+    -------
+    dict
+        For :meth:`Pipeline.from_config`; not checked yet.
+
+    Raises
+    ------
+    ConfigError
+        The file cannot be read or is not TOML; an override names a stage
+        the pipeline does not have (the message lists those it has).
+
+    >>> pipeline_config(overrides=[("jpeg", "quality", 90)])["stage"][-1]
+    {'name': 'jpeg', 'quality': 90}
+    """
+    if path:
+        p = Path(path)
+        try:
+            config = tomllib.loads(p.read_text())
+        except OSError as e:
+            raise ConfigError(f"{p}: cannot read config: {e.strerror or e}") from None
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"{p}: not valid TOML: {e}") from None
+    else:
+        config = {"stage": [{"name": n} for n in DEFAULT_STAGES]}
+    stages = config.get("stage", [])
+    for stage, param, value in overrides:
+        hits = [e for e in stages if isinstance(e, dict) and e.get("name") == stage]
+        if not hits:
+            names = ", ".join(str(e.get("name")) for e in stages if isinstance(e, dict))
+            raise ConfigError(f"--set {stage}.{param}: no stage {stage!r} in the pipeline ({names})")
+        for e in hits:
+            e[param] = value
+    if no_correction:
+        for e in stages:
+            if isinstance(e, dict) and e.get("name") == "correction":
+                e["model"] = "none"
+    return config

@@ -184,3 +184,23 @@ def build_stage(cls: type, params: dict[str, Any], label: str) -> Stage:
         return cls(**kwargs)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"{label}: {e}") from None
+
+
+def stage_parameters(cls: type) -> list[tuple[str, Any, str]] | None:
+    """``(name, default, type)`` of each field of a dataclass stage class
+    (the default ``"(required)"`` where there is none; the type as written,
+    without ``typing.``), for ``isp stages NAME``; None for a class that is
+    not a dataclass.
+
+    >>> import dataclasses
+    >>> @dataclasses.dataclass
+    ... class Gain:
+    ...     factor: float = 1.0
+    >>> stage_parameters(Gain)
+    [('factor', 1.0, "<class 'float'>")]
+    """
+    if not dataclasses.is_dataclass(cls):
+        return None
+    hints = typing.get_type_hints(cls)
+    return [(f.name, f.default if f.default is not dataclasses.MISSING else "(required)",
+             str(hints.get(f.name, "")).replace("typing.", "")) for f in dataclasses.fields(cls)]

@@ -35,11 +35,11 @@ from modules.common.dng_colour import (
     PCS_WHITE_XY,
     SOURCES,
     SourceName,
-    _check_source,
     bradford_matrix,
     camera_neutral_to_xy,
     camera_to_linear_srgb,
     camera_to_xyz_d50,
+    check_source,
     illuminant_to_cct,
     interpolation_weight,
     matrix_xyz_d50_to_linear_srgb,
@@ -137,7 +137,7 @@ class ColorCorrection(StageBase):
     matrix: tuple[float, ...] | None = None
 
     def __post_init__(self):
-        _check_source(self.source)
+        check_source(self.source)
         if self.matrix is not None:
             values = tuple(self.matrix) if not isinstance(self.matrix, np.ndarray) \
                 else tuple(self.matrix.ravel())

@@ -148,7 +148,9 @@ def encode_jpeg(rgb: np.ndarray, quality: int = 95, subsampling: str = "420",
     quality : int, 1..100
     subsampling : {"420", "422", "444"}
     threads : int
-        Encode this many horizontal bands at once and join them.
+        Encode this many horizontal bands at once (on a persistent pool of
+        as many threads, :func:`isp.runtime.executor.shared_threads`) and
+        join them.
 
     Notes
     -----
@@ -187,10 +189,9 @@ def encode_jpeg(rgb: np.ndarray, quality: int = 95, subsampling: str = "420",
             raise RuntimeError("OpenCV failed to encode the JPEG")
         return buf.tobytes()
 
-    from concurrent.futures import ThreadPoolExecutor
+    from isp.runtime.executor import shared_threads
 
-    with ThreadPoolExecutor(threads) as pool:  # imencode releases the GIL
-        parts = list(pool.map(encode, bands))
+    parts = shared_threads(threads).map(encode, bands)  # imencode releases the GIL
     sof, start, end = _segments(parts[0])
     out = bytearray(parts[0][:start])
     out[sof:sof + 2] = h.to_bytes(2, "big")

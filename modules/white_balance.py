@@ -80,6 +80,8 @@ def apply_white_balance(data: np.ndarray, gains, cfa_pattern: np.ndarray | None 
     cfa_pattern : (2, 2) int array
         Channel per CFA phase, for a mosaic.
 
+    Examples
+    --------
     >>> apply_white_balance(np.ones((2, 2), np.float32), (2, 1, 3), np.array([[0, 1], [1, 2]]))
     array([[2., 1.],
            [1., 3.]], dtype=float32)

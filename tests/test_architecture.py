@@ -28,6 +28,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.property
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("isp", "modules", "calibration", "restoration", "export")
 

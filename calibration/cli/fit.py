@@ -18,16 +18,14 @@ temporary folder and renamed, so a failed fit leaves nothing):
 from __future__ import annotations
 
 import argparse
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
-from isp.errors import IspError
+from isp.errors import ConfigError
 
 #: bootstrap replicas per edge of a capture (``--bootstrap``); off by default: on simulated device 3 the
 #: edges' own σ brought the fitted lens closer to the true one from a 1 µm capture (RMS SFR error 0.0130 →
-#: 0.0092) and farther from a 2.8 µm one (0.0099 → 0.0116), README "That route on a simulated device"
+#: 0.0092) and farther from a 2.8 µm one (0.0099 → 0.0116)
 BOOTSTRAP = 0
 
 EPILOG = """examples:
@@ -38,29 +36,33 @@ EPILOG = """examples:
 """
 
 
-def cmd_fit(args) -> int:
-    from calibration.cli.main import _load
-    from calibration.cli.loop import _check_out, _publish, load_measured, match_sensor
-    from calibration.fit.proxy import fit_proxy
+def run(args: argparse.Namespace) -> int:
+    """Fit the proxy camera and write its folder (built aside and renamed into place)."""
+    from calibration.fit.measurements import load_measured, match_sensor
+    from calibration.optics.io import read_lens
+    from calibration.report import check_output_folder, staged_folder
+    from isp.runtime.executor import pool_executor
+
+    from calibration.fit.proxy import ProxyFitSettings, fit_proxy
     from calibration.optics.psf.map import WINDOW_ENERGY_WARN
     from calibration.fit.forward_model import FAST_JACOBIAN, ModelSettings
 
     t0 = time.perf_counter()
     if args.max_iter < 1:
-        raise IspError(f"--max-iter {args.max_iter}: at least 1")
+        raise ConfigError(f"--max-iter {args.max_iter}: at least 1")
     if args.n_params < 1:
-        raise IspError(f"--n-params {args.n_params}: at least 1")
+        raise ConfigError(f"--n-params {args.n_params}: at least 1")
     if args.restarts < 0:
-        raise IspError(f"--restarts {args.restarts}: 0 or more")
+        raise ConfigError(f"--restarts {args.restarts}: 0 or more")
     if args.bootstrap < 0:
-        raise IspError(f"--bootstrap {args.bootstrap}: 0 or more")
+        raise ConfigError(f"--bootstrap {args.bootstrap}: 0 or more")
     if args.window_um is not None and not 8.0 <= args.window_um <= 256.0:
-        raise IspError(f"--window-um {args.window_um:g}: between 8 and 256 µm")
+        raise ConfigError(f"--window-um {args.window_um:g}: between 8 and 256 µm")
     if min(args.coarse) < 0 or (0 in args.coarse and any(args.coarse)):
-        raise IspError(f"--coarse {args.coarse[0]} {args.coarse[1]}: two positive counts, or 0 0 (off)")
+        raise ConfigError(f"--coarse {args.coarse[0]} {args.coarse[1]}: two positive counts, or 0 0 (off)")
     out = Path(args.output)
-    _check_out(out)
-    nominal = _load(args.lens)                  # a bad lens file fails before any measurement
+    check_output_folder(out)
+    nominal = read_lens(args.lens)              # a bad lens file fails before any measurement
     obs, notes = load_measured(args.measured, channel=args.channel, encoding=args.encoding,
                                pixel_um=args.pixel_um, progress=True, bootstrap=args.bootstrap)
     for n in notes:
@@ -69,19 +71,14 @@ def cmd_fit(args) -> int:
     print(f"{args.measured}: {len(obs)} observations; fitting {args.n_params} parameters "
           f"({args.method}, {args.residuals} residuals)", flush=True)
     settings = None if args.window_um is None else ModelSettings().with_window(args.window_um)
-    fit = fit_proxy(nominal, obs, settings=settings, method=args.method, workers=args.workers, max_iter=args.max_iter,
-                    n_params=args.n_params, residuals=args.residuals,
-                    jacobian_settings=FAST_JACOBIAN if args.fast_jacobian else None,
-                    refresh=args.refresh, restarts=args.restarts,
-                    coarse=tuple(args.coarse) if args.coarse[0] > 0 else None)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    fit = fit_proxy(nominal, obs, ProxyFitSettings(model=settings, method=args.method, max_iter=args.max_iter,
+                                                   n_params=args.n_params, residuals=args.residuals,
+                                                   jacobian_model=FAST_JACOBIAN if args.fast_jacobian else None,
+                                                   refresh=args.refresh, restarts=args.restarts,
+                                                   coarse=tuple(args.coarse) if args.coarse[0] > 0 else None),
+                    executor=pool_executor(args.workers, progress=True))
+    with staged_folder(out) as tmp:
         fit.save(tmp)
-        _publish(tmp, out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     e = fit.errors()
     if fit.coarse:
         print(f"coarse to fine: fitted first on {fit.coarse['observations']} of {len(obs)} observations "
@@ -103,55 +100,54 @@ def cmd_fit(args) -> int:
     return 0
 
 
-def add_parser(sub) -> None:
-    """Register ``fit`` on the ``isp calib`` sub-parsers."""
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``isp calib fit``."""
     from calibration.fit.proxy import COARSE_GRID, MAX_ITER, N_PARAMS, REFRESH, RESTART_CHI2, RESTARTS
 
-    sp = sub.add_parser("fit", help="fit a proxy camera (lens perturbations) to a measured SFR",
-                        description=__doc__.split("\n\n")[0].replace("``", "`"), epilog=EPILOG,
-                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    sp.add_argument("--lens", required=True, metavar="LENS", help="lens file (lens/v1 .json, Zemax .zmx, ...)")
-    sp.add_argument("--measured", required=True, metavar="MEAS",
-                    help="chart capture (DNG/raw or image), SFR JSON of `isp calib sfr`, or sfr-observations/v1")
-    sp.add_argument("-o", "--output", default="proxy_fit", metavar="DIR", help="output folder (default proxy_fit/)")
-    sp.add_argument("--method", choices=("dls", "scipy"), default="dls",
-                    help="dls: damped least squares, dynamic damping (default); scipy: least_squares TRF")
-    sp.add_argument("--residuals", choices=("auto", "sfra", "bands", "odd", "shape"), default="auto",
-                    help="auto (default): shape where the measurement has the LSF asymmetry, else sfra; "
-                         "sfra: SFRA per edge (the paper); bands: plus the mean SFR in four frequency bands; "
-                         "odd: plus the LSF's asymmetry in four bands (coma's direction, which SFR drops); "
-                         "shape: SFRA, bands and asymmetry")
-    sp.add_argument("--n-params", type=int, default=N_PARAMS,
-                    help=f"perturbations fitted, the most sensitive (default {N_PARAMS})")
-    sp.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"iterations at most (default {MAX_ITER})")
-    sp.add_argument("--refresh", type=int, default=REFRESH,
-                    help="a finite-difference Jacobian every REFRESH accepted steps, Broyden secant updates "
-                         f"in between (default {REFRESH}; 1: every step)")
-    sp.add_argument("--restarts", type=int, default=RESTARTS,
-                    help=f"when the fit ends above {RESTART_CHI2:g} χ² per residual (a local minimum far above "
-                         f"the noise floor), this many other starts within ±1 tolerance, the best continued "
-                         f"(default {RESTARTS}; 0: none)")
-    sp.add_argument("--coarse", type=int, nargs=2, default=list(COARSE_GRID), metavar=("R", "C"),
-                    help="fit first (screening and restarts included) on the edges of an R × C sub-grid of the "
-                         "regions, spread edge to edge, then refine on all; only where that at least halves the "
-                         f"edges (default {COARSE_GRID[0]} {COARSE_GRID[1]}: on the paper's 15 × 20 regions, "
-                         "35 of 300; 0 0: off)")
-    sp.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
-    sp.add_argument("--fast-jacobian", action=argparse.BooleanOptionalAction, default=True,
-                    help="Jacobian from a cheaper model (32 pupil samples, a 24 µm PSF window), steps judged on the full model "
-                         "(default on: on e9 at 15 × 20 regions, with the 16 µm model window of the time, it "
-                         "ended at a lower merit in 109 s against 181 s with the full model's Jacobian; 152 s "
-                         "with today's 32 µm window)")
-    sp.add_argument("--window-um", type=float, metavar="UM",
-                    help="the forward model's PSF window, µm (default 32; wider for blurry devices, whose "
-                         "corner light a narrow window drops: the fit says when)")
-    sp.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
-    sp.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")
-    sp.add_argument("--pixel-um", type=float, metavar="UM", help="pixel pitch, µm (default: the capture's)")
-    sp.add_argument("--bootstrap", type=int, default=BOOTSTRAP, metavar="N",
-                    help="a capture's edges: N residual-bootstrap replicas each (20 is plenty), whose spread is "
-                         "that edge's σ in the fit, so an edge whose measurement is unstable weighs little "
-                         f"(default {BOOTSTRAP}: 0.002 cycles/pixel for every edge). On one simulated device it "
-                         "brought the fit closer to the true lens from a 1 µm capture and farther from a 2.8 µm "
-                         "one (README)")
-    sp.set_defaults(func=cmd_fit)
+    p.description = __doc__.split("\n\n")[0].replace("``", "`")
+    p.epilog = EPILOG
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.add_argument("--lens", required=True, metavar="LENS", help="lens file (lens/v1 .json, Zemax .zmx, ...)")
+    p.add_argument("--measured", required=True, metavar="MEAS",
+                   help="chart capture (DNG/raw or image), SFR JSON of `isp calib sfr`, or sfr-observations/v1")
+    p.add_argument("-o", "--output", default="proxy_fit", metavar="DIR", help="output folder (default proxy_fit/)")
+    p.add_argument("--method", choices=("dls", "scipy"), default="dls",
+                   help="dls: damped least squares, dynamic damping (default); scipy: least_squares TRF")
+    p.add_argument("--residuals", choices=("auto", "sfra", "bands", "odd", "shape"), default="auto",
+                   help="auto (default): shape where the measurement has the LSF asymmetry, else sfra; "
+                        "sfra: SFRA per edge (the paper); bands: plus the mean SFR in four frequency bands; "
+                        "odd: plus the LSF's asymmetry in four bands (coma's direction, which SFR drops); "
+                        "shape: SFRA, bands and asymmetry")
+    p.add_argument("--n-params", type=int, default=N_PARAMS,
+                   help=f"perturbations fitted, the most sensitive (default {N_PARAMS})")
+    p.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"iterations at most (default {MAX_ITER})")
+    p.add_argument("--refresh", type=int, default=REFRESH,
+                   help="a finite-difference Jacobian every REFRESH accepted steps, Broyden secant updates "
+                        f"in between (default {REFRESH}; 1: every step)")
+    p.add_argument("--restarts", type=int, default=RESTARTS,
+                   help=f"when the fit ends above {RESTART_CHI2:g} χ² per residual (a local minimum far above "
+                        f"the noise floor), this many other starts within ±1 tolerance, the best continued "
+                        f"(default {RESTARTS}; 0: none)")
+    p.add_argument("--coarse", type=int, nargs=2, default=list(COARSE_GRID), metavar=("R", "C"),
+                   help="fit first (screening and restarts included) on the edges of an R × C sub-grid of the "
+                        "regions, spread edge to edge, then refine on all; only where that at least halves the "
+                        f"edges (default {COARSE_GRID[0]} {COARSE_GRID[1]}: on the paper's 15 × 20 regions, "
+                        "35 of 300; 0 0: off)")
+    p.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
+    p.add_argument("--fast-jacobian", action=argparse.BooleanOptionalAction, default=True,
+                   help="Jacobian from a cheaper model (32 pupil samples, a 24 µm PSF window), steps judged on the full model "
+                        "(default on: on e9 at 15 × 20 regions, with the 16 µm model window of the time, it "
+                        "ended at a lower merit in 109 s against 181 s with the full model's Jacobian; 152 s "
+                        "with today's 32 µm window)")
+    p.add_argument("--window-um", type=float, metavar="UM",
+                   help="the forward model's PSF window, µm (default 32; wider for blurry devices, whose "
+                        "corner light a narrow window drops: the fit says when)")
+    p.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
+    p.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")
+    p.add_argument("--pixel-um", type=float, metavar="UM", help="pixel pitch, µm (default: the capture's)")
+    p.add_argument("--bootstrap", type=int, default=BOOTSTRAP, metavar="N",
+                   help="a capture's edges: N residual-bootstrap replicas each (20 is plenty), whose spread is "
+                        "that edge's σ in the fit, so an edge whose measurement is unstable weighs little "
+                        f"(default {BOOTSTRAP}: 0.002 cycles/pixel for every edge). On one simulated device it "
+                        "brought the fit closer to the true lens from a 1 µm capture and farther from a 2.8 µm "
+                        "one")

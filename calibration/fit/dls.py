@@ -113,8 +113,8 @@ parameters. φ/M ≤ 1 alone stops short: a least-squares minimum has
 χ² ≈ M − N (its degrees of freedom), so a fit that crosses M still has
 about N to gain, and its parameters are off by about their 1-σ
 uncertainty. On the synthetic devices of ``benchmarks/proxy.py`` where
-the fit stopped there (φ/M ≤ 1 only, until 2026-11-26), scipy's TRF went
-on to a merit 4–10 % lower. The unit is φ/(M − N) where that is above 1
+φ/M ≤ 1 alone would stop the fit, scipy's TRF goes on to a merit 4–10 %
+lower. The unit is φ/(M − N) where that is above 1
 (a model that cannot reach the noise; its parameters' uncertainty is
 scaled the same way), so that ``target_chi2=inf`` stops a fit once what
 is left to gain is within the parameters' uncertainty, whatever χ² the
@@ -123,11 +123,14 @@ model leaves.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from isp.errors import ConfigError
 
 NONLINEARITY_TAU = 0.3
 
@@ -268,64 +271,51 @@ def _gain_left(a: np.ndarray, f: np.ndarray) -> float:
     return float(f @ f - np.sum((f + a @ delta) ** 2))
 
 
-def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, upper,
-                         fun_many: Callable[[Sequence[np.ndarray]], list] | None = None,
-                         h: float | np.ndarray = 0.1, lam0: float = 1e-2, max_iter: int = 25,
-                         gtol: float = 1e-6, ftol: float = 1e-4, target_chi2: float | None = None,
-                         radius: float | None = 1.0, trials: int = 1, jacobian: str = "auto", scaling: str = "levenberg",
-                         jac_many: Callable[[Sequence[np.ndarray]], list] | None = None,
-                         refresh: int = 1, progress: Callable[[dict], None] | None = None,
-                         jac0: np.ndarray | None = None, bracket: bool = False, bounds: str = "clip") -> DlsResult:
-    """Minimise ``‖fun(x)‖²`` within ``[lower, upper]`` (module docstring).
+_JACOBIANS = ("auto", "forward", "central")
+_SCALINGS = ("levenberg", "marquardt")
+_BOUNDS = ("clip", "box")
+
+
+@dataclass(frozen=True)
+class DLSSettings:
+    """How :func:`damped_least_squares` steps and stops (module docstring).
+    Checked at construction (:class:`isp.errors.ConfigError` naming the
+    field and value).
 
     Parameters
     ----------
-    fun : callable
-        (N,) → (M,) residuals (divided by their uncertainties).
-    x0 : (N,) array_like
-    lower, upper : (N,) array_like
-    fun_many : callable, optional
-        Evaluates a list of points, e.g. on a process pool; default a loop.
-    h : float or (N,)
-        Finite-difference step.
+    h : float or tuple of float
+        Finite-difference step, parameter units (tolerances in a proxy
+        fit), > 0; one per parameter or one for all.
     lam0 : float
-        Initial λ.
+        Initial λ (dimensionless with ``scaling="levenberg"``), > 0.
     max_iter : int
-        Iterations at most (one finite-difference Jacobian each with
+        Iterations at most, ≥ 1 (one finite-difference Jacobian each with
         ``refresh = 1``, fewer with secant updates).
     gtol, ftol : float
-        Stopping tolerances (projected gradient ∞-norm; relative fall of φ).
-        With ``refresh`` > 1 the gradient test uses a fresh Jacobian.
+        Stopping tolerances, ≥ 0: projected gradient ∞-norm (residual ×
+        residual per parameter unit); relative fall of φ over two accepted
+        steps. With ``refresh`` > 1 the gradient test uses a fresh Jacobian.
     target_chi2 : float, optional
-        The noise floor: stop once φ/M ≤ this and the linearised model
-        offers less than one unit of χ² to gain (module notes); ``inf``:
-        on the gain left alone.
+        The noise floor, χ² per residual, > 0: stop once φ/M ≤ this and the
+        linearised model offers less than one unit of χ² to gain (module
+        notes); ``inf``: on the gain left alone; None: no such test.
     radius : float or None
-        Initial trust radius Δ (2-norm of a step, parameter units); None:
-        no radius (plain LM).
+        Initial trust radius Δ (2-norm of a step, parameter units), > 0;
+        None: no radius (plain LM).
     trials : int
-        Dampings tried at once per step (use the number of workers).
+        Dampings tried at once per step, ≥ 1 (use the number of workers).
     jacobian : {"auto", "forward", "central"}
         Finite differences; "auto" starts forward and switches to central
         for good once the merit stalls or two steps in a row fall short of
         the linear model (ρ < 0.25).
-    jac_many : callable, optional
-        Evaluates a list of points for the Jacobian only — a cheaper model
-        (fewer wavelengths, pupil samples): the step is then damped
-        Gauss–Newton on an approximate Jacobian, still accepted only on the
-        exact merit.
+    scaling : {"levenberg", "marquardt"}
+        The damping's scale ``d``: the mean of diag(AᵀA), or each
+        parameter's own (module docstring).
     refresh : int
         A finite-difference Jacobian every ``refresh`` accepted steps at
-        most, Broyden updates in between (module docstring); 1 (default):
-        every step.
-    progress : callable, optional
-        Called with each iteration's record.
-    jac0 : (M, N) array, optional
-        A Jacobian at ``x0`` to start from instead of a finite-difference
-        one (e.g. the screening's wider secants,
-        :func:`calibration.fit.proxy.screen_parameters`). It is treated as a
-        secant Jacobian: a failed step or a small gradient re-linearises by
-        finite differences before anything is concluded from it.
+        most, ≥ 1, Broyden updates in between (module docstring); 1
+        (default): every step.
     bracket : bool
         With ``trials`` ≥ 2, try dampings on both sides of the current one
         rather than only more damped ones (module docstring; off by default,
@@ -335,10 +325,120 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
         "box" takes the damped model's minimiser inside the box (module
         docstring).
 
+    Examples
+    --------
+    >>> DLSSettings(max_iter=10, h=1e-6).trials
+    1
+    >>> DLSSettings(refresh=0)
+    Traceback (most recent call last):
+    ...
+    isp.errors.ConfigError: DLSSettings.refresh: must be an integer ≥ 1, got 0
+    """
+
+    h: float | tuple[float, ...] = 0.1
+    lam0: float = 1e-2
+    max_iter: int = 25
+    gtol: float = 1e-6
+    ftol: float = 1e-4
+    target_chi2: float | None = None
+    radius: float | None = 1.0
+    trials: int = 1
+    jacobian: str = "auto"
+    scaling: str = "levenberg"
+    refresh: int = 1
+    bracket: bool = False
+    bounds: str = "clip"
+
+    def __post_init__(self):
+        def bad(name, why):
+            return ConfigError(f"DLSSettings.{name}: {why}")
+
+        def integer(name, least):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < least:
+                raise bad(name, f"must be an integer ≥ {least}, got {v!r}")
+            object.__setattr__(self, name, int(v))
+
+        def number(name, positive, optional=False):
+            v = getattr(self, name)
+            if v is None and optional:
+                return
+            try:
+                x = float(v)
+            except (TypeError, ValueError):
+                x = float("nan")
+            if not (x > 0 if positive else x >= 0):
+                raise bad(name, f"must be a number {'>' if positive else '≥'} 0, got {v!r}")
+            object.__setattr__(self, name, x)
+
+        h = np.asarray(self.h, dtype=float) if not isinstance(self.h, str) else np.array(np.nan)
+        if h.ndim > 1 or h.size == 0 or not np.all(h > 0) or not np.all(np.isfinite(h)):
+            raise bad("h", f"must be a positive step or one per parameter, got {self.h!r}")
+        object.__setattr__(self, "h", float(h) if h.ndim == 0 else tuple(h.tolist()))
+        number("lam0", True)
+        integer("max_iter", 1)
+        number("gtol", False)
+        number("ftol", False)
+        number("target_chi2", True, optional=True)
+        number("radius", True, optional=True)
+        integer("trials", 1)
+        integer("refresh", 1)
+        for name, valid in (("jacobian", _JACOBIANS), ("scaling", _SCALINGS), ("bounds", _BOUNDS)):
+            if getattr(self, name) not in valid:
+                raise bad(name, f"unknown {getattr(self, name)!r}; valid: {', '.join(map(repr, valid))}")
+        object.__setattr__(self, "bracket", bool(self.bracket))
+
+
+def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, upper,
+                         settings: DLSSettings | None = None,
+                         fun_many: Callable[[Sequence[np.ndarray]], list] | None = None,
+                         jac_many: Callable[[Sequence[np.ndarray]], list] | None = None,
+                         jac0: np.ndarray | None = None, callback: Callable[[dict], None] | None = None,
+                         executor=None) -> DlsResult:
+    """Minimise ``‖fun(x)‖²`` within ``[lower, upper]`` (module docstring).
+
+    Parameters
+    ----------
+    fun : callable
+        (N,) → (M,) residuals (divided by their uncertainties).
+    x0 : (N,) array_like
+    lower, upper : (N,) array_like
+    settings : DLSSettings, optional
+        Steps, damping and stopping (default ``DLSSettings()``).
+    fun_many : callable, optional
+        Evaluates a list of points (the caller's map, e.g. over worker
+        processes holding the model); default ``executor.map(fun, points)``.
+    jac_many : callable, optional
+        Evaluates a list of points for the Jacobian only — a cheaper model
+        (fewer wavelengths, pupil samples): the step is then damped
+        Gauss–Newton on an approximate Jacobian, still accepted only on the
+        exact merit.
+    jac0 : (M, N) array, optional
+        A Jacobian at ``x0`` to start from instead of a finite-difference
+        one (e.g. the screening's wider secants,
+        :func:`calibration.fit.proxy.screen_parameters`). It is treated as a
+        secant Jacobian: a failed step or a small gradient re-linearises by
+        finite differences before anything is concluded from it.
+    callback : callable, optional
+        Called with each iteration's record (a dict: iteration, merit,
+        lambda, accepted, step, evaluations, ...).
+    executor : isp.runtime.executor.Executor, optional
+        Maps ``fun`` over points where ``fun_many`` is not given ("serial":
+        a loop, the default; "processes" needs a picklable ``fun``).
+
     Returns
     -------
     DlsResult
     """
+    cfg = DLSSettings() if settings is None else settings
+    if not isinstance(cfg, DLSSettings):
+        raise ConfigError(f"settings must be a DLSSettings, got {type(cfg).__name__}")
+    h, lam0, max_iter, gtol, ftol = cfg.h, cfg.lam0, cfg.max_iter, cfg.gtol, cfg.ftol
+    target_chi2, radius, trials, jacobian, scaling = cfg.target_chi2, cfg.radius, cfg.trials, cfg.jacobian, cfg.scaling
+    refresh, bracket, bounds, progress = cfg.refresh, cfg.bracket, cfg.bounds, callback
+    h = np.asarray(h, float) if isinstance(h, tuple) else h
+    if fun_many is None and executor is not None and executor.parallel:
+        fun_many = functools.partial(executor.map, fun)
     t0 = time.perf_counter()
     lower = np.asarray(lower, float)
     upper = np.asarray(upper, float)
@@ -379,11 +479,6 @@ def damped_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0, *, lower, 
     delta = None if radius is None else float(radius)
     k0 = max(1, trials) // 2 if bracket else 0   # trials bolder than (λ, Δ): see the module docstring
     s = np.ones(n)
-    if bounds not in ("clip", "box"):
-        raise ValueError(f"bounds must be 'clip' or 'box', not {bounds!r}")
-    if scaling not in ("marquardt", "levenberg"):
-        raise ValueError(f"scaling must be 'marquardt' or 'levenberg', not {scaling!r}")
-    refresh = max(1, int(refresh))
     # A is a finite-difference Jacobian at x (or jac0, a secant one); accepted steps on secants
     fresh, since_fd, A_fd = jac0 is None, 0, (A if jac0 is None else None)
     history = [{"iteration": 0, "merit": phi, "lambda": lam, "accepted": True, "step": 0.0, "evaluations": evals}]

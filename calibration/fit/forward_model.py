@@ -49,18 +49,17 @@ from typing import NamedTuple
 
 import numpy as np
 
+from isp.runtime.executor import create_executor, worker_payload
+
 from calibration.optics.lens import Lens, Sensor
 from calibration.optics.perturb import PerturbedLens, nominal
 from calibration.fit.observations import Observations
-from calibration.optics.psf.core import (
-    DEFAULT_CAMERA,
-    _debye_nodes,
-    _exit_pupil_z,
-    _grid_offsets_mm,
-    _mono,
-    _sphere,
-)
-from calibration.optics.psf.map import WINDOW_UM, _wavelength_plan, check_window, chief_ray_fields, default_psf_n, sensor_to_image
+from calibration.optics.psf.debye import debye_node_psfs
+from calibration.optics.psf.map import WINDOW_UM, check_window, chief_ray_fields, default_psf_n, sensor_to_image
+from calibration.optics.psf.methods import monochromatic_samples
+from calibration.optics.psf.pupil import exit_pupil_z, nodes_from_trace, pupil_points, reference_sphere
+from calibration.optics.psf.sampling import grid_offsets_mm
+from calibration.optics.psf.spectral import DEFAULT_CAMERA, channel_quadrature
 from calibration.sfr.esfr import LUMINANCE_WEIGHTS
 from calibration.sfr.asymmetry import BANDS as ODD_BANDS
 from calibration.sfr.asymmetry import model_odd_bands, odd_bands, project_masses
@@ -83,12 +82,12 @@ class ModelSettings:
     instead.
     The PSF is normalised inside its window, so the light a window drops
     is missing from the SFR's fall at low frequencies. The default 64 (a
-    32 µm window on 1 µm pixels) was 32 samples until 2026-11-25: on the four
-    phone lenses' devices (±1 tolerance) a 16 µm window dropped up to 30 %
-    of a corner PSF and put the corner SFR up to 0.116 RMS off a 64 µm
+    32 µm window on 1 µm pixels) is measured against narrower ones: on the four
+    phone lenses' devices (±1 tolerance) a 16 µm window drops up to 30 %
+    of a corner PSF and puts the corner SFR up to 0.116 RMS off a 64 µm
     reference; 32 µm keeps it within 0.018 for 1.2–1.3× the evaluation time
     (48 µm: 0.003 for 2.6–3×; ``benchmarks/psf_window.py``; at 15 × 20
-    regions on e9 a prediction went from 1.31 to 1.61 s CPU,
+    regions on e9 a prediction takes 1.61 s CPU against 1.31 s at 16 µm,
     ``benchmarks/lens_eval.py --psf-n``). The window must
     stay inside the sampled pupil's replica period ≈ λ·N·``pupil_samples``
     (:func:`calibration.optics.psf.map.check_window`).
@@ -228,14 +227,14 @@ class SfrModel:
         self.fields = chief_ray_fields(nominal(nominal_lens), self.node_mm)
         self.pitch_um = 0.5 * sen.pixel_pitch_um if s.psf_pitch_um is None else float(s.psf_pitch_um)
         self.pitch_px = self.pitch_um / sen.pixel_pitch_um
-        # until 2026-11-26 the window was 64 samples whatever the pixel: 2.8 µm pixels made it 90 µm,
-        # past the pupil sampling's replica period, and `isp calib loop` stopped with an internal error
+        # the window is set in µm, not samples: a fixed 64 samples would make 90 µm on 2.8 µm pixels,
+        # past the pupil sampling's replica period
         self.psf_n = int(s.psf_n) if s.psf_n is not None else default_psf_n(self.pitch_um, s.window_um, minimum=2)
         used = set(np.asarray(obs.channel).tolist())
         self.channels = tuple(c for c in CHANNELS if c in used or "L" in used)
         if not self.channels:
             raise ValueError(f"observations have no R, G, B or L channel (got {sorted(used)})")
-        self.wavelengths, self.wl_weights = _wavelength_plan(self.channels, s.n_wavelengths, s.camera,
+        self.wavelengths, self.wl_weights = channel_quadrature(self.channels, s.n_wavelengths, s.camera,
                                                              s.illuminant)
         check_window(nominal_lens, self.psf_n, self.pitch_um, s.pupil_samples, float(np.min(self.wavelengths)),
                      fix="a smaller window_um")
@@ -263,13 +262,13 @@ class SfrModel:
         return repr(pl.perturbation.as_dict()), id(pl.nominal)
 
     def _trace(self, lens: PerturbedLens) -> list:
-        """Traced rays of every node, one :class:`calibration.optics.psf.core._TracedNodes`
+        """Traced rays of every node, one :class:`calibration.optics.psf.pupil.TracedNodes`
         per wavelength, cached for the last lens."""
         key = self._trace_key_of(lens)
         if self._traced_key == key:
             return self._traced
         s = self.settings
-        z_pupil = _exit_pupil_z(lens)
+        z_pupil = exit_pupil_z(lens)
         traced = _trace_nodes(lens, self.fields, self.wavelengths, s.pupil_samples, z_pupil, self._aim)
         self._traced_key, self._traced = key, traced
         return traced
@@ -280,10 +279,10 @@ class SfrModel:
         moves the image plane along the axis (+: away from the lens).
 
         The traced rays (and their pupil fit,
-        :attr:`calibration.optics.psf.core._TracedNodes.jac`) are reused; a new plane
+        :attr:`calibration.optics.psf.pupil.TracedNodes.jac`) are reused; a new plane
         recomputes the reference spheres and the
         diffraction sums, all nodes at once for the "debye" method
-        (:func:`calibration.optics.psf.core._debye_nodes`; the others node by node)."""
+        (:func:`calibration.optics.psf.debye.debye_node_psfs`; the others node by node)."""
         return self._node_psfs(lens, defocus_mm)[0]
 
     def _node_psfs(self, lens, defocus_mm=None) -> tuple[np.ndarray, np.ndarray]:
@@ -293,7 +292,7 @@ class SfrModel:
         traced = self._trace(pl)
         k = len(self.regions)
         dz = np.broadcast_to(np.asarray(0.0 if defocus_mm is None else defocus_mm, float), (k,))
-        o = _grid_offsets_mm(self.psf_n, self.pitch_um)
+        o = grid_offsets_mm(self.psf_n, self.pitch_um)
         ref = int(np.argmin(np.abs(self.wavelengths - pl.nominal.primary_nm)))
         z = traced[ref].z_image + dz
         centre = traced[ref].chief_image_points(z)
@@ -303,9 +302,9 @@ class SfrModel:
             if not np.any(self.wl_weights[:, j]):
                 continue
             if s.method == "debye":
-                data, e = _debye_nodes(tn, centre, z, o, o, energy=True)
+                data, e = debye_node_psfs(tn, centre, z, o, o, energy=True)
             else:
-                pairs = [_mono(_sphere(tn.node(i, z[i]), centre[i]), s.method, o, o, workers=1) for i in range(k)]
+                pairs = [monochromatic_samples(reference_sphere(tn.node(i, z[i]), centre[i]), s.method, o, o, workers=1) for i in range(k)]
                 data, e = np.stack([p[0] for p in pairs]), np.array([p[1] for p in pairs])
             out += self.wl_weights[None, :, j, None, None] * data[:, None]
             energy += self.wl_weights[None, :, j] * e[:, None]
@@ -320,7 +319,7 @@ class SfrModel:
 
     def window_energy(self, lens, defocus_mm=None) -> np.ndarray:
         """(N,) the fraction of each observation's light that lands in its
-        PSF window (``PSF.window_energy`` of :mod:`calibration.optics.psf.core`, mixed
+        PSF window (``PSF.window_energy`` of :mod:`calibration.optics.psf.result`, mixed
         as the observation's colour): 1 − the far tails the window drops."""
         return self._observation_psfs(lens, defocus_mm)[1]
 
@@ -402,14 +401,16 @@ class SfrModel:
         return b.sfra, b.sfr
 
     def measurement_biases(self, lens, obs: Observations | None = None, *, psfs=None,
-                           workers: int = 1) -> "MeasurementBias":
+                           executor=None) -> "MeasurementBias":
         """:meth:`measurement_bias` and the same for the LSF asymmetry
         (:mod:`calibration.sfr.asymmetry`; the model already carries ISO's
         binning and derivative, so this is the noise's and the record's
         small part), from the same renders. Each observation draws its
-        noise from its own seed, so ``workers`` processes (forked; 600
-        observations: 9.4 s on one, 5.4 s on two) give the same numbers as
-        one."""
+        noise from its own seed, so an ``executor`` (an
+        :class:`isp.runtime.executor.Executor`; default: this process) of
+        several workers (600 observations: 9.4 s on one process, 5.4 s on
+        two) gives the same numbers as one; the PSFs go to each worker
+        once, as its payload."""
         obs = self.obs if obs is None else obs
         s = self.settings
         psfs = self.observation_psfs(lens) if psfs is None else psfs
@@ -421,12 +422,13 @@ class SfrModel:
         spread = np.zeros(len(obs))
         curves = np.zeros_like(exact)
         odd = np.zeros_like(exact_odd)
-        _BIAS_JOB.update(psfs=psfs, pitch_um=self.pitch_um, pixel_pitch_um=self.sensor.pixel_pitch_um, obs=obs,
-                         n_real=s.noise_realisations, seed=s.seed, aperture_px=s.aperture_px)
-        try:
-            results = _map_forked(_bias_task, range(len(obs)), workers)
-        finally:
-            _BIAS_JOB.clear()
+        job = dict(psfs=psfs, pitch_um=self.pitch_um, pixel_pitch_um=self.sensor.pixel_pitch_um, obs=obs,
+                   n_real=s.noise_realisations, seed=s.seed, aperture_px=s.aperture_px)
+        ex = executor
+        if ex is None or not ex.parallel or len(obs) < 2 * ex.workers:
+            ex = create_executor("serial")      # too few observations to pay for starting workers
+        with ex.bind(job) as run:
+            results = run.map(_bias_task, range(len(obs)), chunksize=max(1, len(obs) // (4 * ex.workers)))
         for i, (m, c, sd, q) in enumerate(results):
             out[i] = m - exact_a[i] if np.isfinite(m) else 0.0
             curves[i] = np.where(np.isfinite(c), c - exact[i], 0.0)
@@ -436,31 +438,10 @@ class SfrModel:
         return MeasurementBias(out, curves, odd)
 
 
-#: what :func:`_bias_task` measures, set by the parent before it forks its workers
-_BIAS_JOB: dict = {}
-
-
 def _bias_task(i: int) -> tuple:
-    j = _BIAS_JOB
+    j = worker_payload()        # measurement_biases's job, sent to each worker once
     return _measured_sfra(j["psfs"][i], j["pitch_um"], j["pixel_pitch_um"], j["obs"], i, j["n_real"],
                           np.random.default_rng((j["seed"], i)), j["aperture_px"])
-
-
-def _map_forked(fn, items, workers: int) -> list:
-    """``[fn(x) for x in items]``, on ``workers`` forked processes where the
-    platform forks (they inherit the parent's state: nothing is pickled but
-    the items and results), else in this process."""
-    import multiprocessing as mp
-
-    items = list(items)
-    if workers <= 1 or len(items) < 2 * workers or "fork" not in mp.get_all_start_methods():
-        return [fn(x) for x in items]
-    from concurrent.futures import ProcessPoolExecutor
-
-    from isp.runtime.threads import one_blas_thread
-
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=one_blas_thread) as pool:
-        return list(pool.map(fn, items, chunksize=max(1, len(items) // (4 * workers))))
 
 
 class MeasurementBias(NamedTuple):
@@ -476,13 +457,12 @@ def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.n
     """Per field: the paraxial entrance-pupil coordinates at which real
     aiming (primary wavelength, nominal lens) puts the pupil grid and the
     chief ray on the stop, (K, M + 1, 2), and the aiming status (K, M + 1)
-    — as ``_trace_set(aim_each=False)`` does, computed once: a perturbation
+    — as ``trace_pupils(aim_each=False)`` (:mod:`calibration.optics.psf.pupil`) does, computed once: a perturbation
     within tolerance moves these by far less than a pupil sample. All
     fields are aimed together (:func:`calibration.optics.trace.field_pupil_rays`)."""
-    from calibration.optics.psf.core import _pupil_points
     from calibration.optics.trace import field_pupil_rays, stop_and_pupil
 
-    pc = _pupil_points(samples)
+    pc = pupil_points(samples)
     pp = stop_and_pupil(pl)
     f = np.asarray(fields, dtype=np.float64).reshape(-1, 2)
     r0 = field_pupil_rays(pl, f, pc, float(pl.nominal.primary_nm), aiming="real")
@@ -492,23 +472,22 @@ def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.n
 
 
 def _trace_nodes(pl: PerturbedLens, fields, wavelengths, samples: int, z_pupil: float, aim=None) -> list:
-    """:func:`calibration.optics.psf.core._trace` for many fields at once: every
+    """:func:`calibration.optics.psf.pupil.trace_pupil` for many fields at once: every
     field's pupil grid and chief ray generated and traced in one call per
     wavelength (per call, the tracer's and the ray set-up's overhead would
     dominate at a few thousand rays). ``aim``: the per-field entrance-pupil
     points and statuses of :func:`_real_aim` (else paraxial aiming of the
-    plain grid). Returns one :class:`calibration.optics.psf.core._TracedNodes` per
+    plain grid). Returns one :class:`calibration.optics.psf.pupil.TracedNodes` per
     wavelength."""
-    from calibration.optics.psf.core import _finish_nodes, _pupil_points
     from calibration.optics.trace import field_pupil_rays, trace_to_exit
 
-    pupil = _pupil_points(samples)
+    pupil = pupil_points(samples)
     ep, status = (pupil, None) if aim is None else aim
     f = np.asarray(fields, dtype=np.float64).reshape(-1, 2)
     out = []
     for lam in wavelengths:
         rays = field_pupil_rays(pl, f, ep, float(lam), status=status)
-        out.append(_finish_nodes(pl, rays, trace_to_exit(pl, rays), f, pupil[:-1], samples, z_pupil))
+        out.append(nodes_from_trace(pl, rays, trace_to_exit(pl, rays), f, pupil[:-1], samples, z_pupil))
     return out
 
 
@@ -521,10 +500,10 @@ def measure_like(obs: Observations, i: int):
     plane, as `isp calib loop` and `isp calib fit` measure a raw capture),
     its pattern ``obs.meta["cfa"]`` (default RGGB).
 
-    Until 2026-11-26 "raw" observations were re-rendered and measured as
-    images: on a 2.8 µm-pixel capture (`isp calib simulate`) the loop's
-    noise floor from their spread read 0.0026 cycles/pixel, where two noise
-    draws of the capture scatter by 0.011 per edge (0.0055 since;
+    Measuring "raw" observations as images instead would make their spread
+    too small: on a 2.8 µm-pixel capture (`isp calib simulate`) the loop's
+    noise floor read 0.0026 cycles/pixel that way, where two noise draws of
+    the capture scatter by 0.011 per edge (0.0055 measured as here;
     ``benchmarks/capture_roundtrip.py``).
     """
     from calibration.sfr.esfr import measure_sfr, measure_sfr_bayer

@@ -22,10 +22,11 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from isp.runtime.executor import Executor, create_executor, worker_payload
 
 from calibration.optics.lens import Lens
 from calibration.optics.perturb import ParameterSpace
@@ -33,8 +34,6 @@ from calibration.fit.proxy import FittedLens, default_names, parameter_space
 from calibration.fit.observations import Observations
 
 __all__ = ["PixelFit", "edge_offset", "fit_pixel_mse", "pixel_residuals", "register_edge", "render_edges"]
-
-_WORKER: dict = {}
 
 
 @dataclass
@@ -133,20 +132,17 @@ def pixel_residuals(model, space: ParameterSpace, edges, u) -> np.ndarray:
     return np.where(np.isfinite(r), r, 0.0)
 
 
-def _init_worker(payload):
-    from isp.runtime.threads import one_blas_thread
-
+def _worker_state(payload) -> dict:
+    """What a fit's worker holds (the executor's setup, once per worker)."""
     from calibration.fit.forward_model import SfrModel
 
-    one_blas_thread()
     nominal, obs, settings, names, edges = payload
-    _WORKER["model"] = SfrModel(nominal, obs, settings)
-    _WORKER["space"] = parameter_space(nominal, names)
-    _WORKER["edges"] = edges
+    return {"model": SfrModel(nominal, obs, settings), "space": parameter_space(nominal, names), "edges": edges}
 
 
 def _residual_task(u):
-    return pixel_residuals(_WORKER["model"], _WORKER["space"], _WORKER["edges"], u)
+    w = worker_payload()
+    return pixel_residuals(w["model"], w["space"], w["edges"], u)
 
 
 def _steps(u: np.ndarray, lower: np.ndarray, upper: np.ndarray, rel: float) -> np.ndarray:
@@ -159,8 +155,8 @@ def _steps(u: np.ndarray, lower: np.ndarray, upper: np.ndarray, rel: float) -> n
 
 
 def fit_pixel_mse(nominal: Lens, obs: Observations, edges, *, names=None, settings=None, max_iter: int = 15,
-                  bound_factor: float = 2.0, diff_step: float = 0.1, workers: int = 1, progress: bool = False,
-                  x0=None) -> PixelFit:
+                  bound_factor: float = 2.0, diff_step: float = 0.1, x0=None,
+                  executor: Executor | None = None) -> PixelFit:
     """Fit lens perturbations to measured edge images by pixel MSE.
 
     Parameters
@@ -179,20 +175,20 @@ def fit_pixel_mse(nominal: Lens, obs: Observations, edges, *, names=None, settin
     settings : calibration.fit.forward_model.ModelSettings, optional
     max_iter : int
         Iterations (Jacobians) at most: ``max_nfev`` of the solver, which
-        counts neither the Jacobian's evaluations nor, with ``workers`` 1,
-        those of its finite differences.
+        counts neither the Jacobian's evaluations nor, on one worker, those
+        of its finite differences.
     bound_factor : float
         Bounds in tolerances.
     diff_step : float
         Forward-difference step, tolerances (relative beyond 1).
-    workers : int
-        1: scipy's own finite differences, in this process (as
-        ``fit_proxy(method="scipy")``); more: the Jacobian's columns on a
-        process pool (same steps).
-    progress : bool
-        A progress bar over lens evaluations.
     x0 : (P,) array_like, optional
         Start, tolerance units (default the nominal lens).
+    executor : isp.runtime.executor.Executor, optional
+        One worker (default: "serial", in this process): scipy's own finite
+        differences (as ``fit_proxy`` with method "scipy"); more: the
+        Jacobian's columns on its workers (same steps), each holding the
+        model and edges from the payload. Its progress bar counts lens
+        evaluations.
     """
     from scipy.optimize import least_squares
 
@@ -209,18 +205,14 @@ def fit_pixel_mse(nominal: Lens, obs: Observations, edges, *, names=None, settin
     n = len(space.names)
     lower, upper = np.full(n, -float(bound_factor)), np.full(n, float(bound_factor))
     u0 = np.zeros(n) if x0 is None else np.clip(np.asarray(x0, dtype=np.float64), lower, upper)
-    workers = max(1, int(workers))
+    ex = create_executor("serial") if executor is None else executor
+    workers = ex.workers
     calls = {"n": 0}
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(unit="eval", desc=f"pixel-MSE fit ({n} parameters)")
+    bar = ex.bar(unit="eval", desc=f"pixel-MSE fit ({n} parameters)")
 
     def tick(k=1):
         calls["n"] += k
-        if bar is not None:
-            bar.update(k)
+        bar.update(k)
 
     last, first = {}, {}
 
@@ -232,19 +224,15 @@ def fit_pixel_mse(nominal: Lens, obs: Observations, edges, *, names=None, settin
         return r
 
     pool = None
-    if workers > 1:
-        import multiprocessing as mp
-
-        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-        pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                                   initargs=((nominal, obs, settings, names, edges),))
+    if ex.parallel:
+        pool = ex.bind((nominal, obs, settings, names, edges), setup=_worker_state)
 
     def jac(u):
         u = np.asarray(u, dtype=np.float64)
         f0 = last["r"] if "u" in last and np.array_equal(last["u"], u) else fun(u)
         h = _steps(u, lower, upper, diff_step)
         pts = [u + h[j] * np.eye(n)[j] for j in range(n)]
-        cols = list(pool.map(_residual_task, pts))
+        cols = pool.map(_residual_task, pts)
         tick(n)
         return np.stack([(c - f0) / h[j] for j, c in enumerate(cols)], axis=1)
 
@@ -253,9 +241,8 @@ def fit_pixel_mse(nominal: Lens, obs: Observations, edges, *, names=None, settin
                            method="trf", diff_step=diff_step, x_scale=1.0, max_nfev=max(1, int(max_iter)))
     finally:
         if pool is not None:
-            pool.shutdown()
-        if bar is not None:
-            bar.close()
+            pool.close()
+        bar.close()
     r_nominal = first["r"] if x0 is None else pixel_residuals(model, space, edges, np.zeros(n))
     return PixelFit(nominal, space, np.asarray(ls.x, dtype=np.float64), obs, float(np.mean(r_nominal ** 2)),
                     float(np.mean(ls.fun ** 2)), "pixel-mse", calls["n"], time.perf_counter() - t0,

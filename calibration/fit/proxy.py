@@ -1,7 +1,7 @@
 """Proxy cameras: perturbed lenses fitted to measured slanted-edge SFR
 (paper §3.2, Algorithm 1).
 
-``fit_proxy(nominal, observations)`` finds the perturbation of the nominal
+``fit_proxy(nominal, observations, ProxyFitSettings(...))`` finds the perturbation of the nominal
 lens whose simulated SFRA matches the measured SFRA over the field:
 residuals ``f_i = (SFRA*_i − SFRA_i(P) − b_i) / σ_i`` per observation (an
 edge at a field position, orientation and colour channel), where
@@ -18,8 +18,8 @@ scaled by their tolerances: the fit works in tolerance units, bounded to
 ±``bound_factor`` tolerances. Focus (the last air gap) is fitted too: a
 real device's focus is set at assembly and unknown to the model.
 
-The Jacobian's columns are independent lens evaluations and run on a
-process pool (``workers``, default 2). By default (``n_params``) the fit
+The Jacobian's columns are independent lens evaluations and run on an
+executor (:mod:`isp.runtime.executor`; default 2 worker processes). By default (``n_params``) the fit
 keeps the :data:`N_PARAMS` parameters to which its residuals are most
 sensitive (:func:`screen_parameters`); screening and fit share the pool,
 and the screening's secants are the fit's first Jacobian, which Broyden
@@ -42,17 +42,17 @@ CPU, ``benchmarks/lens_eval.py``).
 
 from __future__ import annotations
 
-import json
-import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 from pathlib import Path
 
 import numpy as np
 
-from calibration.fit.dls import DlsResult, damped_least_squares
+from isp.errors import ConfigError
+from isp.runtime.executor import Executor, pool_executor, worker_payload
+
+from calibration.fit.dls import DLSSettings, DlsResult, damped_least_squares
 from calibration.optics.lens import Lens
 from calibration.optics.perturb import ParameterSpace, Perturbation, PerturbedLens, apply
 from calibration.fit.observations import Observations
@@ -67,21 +67,21 @@ FOCUS_TOLERANCE_MM = 0.010
 #: steps matched the linear model to ρ = 1.000)
 DLS_STEP = 0.03
 #: parameters fitted by default (screened)
-N_PARAMS = 24   # 16 left the pixel-level fit ahead on e9; 24 put ours ahead of it on every lens (README)
+N_PARAMS = 24   # 16 leave the pixel-level fit ahead on e9; 24 put ours ahead of it on every lens
 #: finite-difference Jacobians every this many accepted steps (Broyden updates between), and
 #: iterations at most. Measured on e9, 15 × 20 regions, 600 observations, 16 parameters, SFRA +
 #: asymmetry, --fast-jacobian, on one 2-core machine (``benchmarks/proxy.py``): a Jacobian every
 #: step, 10 iterations, screened apart: 89.5 s + 38.6 s screening, merit 71.5 k, SFR MSE ×10⁻³
 #: 0.23 / 0.74 / 1.60 at FoV 0.1 / 0.5 / 0.9; every 3rd step, 20 iterations, screening inside
 #: (its secants the first Jacobian): 91.7 s in all, merit 73.6 k, 0.22 / 0.75 / 1.55; and with
-#: today's defaults (24 parameters, shape residuals) 108.8 s in all, 0.14 / 0.33 / 0.71
+#: 24 parameters and the shape residuals 108.8 s in all, 0.14 / 0.33 / 0.71
 REFRESH = 3
 MAX_ITER = 20
 
 #: restarts of a fit (DLS or TRF) that ends far above the noise floor (merit per residual above
 #: RESTART_CHI2; at the floor it is about 1): that many Latin-hypercube starts within ±1
 #: tolerance, each PROBE_ITER iterations, the best continued for the rest of the budget
-#: (:func:`restart`). Measured on benchmarks/proxy.py's 24 devices (README, "Restarts").
+#: (:func:`restart`). Measured on benchmarks/proxy.py's 24 devices (docs/results/proxy.md).
 RESTARTS = 4
 RESTART_CHI2 = 4.0
 PROBE_ITER = 5
@@ -94,14 +94,11 @@ CONTINUE_WITHIN = 1.5
 #: observations (:func:`coarse_subset`), and all of them refine that fit. Why: a lens evaluation costs about
 #: in proportion to the observations (e9: 1.74 s CPU for 600, 0.17 s for the 70 of the sub-grid,
 #: ``benchmarks/lens_eval.py``), and which basin a fit ends in shows on a 5 × 7 sub-grid already
-#: (README, "Coarse to fine").
+#: (docs/results/proxy.md).
 COARSE_GRID = (5, 7)
 
 #: what :func:`fit_proxy` can fit to
 RESIDUALS = ("sfra", "bands", "odd", "shape")
-
-_WORKER = {}
-
 
 def default_names(lens: Lens, kinds=("decenter", "tilt", "thickness", "focus")) -> list[str]:
     """The fitted parameters by default: each element's decenter (x, y) and
@@ -197,7 +194,7 @@ class ProxyFit(FittedLens):
     #: the restarts tried (:func:`restart`): start, probe merit; for the continued one its final merit
     #: and whether it was kept
     restarts: list = field(default_factory=list)
-    #: the coarse stage of a coarse-to-fine fit (``fit_proxy(coarse=...)``): its observations,
+    #: the coarse stage of a coarse-to-fine fit (``ProxyFitSettings.coarse``): its observations,
     #: evaluations, seconds, merit and residual count; empty where the fit ran on all from the start
     coarse: dict = field(default_factory=dict)
 
@@ -243,37 +240,25 @@ class ProxyFit(FittedLens):
     def save(self, directory) -> dict:
         """Write ``proxy.json`` (lens/v1: nominal + fitted perturbation),
         ``fit.json`` and the plots into ``directory``; returns the paths."""
-        from isp.io.files import write_bytes_atomic
+        from calibration.report import write_json
 
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         paths = {"proxy": save_proxy(d / "proxy.json", self.nominal, self.perturbation),
-                 "fit": write_bytes_atomic(d / "fit.json", json.dumps(self.to_dict(), indent=2).encode())}
+                 "fit": write_json(d / "fit.json", self.to_dict())}
         paths.update(plot_fit(self, d))
         return paths
 
 
 # -- evaluation (picklable: one model per worker process) -----------------------------
-def _init_worker(payload):
-    from isp.runtime.threads import one_blas_thread
-
-    from calibration.fit.forward_model import SfrModel
-
-    one_blas_thread()
-    nominal, obs, settings, names, bias, *rest = payload
-    _WORKER["model"] = SfrModel(nominal, obs, settings)
-    jac_settings = rest[0] if rest else None
-    _WORKER["cheap"] = SfrModel(nominal, obs, jac_settings) if jac_settings is not None else _WORKER["model"]
-    _WORKER["space"] = parameter_space(nominal, names)
-    _WORKER["bias"] = bias
-
-
 def _residual_task(u: np.ndarray) -> np.ndarray:
-    return _residuals(_WORKER["model"], _WORKER["space"], _WORKER["bias"], u)
+    w = worker_payload()        # _worker_models, built once per worker
+    return _residuals(w["model"], w["space"], w["bias"], u)
 
 
 def _cheap_residual_task(u: np.ndarray) -> np.ndarray:
-    return _residuals(_WORKER["cheap"], _WORKER["space"], _WORKER["bias"], u)
+    w = worker_payload()
+    return _residuals(w["cheap"], w["space"], w["bias"], u)
 
 
 class ResidualBias(NamedTuple):
@@ -331,10 +316,11 @@ def resolve_residuals(residuals: str, obs: Observations) -> str:
     return residuals
 
 
-def residual_bias(model, lens, residuals: str, workers: int = 1) -> ResidualBias:
+def residual_bias(model, lens, residuals: str, executor: Executor | None = None) -> ResidualBias:
     """The measurement's bias at ``lens`` with the parts ``residuals``
-    uses (:class:`ResidualBias`), measured on ``workers`` processes."""
-    mb = model.measurement_biases(lens, workers=workers)
+    uses (:class:`ResidualBias`), measured on ``executor`` (default: in
+    this process)."""
+    mb = model.measurement_biases(lens, executor=executor)
     obs = model.obs
     out = ResidualBias(np.asarray(mb.sfra, float))
     if residuals in ("bands", "shape"):
@@ -346,64 +332,58 @@ def residual_bias(model, lens, residuals: str, workers: int = 1) -> ResidualBias
     return out
 
 
-def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, method: str = "dls",
-              workers: int | None = None, max_iter: int = MAX_ITER, bound_factor: float = 2.0,
-              progress: bool = True, x0=None, n_params: int | None = N_PARAMS,
-              jacobian_settings=None, residuals: str = "auto", refresh: int = REFRESH,
-              bounds: str = "clip", prior: float | None = None, restarts: int = RESTARTS,
-              seed: int = 0, coarse=COARSE_GRID, floor_chi2: float = 1.0) -> ProxyFit:
-    """Fit a proxy camera to SFR observations (module docstring).
+@dataclass(frozen=True)
+class ProxyFitSettings:
+    """How :func:`fit_proxy` fits (module docstring); the defaults are the
+    measured ones. Checked at construction (:class:`isp.errors.ConfigError`
+    naming the field and value).
 
     Parameters
     ----------
-    nominal : Lens
-    obs : Observations
-    names : sequence of str, optional
-        Fitted parameters (default :func:`default_names`).
-    settings : calibration.fit.forward_model.ModelSettings, optional
+    model : calibration.fit.forward_model.ModelSettings, optional
+        The forward model (default ``ModelSettings()``).
     method : {"dls", "scipy"}
-    workers : int, optional
-        Processes for the Jacobian (default up to 2).
+        :func:`calibration.fit.dls.damped_least_squares`, or scipy's TRF
+        on the same residuals.
     max_iter : int
-        Iterations (DLS) at most; for scipy its ``max_nfev``, which TRF
+        Iterations (DLS) at most, ≥ 1; for scipy its ``max_nfev``, which TRF
         counts without its finite differences (about ``max_iter``
         iterations).
     bound_factor : float
-        Bounds in tolerances.
-    progress : bool
-        Show a progress bar.
-    x0 : (N,) array_like, optional
-        Start (tolerance units); default the nominal lens (0).
+        Bounds, tolerances (> 0): the fit keeps every parameter within
+        ±``bound_factor``.
     n_params : int, optional
-        Without ``names``: fit the ``n_params`` most sensitive of
+        Without ``names``: fit the ``n_params`` (≥ 1) most sensitive of
         :func:`default_names` (:func:`screen_parameters`); None: all.
     residuals : {"auto", "sfra", "bands", "odd", "shape"}
-        "auto" (default): "shape" where ``obs`` has the asymmetry, else
-        "sfra". "sfra": the paper's SFRA per observation; "bands": SFRA plus the
-        mean SFR in four frequency bands (:data:`calibration.fit.forward_model.BANDS`),
-        which pins the curve's shape; "odd": SFRA plus the LSF's asymmetry
-        in four bands (:mod:`calibration.sfr.asymmetry`; needs ``obs.odd``),
-        which the SFR's modulus drops: the direction of coma from a
-        decentered element; "shape": SFRA, bands and asymmetry (see
+        "auto" (default): "shape" where the observations have the
+        asymmetry, else "sfra". "sfra": the paper's SFRA per observation;
+        "bands": SFRA plus the mean SFR in four frequency bands
+        (:data:`calibration.fit.forward_model.BANDS`), which pins the
+        curve's shape; "odd": SFRA plus the LSF's asymmetry in four bands
+        (:mod:`calibration.sfr.asymmetry`; needs ``obs.odd``), which the
+        SFR's modulus drops: the direction of coma from a decentered
+        element; "shape": SFRA, bands and asymmetry (see
         ``benchmarks/proxy.py``).
-    jacobian_settings : calibration.fit.forward_model.ModelSettings, optional
+    jacobian_model : calibration.fit.forward_model.ModelSettings, optional
         A cheaper forward model for the Jacobian only (DLS), e.g. one
         wavelength and fewer pupil samples; steps are still accepted on the
         full model's merit (``benchmarks/proxy.py --fast-jacobian`` measures
         what it costs).
     refresh : int
-        DLS: a finite-difference Jacobian every ``refresh`` accepted steps
-        at most, Broyden secant updates in between (:mod:`calibration.fit.dls`;
-        ``benchmarks/proxy.py --refresh`` measures what it costs).
+        DLS: a finite-difference Jacobian every ``refresh`` (≥ 1) accepted
+        steps at most, Broyden secant updates in between
+        (:mod:`calibration.fit.dls`; ``benchmarks/proxy.py --refresh``
+        measures what it costs).
     bounds : {"clip", "box"}
         DLS: how a step meets the ±``bound_factor`` box
-        (:func:`calibration.fit.dls.damped_least_squares`; ``benchmarks/proxy.py``'s
+        (:class:`calibration.fit.dls.DLSSettings`; ``benchmarks/proxy.py``'s
         method ``ours_box`` measures it).
     prior : float, optional
         A Gaussian prior on every fitted perturbation, its standard
-        deviation in tolerances (``1/√3``: a perturbation uniform within
-        its tolerance): the residuals gain ``u_j / prior``, a maximum a
-        posteriori fit that holds directions the measurement cannot see
+        deviation in tolerances (> 0; ``1/√3``: a perturbation uniform
+        within its tolerance): the residuals gain ``u_j / prior``, a maximum
+        a posteriori fit that holds directions the measurement cannot see
         near the nominal design instead of letting them drift to the
         bounds. None (default): no prior. At ``1/√3`` on the 12 devices of
         ``benchmarks/proxy.py`` (method ``ours_prior``) the data outweighed
@@ -411,9 +391,9 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
     restarts : int
         When the fit ends with a merit above :data:`RESTART_CHI2` per
         residual (far above the noise floor: a local minimum, or a model
-        that cannot fit), try this many other starts (:func:`restart`,
-        seeded by ``seed``); 0: none. A fit that reaches the floor from the
-        nominal lens costs nothing more.
+        that cannot fit), try this many (≥ 0) other starts
+        (:func:`restart`, seeded by ``seed``); 0: none. A fit that reaches
+        the floor from the nominal lens costs nothing more.
     seed : int
         Seed of the restarts' starting points.
     coarse : (int, int), optional
@@ -423,39 +403,160 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         cuts the observations at least twofold and ``x0`` is not given.
         None: fit on all observations from the start.
     floor_chi2 : float
-        DLS stops at the noise floor: χ² per residual at most this, with
-        less than one unit of χ² left to gain in the linearised model
-        (:func:`calibration.fit.dls.damped_least_squares`'s ``target_chi2``).
+        DLS stops at the noise floor: χ² per residual at most this (> 0),
+        with less than one unit of χ² left to gain in the linearised model
+        (:class:`calibration.fit.dls.DLSSettings`'s ``target_chi2``).
         ``inf``: on the gain left alone, as the fine stage of a
         coarse-to-fine fit does.
+
+    Examples
+    --------
+    >>> ProxyFitSettings(max_iter=6, restarts=0).coarse
+    (5, 7)
+    >>> ProxyFitSettings(method="lm")
+    Traceback (most recent call last):
+    ...
+    isp.errors.ConfigError: ProxyFitSettings.method: unknown 'lm'; valid: 'dls', 'scipy'
     """
+
+    model: object = None
+    method: str = "dls"
+    max_iter: int = MAX_ITER
+    bound_factor: float = 2.0
+    n_params: int | None = N_PARAMS
+    residuals: str = "auto"
+    jacobian_model: object = None
+    refresh: int = REFRESH
+    bounds: str = "clip"
+    prior: float | None = None
+    restarts: int = RESTARTS
+    seed: int = 0
+    coarse: tuple[int, int] | None = COARSE_GRID
+    floor_chi2: float = 1.0
+
+    def __post_init__(self):
+        from calibration.fit.forward_model import ModelSettings
+
+        def bad(name, why):
+            return ConfigError(f"ProxyFitSettings.{name}: {why}")
+
+        def integer(name, least, optional=False):
+            v = getattr(self, name)
+            if v is None and optional:
+                return
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < least:
+                raise bad(name, f"must be an integer ≥ {least}, got {v!r}")
+            object.__setattr__(self, name, int(v))
+
+        def positive(name, optional=False):
+            v = getattr(self, name)
+            if v is None and optional:
+                return
+            try:
+                x = float(v)
+            except (TypeError, ValueError):
+                x = float("nan")
+            if not x > 0:
+                raise bad(name, f"must be a number > 0, got {v!r}")
+            object.__setattr__(self, name, x)
+
+        for name in ("model", "jacobian_model"):
+            v = getattr(self, name)
+            if v is not None and not isinstance(v, ModelSettings):
+                raise bad(name, f"must be a ModelSettings, got {type(v).__name__}")
+        for name, valid in (("method", ("dls", "scipy")), ("residuals", ("auto", *RESIDUALS)),
+                            ("bounds", ("clip", "box"))):
+            if getattr(self, name) not in valid:
+                raise bad(name, f"unknown {getattr(self, name)!r}; valid: {', '.join(map(repr, valid))}")
+        integer("max_iter", 1)
+        integer("n_params", 1, optional=True)
+        integer("refresh", 1)
+        integer("restarts", 0)
+        integer("seed", 0)
+        positive("bound_factor")
+        positive("prior", optional=True)
+        positive("floor_chi2")
+        if self.coarse is not None:
+            try:
+                rows, cols = self.coarse
+                ok = all(not isinstance(v, bool) and int(v) == v and v >= 1 for v in (rows, cols))
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise bad("coarse", f"must be (rows, cols) of integers ≥ 1 or None, got {self.coarse!r}")
+            object.__setattr__(self, "coarse", (int(rows), int(cols)))
+
+
+def _worker_models(payload) -> dict:
+    """What a fit's worker holds (the executor's setup, once per worker):
+    the model, the Jacobian's cheaper model, the parameter space, the bias."""
+    from calibration.fit.forward_model import SfrModel
+
+    nominal, obs, settings, names, bias, *rest = payload
+    model = SfrModel(nominal, obs, settings)
+    jac_settings = rest[0] if rest else None
+    return {"model": model, "cheap": SfrModel(nominal, obs, jac_settings) if jac_settings is not None else model,
+            "space": parameter_space(nominal, names), "bias": bias}
+
+
+def fit_proxy(nominal: Lens, obs: Observations, settings: ProxyFitSettings | None = None, *, names=None,
+              x0=None, executor: Executor | None = None) -> ProxyFit:
+    """Fit a proxy camera to SFR observations (module docstring).
+
+    Parameters
+    ----------
+    nominal : Lens
+    obs : Observations
+    settings : ProxyFitSettings, optional
+        How to fit (default ``ProxyFitSettings()``: the measured defaults).
+    names : sequence of str, optional
+        Fitted parameters (default :func:`default_names`, screened to
+        ``settings.n_params``).
+    x0 : (N,) array_like, optional
+        Start (tolerance units); default the nominal lens (0).
+    executor : isp.runtime.executor.Executor, optional
+        Runs the Jacobian's lens evaluations (each worker holds the models,
+        built once from the executor's payload) and the measurement bias;
+        its progress bar counts iterations. Default: up to 2 worker
+        processes with a progress bar (:func:`isp.runtime.executor.pool_executor`).
+        DLS tries as many dampings per step as it has workers.
+    """
+    cfg = ProxyFitSettings() if settings is None else settings
+    if not isinstance(cfg, ProxyFitSettings):
+        raise ConfigError(f"settings must be a ProxyFitSettings, got {type(cfg).__name__}")
+    n_fit = len(names) if names is not None else (cfg.n_params or len(default_names(nominal)))
+    mask = coarse_subset(obs, cfg.coarse, min_obs=2 * n_fit) if cfg.coarse is not None and x0 is None else None
+    own = executor is None
+    ex = pool_executor(None, progress=True) if own else executor
+    try:
+        if mask is not None:
+            return _coarse_to_fine(nominal, obs, mask, names, cfg, ex)
+        return _fit(nominal, obs, cfg, names, x0, ex)
+    finally:
+        if own:
+            ex.close()
+
+
+def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor) -> ProxyFit:
+    """:func:`fit_proxy` on all of ``obs`` (no coarse stage)."""
     from calibration.fit.forward_model import ModelSettings, SfrModel
 
-    kw = dict(names=names, settings=settings, method=method, workers=workers, max_iter=max_iter,
-              bound_factor=bound_factor, progress=progress, n_params=n_params, jacobian_settings=jacobian_settings,
-              residuals=residuals, refresh=refresh, bounds=bounds, prior=prior, seed=seed, coarse=None)
-    n_fit = len(names) if names is not None else (n_params or len(default_names(nominal)))
-    mask = coarse_subset(obs, coarse, min_obs=2 * n_fit) if coarse is not None and x0 is None else None
-    if mask is not None:
-        return _coarse_to_fine(nominal, obs, mask, restarts, kw)
-    settings = settings or ModelSettings()
+    method, max_iter, bound_factor, n_params = cfg.method, cfg.max_iter, cfg.bound_factor, cfg.n_params
+    jacobian_settings, refresh, bounds, prior = cfg.jacobian_model, cfg.refresh, cfg.bounds, cfg.prior
+    restarts, seed, floor_chi2 = cfg.restarts, cfg.seed, cfg.floor_chi2
+    settings = cfg.model or ModelSettings()
     t0 = time.perf_counter()
     model = SfrModel(nominal, obs, settings)
-    residuals = resolve_residuals(residuals, obs)
-    workers = max(1, min(2, os.cpu_count() or 1)) if workers is None else int(workers)
-    bias = residual_bias(model, nominal, residuals, workers)
+    residuals = resolve_residuals(cfg.residuals, obs)
+    bias = residual_bias(model, nominal, residuals, ex)
     screen = names is None and n_params is not None
     names = list(names) if names is not None else default_names(nominal)
     cheap_model = None   # in this process, where there is no pool
     pool = None
-    if workers > 1:
+    if ex.parallel:
         # one pool for screening and fit, its workers' models built once over every candidate
         # parameter; the fit's points are embedded in that space (zeros elsewhere: the same lens)
-        import multiprocessing as mp
-
-        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-        pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                                   initargs=((nominal, obs, settings, names, bias, jacobian_settings),))
+        pool = ex.bind((nominal, obs, settings, names, bias, jacobian_settings), setup=_worker_models)
     elif jacobian_settings is not None:
         cheap_model = SfrModel(nominal, obs, jacobian_settings)
     all_names, where = names, None
@@ -465,7 +566,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
             full = np.zeros((len(points), len(all_names)))
             full[:, where] = points
             points = list(full)
-        return list(pool.map(task, points))
+        return pool.map(task, points)
 
     bar = None
     tried: list = []
@@ -512,10 +613,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         if prior is not None and jac0 is not None:
             jac0 = np.vstack([jac0, np.eye(n) / prior])
 
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=max_iter, unit="iter", desc=f"proxy fit ({n} parameters, {len(obs)} edges)")
+        bar = ex.bar(total=max_iter, unit="iter", desc=f"proxy fit ({n} parameters, {len(obs)} edges)")
 
         def report(rec):
             if bar is not None and rec["iteration"] > 0:
@@ -526,17 +624,17 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         before = model.predict(nominal).sfra + bias_sfra
         if method == "dls":
             # central differences cure forward ones' O(h) bias, not a cheaper model's error: at a
-            # fitted e9 device (15 × 20 regions; a one-off check, 2026-11-26, not a benchmark) the
+            # fitted e9 device (15 × 20 regions; a one-off check, not a benchmark) the
             # cheap model's Jacobian is 7.9 % off the full
             # model's central one forward, 7.5 % central (the full model forward: 2.8 %), and the
             # two central iterations that ended the fit bought 0.1 χ² for 42 s
             scheme = "auto" if jacobian_settings is None else "forward"
 
             def local(start, iters, first_jacobian=None):
-                return damped_least_squares(fun, start, lower=lower, upper=upper, fun_many=fun_many, h=DLS_STEP,
-                                            max_iter=iters, target_chi2=floor_chi2, trials=workers, jac_many=jac_many,
-                                            refresh=refresh, progress=report, jac0=first_jacobian, bounds=bounds,
-                                            jacobian=scheme)
+                dls = DLSSettings(h=DLS_STEP, max_iter=iters, target_chi2=floor_chi2, trials=ex.workers,
+                                  refresh=refresh, bounds=bounds, jacobian=scheme)
+                return damped_least_squares(fun, start, lower=lower, upper=upper, settings=dls, fun_many=fun_many,
+                                            jac_many=jac_many, callback=report, jac0=first_jacobian)
         elif method == "scipy":
             from scipy.optimize import least_squares
 
@@ -565,7 +663,7 @@ def fit_proxy(nominal: Lens, obs: Observations, *, names=None, settings=None, me
         u, evals = res.x, res.evaluations
     finally:
         if pool is not None:
-            pool.shutdown()
+            pool.close()
         if bar is not None:
             bar.close()
     fitted = space.apply(u * space.tolerance)
@@ -596,20 +694,20 @@ def coarse_subset(obs: Observations, grid=COARSE_GRID, min_obs: int = 1) -> np.n
     return mask
 
 
-def _coarse_to_fine(nominal, obs, mask, restarts, kw) -> ProxyFit:
+def _coarse_to_fine(nominal, obs, mask, names, cfg: ProxyFitSettings, ex: Executor) -> ProxyFit:
     """:func:`fit_proxy` on ``obs.subset(mask)`` (screening, restarts), then on
     all of ``obs`` from its result, with its parameters."""
     import dataclasses
 
     t0 = time.perf_counter()
-    first = fit_proxy(nominal, obs.subset(mask), restarts=restarts, **kw)
+    first = _fit(nominal, obs.subset(mask), cfg, names, None, ex)
     # the sub-grid chose the basin; on all observations the fit only has to move within it, by
     # about the coarse fit's uncertainty: it stops once the linear model leaves less than one
     # unit of χ² to gain, whatever χ² per residual the model's own error leaves (on e9 device 1 at
     # 15 × 20 the merit stood within 0.01 % for its last 12 of 20 iterations, each rejected step
     # costing up to 24 evaluations of all 600 observations)
-    fine = fit_proxy(nominal, obs, **{**kw, "names": list(first.space.names)}, x0=first.u, restarts=0,
-                     floor_chi2=np.inf)
+    fine = _fit(nominal, obs, dataclasses.replace(cfg, restarts=0, floor_chi2=np.inf), list(first.space.names),
+                first.u, ex)
     stage = {"observations": int(mask.sum()), "evaluations": first.evaluations, "seconds": round(first.seconds, 2),
              "merit": None if first.result is None else round(first.result.merit, 3),
              "residuals": None if first.result is None else int(first.result.residuals.size)}
@@ -629,8 +727,8 @@ def restart(local, first, count: int, max_iter: int, seed: int = 0):
     minima of 15–84 χ² per residual, far above the noise floor, on 9 of the 24 devices of
     ``benchmarks/proxy.py`` (the truth lens, within the fitted parameters,
     sits at the floor); a few iterations tell the basins apart (the merit
-    falls 10–100× within five iterations into the truth's basin, README
-    "Restarts"). Returns the best result (its ``evaluations`` counting
+    falls 10–100× within five iterations into the truth's basin,
+    docs/results/proxy.md). Returns the best result (its ``evaluations`` counting
     every run) and one record per start.
     """
     import dataclasses
@@ -671,7 +769,7 @@ def plot_fit(fit: ProxyFit, directory) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from calibration.cli.main import save_figure
+    from calibration.report import save_figure
 
     d = Path(directory)
     out = {}
@@ -719,19 +817,18 @@ def save_proxy(path, nominal, perturbation: Perturbation | None = None) -> Path:
     plus a ``perturbation`` object of {name: value}), atomically; what
     :func:`load_proxy` reads back. A fitted proxy camera, or the true lens of
     a simulated device (``isp calib simulate --save-lens``)."""
-    from isp.io.files import write_bytes_atomic
-
     from calibration.optics.io.lens_json import lens_to_dict
+    from calibration.report import write_json
 
     doc = lens_to_dict(nominal)
     doc["perturbation"] = {n: float(v) for n, v in (perturbation.as_dict() if perturbation else {}).items()}
-    return write_bytes_atomic(Path(path), json.dumps(doc, indent=2).encode())
+    return write_json(path, doc)
 
 
 def load_proxy(path) -> PerturbedLens:
     """A proxy lens file (lens/v1 with a ``perturbation`` object) as a
     PerturbedLens; a plain lens/v1 file gives the nominal lens."""
-    from calibration.optics.io.lens_json import read_lens
+    from calibration.optics.io import read_lens
 
     lens = read_lens(path)
     pert = lens.metadata.get("perturbation") or {}

@@ -1,4 +1,5 @@
-"""Closing the loop: base models, the registry of physical effects, the closure that adds them and refits.
+"""Closing the loop: base models (and the one a measurement asks for, :func:`.base.make_base`), the registry of
+physical effects, the closure that adds them and refits, and its report.
 
 May import: ``calibration.fit`` and everything it may import.
 """

@@ -28,7 +28,7 @@ from calibration.fit.observations import Observations
 from calibration.fit.forward_model import Prediction, aperture_mtf, measure_like, sfra_of
 
 __all__ = ["LensBase", "ParametricBase", "area_weights", "colour_shift_mtf", "diffraction_mtf", "disc_mtf",
-           "disc_otf", "edge_profile"]
+           "disc_otf", "edge_profile", "make_base"]
 
 
 def diffraction_mtf(f_cy_per_mm, wavelength_nm: float, f_number: float) -> np.ndarray:
@@ -211,8 +211,7 @@ class LensBase:
 
     refit_in_cv = False    # every evaluation traces the lens: candidates are fitted with it held
 
-    def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int = 12,
-                 workers: int | None = None, progress: bool = False):
+    def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int = 12):
         from calibration.optics.perturb import nominal as as_perturbed
         from calibration.fit.proxy import default_names, focus_name, parameter_space, screen_parameters
         from calibration.fit.forward_model import ModelSettings, SfrModel
@@ -235,19 +234,24 @@ class LensBase:
     def lens(self, xb):
         return self.space.apply(np.asarray(xb, float) * self.space.tolerance)
 
-    def start(self, progress: bool = False) -> np.ndarray:
+    def start(self, executor=None) -> np.ndarray:
         """Where the loop's base fit starts: :func:`calibration.fit.proxy.fit_proxy`
         on SFRA over these parameters, whose coarse stage and restarts find
         the basin. Why: from the nominal lens the loop's own DLS settled in a
         local minimum on a device perturbed in all 48 parameters (e9 dev3 of
         `isp calib simulate --perturb random --seed 3`, 24 parameters: SFRA
         RMS 0.0222, where ``fit_proxy`` with the same parameters reaches
-        0.0133 and the device's own lens scores 0.0138)."""
-        from calibration.fit.proxy import fit_proxy
+        0.0133 and the device's own lens scores 0.0138). ``executor`` (an
+        :class:`isp.runtime.executor.Executor`) runs the fit; default up
+        to 2 worker processes, no progress bar."""
+        from isp.runtime.executor import pool_executor
+
+        from calibration.fit.proxy import ProxyFitSettings, fit_proxy
         from calibration.fit.forward_model import FAST_JACOBIAN
 
-        fit = fit_proxy(self.nominal, self.obs, names=list(self.names), settings=self.model.settings,
-                        residuals="sfra", jacobian_settings=FAST_JACOBIAN, progress=progress)
+        settings = ProxyFitSettings(model=self.model.settings, residuals="sfra", jacobian_model=FAST_JACOBIAN)
+        fit = fit_proxy(self.nominal, self.obs, settings, names=list(self.names),
+                        executor=pool_executor(None) if executor is None else executor)
         return np.clip(fit.u, self.lower, self.upper)
 
     def predict(self, xb, *, defocus_mm=None, shifts_px=None, transfer=None) -> Prediction:
@@ -356,3 +360,22 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
         c_bias[i] = np.nan_to_num(np.nanmean(curves, axis=0) - exact)
         sd[i] = np.std(vals, ddof=1) if len(vals) > 1 else 0.0
     return a_bias, c_bias, sd
+
+
+def make_base(lens: str, obs, *, f_number="fit", n_params: int = 12, pixel_um: float | None = None):
+    """The base model: ``"parametric"`` → :class:`ParametricBase` (F-number
+    fitted from 2.0, or held at ``f_number``), else a lens file →
+    :class:`LensBase` of the lens matched to the measurement's sensor
+    (:func:`calibration.fit.measurements.match_sensor`; ``pixel_um`` its
+    pitch, µm). A bad lens file raises
+    :class:`~calibration.optics.lens.LensError` naming it."""
+    if lens == "parametric":
+        if f_number in (None, "fit"):
+            return ParametricBase(obs, f_number=2.0, fit_f_number=True)
+        return ParametricBase(obs, f_number=float(f_number))
+    from calibration.fit.measurements import match_sensor
+    from calibration.optics.io import read_lens
+
+    nominal = read_lens(lens)
+    nominal, obs = match_sensor(nominal, obs, pixel_um=pixel_um)
+    return LensBase(nominal, obs, n_params=n_params)

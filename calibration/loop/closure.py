@@ -52,18 +52,17 @@ and χ² per observation.
 from __future__ import annotations
 
 import copy
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from calibration.fit.dls import damped_least_squares
+from calibration.fit.dls import DLSSettings, damped_least_squares
 from calibration.loop.effects import create_effect, list_effects
 from calibration.fit.forward_model import BANDS, band_means
 
-__all__ = ["LoopReport", "close_loop", "BANDS"]
+__all__ = ["LoopReport", "close_loop", "BANDS", "model_sfr", "plot_sfr_curves", "summary", "write_report"]
 
 MODEL_FLOOR = 5e-4      # SFRA error a perfect fit still has (model discretisation), cycles/pixel
 
@@ -198,7 +197,7 @@ def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None)
         return prob.residuals(prob.predict(p), mask)
 
     res = damped_least_squares(fun, p0[idx] / scale, lower=lower[idx] / scale, upper=upper[idx] / scale,
-                               h=0.5 if h is None else h, max_iter=max_iter, ftol=1e-3)
+                               settings=DLSSettings(h=0.5 if h is None else h, max_iter=max_iter, ftol=1e-3))
     p = p0.copy()
     p[idx] = res.x * scale
     return p, res
@@ -214,29 +213,30 @@ START_POLISH = 3
 
 
 def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.15, stop_ratio: float = 1.2,
-               max_effects: int = 3, base_iter: int = 12, progress: bool = True, seed: int = 0, fold=None) -> LoopReport:
+               max_effects: int = 3, base_iter: int = 12, seed: int = 0, fold=None,
+               executor=None) -> LoopReport:
     """Fit ``base`` to ``obs`` and add effects while they explain held-out
     data (module docstring). ``effects``: registry names to try (default
-    all)."""
+    all). ``executor`` (an :class:`isp.runtime.executor.Executor`) runs the
+    base's start fit and, where it shows progress, the loop's bar and step
+    notes; default up to 2 worker processes with progress."""
+    from isp.runtime.executor import pool_executor
+
     t0 = time.perf_counter()
     names = list(list_effects()) if effects is None else list(effects)
-    say = print if progress else (lambda *a, **k: None)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=2 + len(names), desc="loop", unit="step")
+    ex = pool_executor(None, progress=True) if executor is None else executor
+    say = print if ex.progress else (lambda *a, **k: None)
+    bar = ex.bar(total=2 + len(names), desc="loop", unit="step")
 
     def tick(msg):
-        if bar is not None:
-            bar.set_postfix_str(msg)
-            bar.update(1)
+        bar.set_postfix_str(msg)
+        bar.update(1)
 
     # 1. base fit, noise-free bias first at the start point; a base that can find its own basin
     # (a lens: calibration.fit.proxy's coarse stage and restarts) starts there
     nb = len(base.names)
     started = hasattr(base, "start")
-    x_start = base.start(progress) if started else base.x0
+    x_start = base.start(ex) if started else base.x0
     a0, c0, sd0 = base.measurement_bias(x_start)
     sigma = _sigma_law(obs, sd0)
     prob = _Problem(base, obs, a0, c0, sigma)
@@ -450,10 +450,11 @@ def write_report(report: LoopReport, obs, directory) -> dict:
     """``report.json``, ``report.md`` and ``residual_maps.png`` in ``directory``."""
     from isp.io.files import write_bytes_atomic
 
+    from calibration.report import write_json
+
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    doc = report.to_dict()
-    paths = {"json": write_bytes_atomic(d / "report.json", json.dumps(doc, indent=2).encode())}
+    paths = {"json": write_json(d / "report.json", report.to_dict())}
     lines = ["# Loop closure report", "", f"Base model: {report.base}", "",
              f"Noise floor (SFRA RMS from the data): {report.noise_floor:.4f} cycles/pixel", "",
              "| metric | before | after |", "|---|---|---|"]
@@ -492,7 +493,7 @@ def _plot(report, obs, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from calibration.cli.main import save_figure
+    from calibration.report import save_figure
 
     before = obs.region_map(report.sfra_measured - report.sfra_before)
     after = obs.region_map(report.sfra_measured - report.sfra_after)
@@ -504,3 +505,85 @@ def _plot(report, obs, path):
     fig.colorbar(im, ax=axes, shrink=0.8)
     save_figure(fig, path)
     return path
+
+
+def model_sfr(base, xb, effects: dict) -> np.ndarray:
+    """(N, F) noise-free SFR of ``base`` at ``xb`` with ``effects``
+    ({name: {parameter: value}}), as the loop combines them."""
+    pairs = []
+    for name, vals in effects.items():
+        e = create_effect(name)
+        pairs.append((e, np.array([vals[n] for n in e.names], float)))
+    return predict_with_effects(base, xb, pairs).sfr
+
+
+def plot_sfr_curves(obs, sfr_before, sfr_after, path, title: str = "") -> Path:
+    """Measured SFR (mean over observations per channel, with its spread)
+    against the model before and after the loop, saved at ``path``.
+
+    Parameters
+    ----------
+    obs : Observations
+    sfr_before, sfr_after : (N, F) ndarray
+        Modelled SFR per observation on ``obs.freq`` (:func:`model_sfr`);
+        ``sfr_before`` may be None.
+    path : str or Path
+        The figure (PNG by default; :func:`calibration.report.save_figure`).
+    title : str
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from calibration.report import save_figure
+
+    f = np.asarray(obs.freq)
+    m = f <= 0.75
+    fig, ax = plt.subplots(figsize=(6.0, 3.8))
+    colours = {"R": "tab:red", "G": "tab:green", "B": "tab:blue", "L": "black"}
+    ch = np.asarray(obs.channel)
+    for c in sorted(set(ch.tolist())):
+        sel = ch == c
+        meas = np.asarray(obs.sfr)[sel][:, m]
+        mu = np.nanmean(meas, axis=0)
+        col = colours.get(c, "black")
+        ax.fill_between(f[m], np.nanmin(meas, axis=0), np.nanmax(meas, axis=0), color=col, alpha=0.15, lw=0)
+        ax.plot(f[m], mu, color=col, lw=1.6, label=f"measured {c}" + (f" ({sel.sum()})" if sel.sum() > 1 else ""))
+        if sfr_before is not None:
+            ax.plot(f[m], np.mean(sfr_before[sel][:, m], axis=0), color=col, lw=1.0, ls=":")
+        ax.plot(f[m], np.mean(sfr_after[sel][:, m], axis=0), color=col, lw=1.0, ls="--")
+    ax.plot([], [], color="gray", ls=":", label="base model (before)")
+    ax.plot([], [], color="gray", ls="--", label="with effects (after)")
+    ax.axvline(0.5, color="gray", lw=0.5)
+    ax.set(xlabel="cycles / pixel", ylabel="SFR", xlim=(0, f[m][-1]), title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
+    save_figure(fig, path)
+    return Path(path)
+
+
+def summary(rep: LoopReport) -> str:
+    """A few lines of text on a loop's report: effects added with values,
+    error before/after, noise floor, what is left (an anisotropy between
+    vertical and horizontal edges beyond twice the floor included)."""
+    lines = []
+    if rep.effects_added:
+        for n in rep.effects_added:
+            v = ", ".join(f"{k} = {x:.4g}" for k, x in rep.effect_values[n].items())
+            lines.append(f"added {n}: {v}")
+    else:
+        lines.append("no effect added")
+    b, a = rep.error_before, rep.error_after
+    lines.append(f"SFRA RMS error {b['sfra_rms']:.4f} -> {a['sfra_rms']:.4f} cy/px "
+                 f"(noise floor {rep.noise_floor:.4f}); SFR MSE {b['sfr_mse']:.3g} -> {a['sfr_mse']:.3g}; "
+                 f"chi2/term {b['chi2_per_obs']:.2f} -> {a['chi2_per_obs']:.2f}")
+    base = ", ".join(f"{k} = {float(v):.4g}" for k, v in zip(rep.base_names, rep.base_x))
+    lines.append(f"base: {base}")
+    lines += [f"left: {u}" for u in rep.unexplained[:1]]
+    d = rep.decomposition_after.get("direction", {})   # measured − final model, by edge direction
+    if len(d) == 2 and abs(d["vertical"] - d["horizontal"]) > 2 * rep.noise_floor:
+        lines.append(f"left: vertical and horizontal edges differ: mean SFRA residual {d['vertical']:+.4f} "
+                     f"(vertical) vs {d['horizontal']:+.4f} (horizontal) cy/px — an anisotropy no "
+                     "effect tried models")
+    return "\n".join(lines)

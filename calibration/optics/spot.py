@@ -264,3 +264,44 @@ def plot_spot_diagram(spots: Sequence[Spot], *, reference: str = "centroid", sca
         a.tick_params(labelsize=7)
     axes[0].set_ylabel("y (µm)", fontsize=8)
     return fig
+
+
+def lens_report(lens) -> dict:
+    """First-order data, vignetting and RMS spot radii of a lens, JSON-ready.
+
+    Returns
+    -------
+    dict
+        Name, surface and element counts, stop surface (1-based); EFL, BFL,
+        EPD, pupil positions, exit-pupil diameter, TTL and total track (mm);
+        F-number and working F-number; half field of view (degrees);
+        paraxial image height (mm); primary wavelength (nm); the sensor;
+        and at 0, 0.5, 0.7 and 1.0 of the field (real aiming, 4000 rays,
+        primary wavelength) the transmitted fraction, the RMS spot radius
+        about the centroid (µm) and the chief ray's image height (mm).
+    """
+    fo = paraxial.first_order(lens)
+    fields = []
+    for frac in (0.0, 0.5, 0.7, 1.0):
+        theta = frac * lens.half_fov_deg
+        sp = spot(lens, (0.0, theta), n=4000, aiming="real")
+        fields.append({"field": frac, "angle_deg": round(theta, 4),
+                       "transmitted": round(sp.fraction_valid, 4),
+                       "rms_spot_um": round(sp.rms_radius("centroid") * 1e3, 4),
+                       "chief_y_mm": None if sp.chief is None else round(float(sp.chief[1]), 5)})
+    return {
+        "name": lens.name,
+        "surfaces": len(lens.surfaces),
+        "elements": len(lens.elements()),
+        "stop_surface": lens.stop_index + 1,
+        "efl_mm": fo.efl, "bfl_mm": fo.bfl, "f_number": fo.f_number,
+        "working_f_number": fo.working_f_number, "epd_mm": fo.epd,
+        "entrance_pupil_z_mm": fo.entrance_pupil_z, "exit_pupil_z_mm": fo.exit_pupil_z,
+        "exit_pupil_diameter_mm": fo.exit_pupil_diameter, "ttl_mm": fo.ttl,
+        "total_track_mm": fo.total_track, "half_fov_deg": lens.half_fov_deg,
+        "paraxial_image_height_mm": fo.image_height,
+        "primary_wavelength_nm": lens.primary_nm,
+        "sensor": {"pixel_pitch_um": lens.sensor.pixel_pitch_um, "width_px": lens.sensor.width_px,
+                   "height_px": lens.sensor.height_px},
+        "fields": fields,
+    }

@@ -66,12 +66,12 @@ from __future__ import annotations
 import enum
 import functools
 import math
-import os
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+
+from isp.runtime.executor import Executor, shared_threads
 
 from calibration.optics import paraxial
 from calibration.optics.lens import Lens, LensError
@@ -655,7 +655,7 @@ def _dir_to_global(pose: Pose, dx, dy, dz):
 
 
 def _run(pl: PerturbedLens, rays: Rays, *, to: str, clip: bool, record: bool, tol: float, max_iter: int,
-         chunk: int, workers: int | None, frame: str = "global", geo=None):
+         chunk: int, executor: Executor | None, frame: str = "global", geo=None):
     """Trace ``rays``; ``to`` is "image", "exit" or "stop" (the stop
     surface's intersection, before refraction, in the stop's local frame)."""
     if not (isinstance(tol, float | int) and tol > 0):
@@ -720,10 +720,9 @@ def _run(pl: PerturbedLens, rays: Rays, *, to: str, clip: bool, record: bool, to
         status[a:e] = st
         where[a:e] = wh
 
-    nw = workers if workers is not None else (os.cpu_count() or 1)
-    if nw > 1 and len(bounds) > 1:
-        with ThreadPoolExecutor(max_workers=min(nw, len(bounds))) as ex:
-            list(ex.map(one, bounds))
+    ex = shared_threads() if executor is None else executor
+    if ex.parallel and len(bounds) > 1:
+        ex.map(one, bounds)
     else:
         for b in bounds:
             one(b)
@@ -739,7 +738,7 @@ def _run(pl: PerturbedLens, rays: Rays, *, to: str, clip: bool, record: bool, to
 
 def trace(lens: Lens | PerturbedLens, rays: Rays, *, to: str = "image", clip: bool = True,
           record: bool = False, tol: float = NEWTON_TOL, max_iter: int = MAX_ITER,
-          chunk: int = CHUNK, workers: int | None = None) -> TraceResult:
+          chunk: int = CHUNK, executor: Executor | None = None) -> TraceResult:
     """Trace rays through a (perturbed) lens.
 
     Parameters
@@ -760,8 +759,10 @@ def trace(lens: Lens | PerturbedLens, rays: Rays, *, to: str = "image", clip: bo
     max_iter : int
     chunk : int
         Rays per chunk.
-    workers : int, optional
-        Threads (default: all cores).
+    executor : isp.runtime.executor.Executor, optional
+        Runs the chunks; "threads" (the kernel releases the GIL) or
+        "serial". Default: :func:`isp.runtime.executor.shared_threads`, a
+        persistent pool of all cores.
 
     Returns
     -------
@@ -769,7 +770,7 @@ def trace(lens: Lens | PerturbedLens, rays: Rays, *, to: str = "image", clip: bo
         Positions (mm), unit directions, OPL (mm), valid mask and reasons.
     """
     return _run(nominal(lens), rays, to=to, clip=clip, record=record, tol=tol, max_iter=max_iter,
-                chunk=chunk, workers=workers)
+                chunk=chunk, executor=executor)
 
 
 def trace_to_image(lens: Lens | PerturbedLens, rays: Rays, **kw) -> TraceResult:
@@ -1110,7 +1111,7 @@ def _aim(pl, pc, dirn, pp: Pupil, z0, lam, obj, tol, max_iter: int = 30):
         obj_i = obj[idx] if per_ray and obj is not None else obj
         o, d, opl = _rays_through(pl, d_i, ep, pp.z, z0, lam, obj_i)
         r = _run(pl, Rays(o, d, lam, opl), to="stop", clip=False, record=False, tol=NEWTON_TOL,
-                 max_iter=MAX_ITER, chunk=CHUNK, workers=None, frame="local", geo=geo)
+                 max_iter=MAX_ITER, chunk=CHUNK, executor=None, frame="local", geo=geo)
         return r.position[:, :2], r.valid
 
     m = len(pc)

@@ -450,3 +450,57 @@ def plot_chart(result: ChartResult, image=None, *, value: str = "mtf50"):
     ax.set_ylabel("row")
     fig.tight_layout()
     return fig
+
+
+def edge_record(roi_box, res, field=None, orientation=None) -> dict:
+    """One measured edge as ``isp calib sfr`` writes it to JSON (and
+    :func:`calibration.fit.measurements.observations_from_sfr_json` reads
+    it back).
+
+    Parameters
+    ----------
+    roi_box : (x, y, w, h)
+        The ROI, pixels.
+    res : SfrResult
+    field : dict, optional
+        ``{"radius": r, "angle_deg": a}``: the ROI's field position.
+    orientation : str, optional
+
+    Returns
+    -------
+    dict
+        freq (cycles/pixel), sfr, mtf50, sfra, angle_deg, roi, field,
+        orientation, direction, edge_fit_linear, step, MTF at Nyquist and
+        half Nyquist, contrast, noise, bootstrap spreads, lp_per_mm and
+        warnings.
+    """
+    r = res.to_dict()
+    return {"freq": r["freq_cy_per_px"], "sfr": r["sfr"], "mtf50": r["mtf50_cy_per_px"],
+            "sfra": r["sfra_to_nyquist"], "angle_deg": r["angle_deg"], "roi": list(roi_box),
+            "field": field, "orientation": orientation, "direction": r["orientation"],
+            "edge_fit_linear": r["edge_fit_linear"], "step": esf_step(res),
+            "mtf_nyquist_half": r["mtf_nyquist_half"], "mtf_nyquist": r["mtf_nyquist"],
+            "contrast": r["contrast"], "noise": r["noise"],
+            "mtf50_std": r.get("mtf50_std"), "sfra_std": r.get("sfra_std"),
+            "lp_per_mm": r.get("lp_per_mm"), "warnings": r["warnings"]}
+
+
+def plot_sfr(results: dict):
+    """A figure of single-ROI measurements: the e-SFR curves (left) and the
+    edge spread functions (right), one line per ``{name: SfrResult}``
+    (name "" for one unnamed result). Returns the matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for name, r in results.items():
+        axes[0].plot(r.freq, r.sfr, label=f"{name or 'SFR'}: MTF50 {r.mtf50:.3f}")
+        x = np.arange(r.esf.size) * r.esf_step_px
+        axes[1].plot(x - x.mean(), r.esf, label=name or "ESF")
+    axes[0].axhline(0.5, color="gray", lw=0.6, ls=":")
+    axes[0].set(xlim=(0, 0.5), ylim=(0, 1.1), xlabel="cycles / pixel", ylabel="SFR", title="e-SFR (ISO 12233)")
+    axes[1].set(xlabel="pixels across the edge", ylabel="ESF", title="edge spread")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig

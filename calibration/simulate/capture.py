@@ -72,11 +72,11 @@ from calibration.simulate.chart import Chart, EdgeROI, Shape, camera_rgb, slante
 from calibration.simulate.optical_image import (
     ImagingError,
     KernelBank,
-    _inward_normals,
     aperture_decimate,
     blur_decimate,
     convolve,
     fft_shape_for,
+    inward_normals,
     polygon_coverage,
 )
 from calibration.optics.lens import LensError
@@ -286,7 +286,7 @@ def _shape_coverage(shape: Shape, bank: KernelBank, region, xs: np.ndarray, ys: 
     ``channels``: (ny, nx) arrays in [0, 1]."""
     import cv2
 
-    normals, offsets = _inward_normals(shape.vertices)
+    normals, offsets = inward_normals(shape.vertices)
     D = normals[:, 0, None, None] * xs[None, None, :] + normals[:, 1, None, None] * ys[None, :, None] \
         - offsets[:, None, None]                                   # (K, ny, nx) distance inside
     out, complex_any = {}, np.zeros(D.shape[1:], dtype=bool)
@@ -660,11 +660,17 @@ def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_tim
 
 
 def _default_psf_map(lens, options: dict | None):
-    from calibration.optics.psf.map import (
-        psf_map,  # lazily: the PSF map is the expensive part (and cached on disk)
+    import dataclasses
+
+    from calibration.optics.psf.map import (  # lazily: the PSF map is the expensive part (and cached on disk)
+        PSFMapSettings,
+        psf_map,
     )
 
-    return psf_map(lens, **dict(options or {}))
+    options = dict(options or {})
+    fields = {f.name for f in dataclasses.fields(PSFMapSettings)}
+    settings = PSFMapSettings(**{k: v for k, v in options.items() if k in fields})
+    return psf_map(lens, settings, **{k: v for k, v in options.items() if k not in fields})
 
 
 def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel | None = None,
@@ -685,7 +691,8 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
         :func:`slanted_square_chart` on the PSF map's grid.
     psfmap : PSF map, optional
         Default ``calibration.optics.psf.map.psf_map(lens, ...)`` (imported lazily)
-        with ``psf_map_options``.
+        with ``psf_map_options``: :class:`calibration.optics.psf.map.PSFMapSettings`
+        fields and psf_map's keywords (``cache_dir``, ``executor``, ...).
     sensor : SensorModel, optional
         Default: the PSF map's (or lens's) sensor geometry with the
         :class:`SensorModel` defaults (10 bit, black 64, NoiseProfile

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calibration.simulate.optical_image import ImagingError, _inward_normals
+from calibration.simulate.optical_image import ImagingError, inward_normals
 
 __all__ = ["Chart", "EdgeROI", "Shape", "camera_rgb", "slanted_square_chart"]
 
@@ -72,7 +72,7 @@ class Shape:
         v = np.asarray(self.vertices, dtype=np.float64)
         if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3 or not np.all(np.isfinite(v)):
             raise ImagingError(f"vertices must be finite (K ≥ 3, 2), got shape {v.shape}")
-        _inward_normals(v)   # raises unless convex
+        inward_normals(v)   # raises unless convex
         lv = np.broadcast_to(np.asarray(self.level, dtype=np.float64), (3,)).copy()
         object.__setattr__(self, "vertices", v)
         object.__setattr__(self, "level", lv)
@@ -85,7 +85,7 @@ class Shape:
 
     def contains(self, x, y) -> np.ndarray:
         """True where pixel centres (x, y) lie inside."""
-        n, c = _inward_normals(self.vertices)
+        n, c = inward_normals(self.vertices)
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
         out = np.ones(np.broadcast(x, y).shape, dtype=bool)

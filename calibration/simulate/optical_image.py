@@ -48,7 +48,7 @@ As :mod:`calibration.optics.psf.map` documents them. Sensor pixel coordinates
 +y down; also the convention of :mod:`calibration.sfr.synthetic`). The image
 plane is a pure shift and scale of it, **no flip**:
 ``x_mm = (x − (W−1)/2)·p``, ``y_mm = (y − (H−1)/2)·p`` (+y down the array).
-A PSF array (:mod:`calibration.optics.psf.core`: ``data[i, j]`` at image-plane offset
+A PSF array (:mod:`calibration.optics.psf.result`: ``data[i, j]`` at image-plane offset
 ``((j − n//2)·pitch, (i − n//2)·pitch)``) is therefore directly a kernel
 on the sensor: offset ``((j − n//2)·q, (i − n//2)·q)`` pixels,
 ``q = pitch_um / pixel_pitch_um``.
@@ -75,6 +75,7 @@ __all__ = [
     "aperture_decimate",
     "aperture_fraction",
     "convolve",
+    "inward_normals",
     "polygon_coverage",
     "resample_kernel",
 ]
@@ -146,7 +147,7 @@ class Kernel:
     @classmethod
     def from_psf_array(cls, data, pitch_um: float, pixel_pitch_um: float, *,
                        crop_tol: float = CROP_TOL) -> Kernel:
-        """A kernel from a PSF array in the :mod:`calibration.optics.psf.core` convention
+        """A kernel from a PSF array in the :mod:`calibration.optics.psf.result` convention
         (rows along +y = down the sensor, centre ``n//2``), cropped to the
         window that keeps all but ``crop_tol`` of its energy and
         renormalised."""
@@ -215,7 +216,7 @@ def resample_kernel(k: Kernel, pitch_px: float) -> Kernel:
 
     Coarser grids (``pitch_px ≥ k.pitch_px``): each mass is spread over its
     own cell and each new cell takes the overlap (area rebinning, as
-    :meth:`calibration.optics.psf.core.PSF.resample`; it adds the blur of one old cell,
+    :meth:`calibration.optics.psf.result.PSF.resample`; it adds the blur of one old cell,
     variance ``q²/12``). Finer grids: band-limited (Whittaker–Shannon)
     interpolation of the samples, ``Σ_i d_i sinc((y − y_i)/q)`` per axis,
     scaled to unit sum — exact for a PSF sampled above its Nyquist rate
@@ -308,7 +309,7 @@ def edge_profile(k: Kernel, normal: tuple[float, float], aperture_px: float = 1.
     Notes
     -----
     The PSF's samples stand for a band-limited intensity (a PSF is
-    band-limited by the pupil's autocorrelation, and :mod:`calibration.optics.psf.core`
+    band-limited by the pupil's autocorrelation, and :mod:`calibration.optics.psf.result`
     samples it at twice the Nyquist rate). Projected on the edge normal
     they are a comb whose spectrum holds, besides the true line spread
     function (``|f| < f_c``), replicas of the 2-D sampling lattice at
@@ -373,9 +374,26 @@ def _edge_filter(step: float, pitch: float, nx: float, ny: float, aperture_px: f
 
 # -- polygons on a sub-cell grid -------------------------------------------------------
 
-def _inward_normals(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(K, 2) unit normals pointing inside a convex polygon, and (K,) the
-    offsets ``c`` with ``n·u − c ≥ 0`` inside."""
+def inward_normals(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The half-planes of a convex polygon.
+
+    Parameters
+    ----------
+    vertices : (K, 2) ndarray
+        The polygon's vertices in order (either sense), pixels.
+
+    Returns
+    -------
+    normals : (K, 2) ndarray
+        Unit normals of the sides, pointing inside.
+    offsets : (K,) ndarray
+        ``c`` with ``n·u − c ≥ 0`` inside, pixels.
+
+    Raises
+    ------
+    ImagingError
+        The polygon is not convex or has repeated vertices.
+    """
     v = np.asarray(vertices, dtype=np.float64)
     e = np.roll(v, -1, axis=0) - v
     n = np.column_stack([-e[:, 1], e[:, 0]])
@@ -437,7 +455,7 @@ def polygon_coverage(vertices, x0: float, y0: float, nx: int, ny: int, step: flo
     >>> cov.round(4).tolist()
     [[0.0625, 0.25, 0.1875], [0.25, 1.0, 0.75], [0.1875, 0.75, 0.5625]]
     """
-    normals, offsets = _inward_normals(vertices)
+    normals, offsets = inward_normals(vertices)
     xs = x0 + step * np.arange(nx)
     ys = y0 + step * np.arange(ny)
     cov = np.ones((ny, nx))
@@ -590,7 +608,7 @@ class KernelBank:
     ``width_px``, ``height_px`` are used when present).
     """
 
-    psfs: np.ndarray                  # (rows, cols, channels, n, n), calibration.optics.psf.core convention
+    psfs: np.ndarray                  # (rows, cols, channels, n, n), calibration.optics.psf.result convention
     pitch_um: float
     channel_index: tuple[int, int, int]   # PSF channel used for R, G, B
     pixel_pitch_um: float

@@ -11,6 +11,10 @@ This module reads a list into typed, immutable opcode objects, writes them
 back byte for byte, and evaluates the ones whose maths the pipeline needs
 (gain maps, vignette, polynomial and table maps). It does not apply anything
 to an image: which opcode runs where is the pipeline stages' decision.
+One module per opcode family (``gain_map``, ``warp``, ``vignette``, ...),
+the base class and area spec in ``base``, the byte-layout reader and field
+checks they share in ``binary``, list parsing in ``lists``. May import:
+numpy and :mod:`isp.errors`.
 
 Binary layout (all big-endian)
 ------------------------------
@@ -76,12 +80,12 @@ from isp.opcodes.base import (
     OPCODE_NAMES,
     AreaSpec,
     Opcode,
-    OpcodeError,
     UnknownOpcode,
 )
 from isp.opcodes.base import MAX_POLYNOMIAL_DEGREE as MAX_POLYNOMIAL_DEGREE
 from isp.opcodes.base import MAX_TABLE_SIZE as MAX_TABLE_SIZE
 from isp.opcodes.base import MAX_WARP_PLANES as MAX_WARP_PLANES
+from isp.opcodes.binary import OpcodeError
 from isp.opcodes.gain_map import GainMap
 from isp.opcodes.lists import parse_opcode_list, serialize_opcode_list
 from isp.opcodes.per_line import DeltaPerColumn, DeltaPerRow, ScalePerColumn, ScalePerRow

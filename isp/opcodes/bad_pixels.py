@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from isp.opcodes.base import _U32_MAX, Opcode, OpcodeError, _expect_size, _frozen_array, _set, _u32
+from isp.opcodes.base import Opcode
+from isp.opcodes.binary import U32_MAX, OpcodeError, as_u32, expect_size, frozen_array, set_field
 
 # --------------------------------------------------------------------------
 # bad pixels
@@ -28,15 +29,15 @@ class FixBadPixelsConstant(Opcode):
     bayer_phase: int
 
     def _validate(self):
-        _set(self, "constant", _u32(self.constant, "constant"))
-        _set(self, "bayer_phase", _u32(self.bayer_phase, "Bayer phase"))
+        set_field(self, "constant", as_u32(self.constant, "constant"))
+        set_field(self, "bayer_phase", as_u32(self.bayer_phase, "Bayer phase"))
 
     def _params(self):
         return struct.pack(">II", self.constant, self.bayer_phase)
 
     @classmethod
     def _parse(cls, r, size, **header):
-        _expect_size(size, 8, "constant and Bayer phase")
+        expect_size(size, 8, "constant and Bayer phase")
         return cls(*r.u32s(2, "parameters"), **header)
 
     def _describe(self):
@@ -67,15 +68,15 @@ class FixBadPixelsList(Opcode):
     rects: Any = ()
 
     def _validate(self):
-        _set(self, "bayer_phase", _u32(self.bayer_phase, "Bayer phase"))
+        set_field(self, "bayer_phase", as_u32(self.bayer_phase, "Bayer phase"))
         for name, width in (("points", 2), ("rects", 4)):
             raw = np.asarray(getattr(self, name))
             a = raw.reshape(-1, width) if raw.size == 0 else raw
             if a.ndim != 2 or a.shape[1] != width:
                 raise OpcodeError(f"{name} must have shape (n, {width}), got {raw.shape}")
-            if a.size and (np.any(a < 0) or np.any(a > _U32_MAX) or np.any(a != np.round(a))):
-                raise OpcodeError(f"{name} must hold integers in 0..{_U32_MAX}")
-            _set(self, name, _frozen_array(a, np.uint32, 2, name))
+            if a.size and (np.any(a < 0) or np.any(a > U32_MAX) or np.any(a != np.round(a))):
+                raise OpcodeError(f"{name} must hold integers in 0..{U32_MAX}")
+            set_field(self, name, frozen_array(a, np.uint32, 2, name))
 
     def _params(self):
         return (struct.pack(">III", self.bayer_phase, len(self.points), len(self.rects))
@@ -84,7 +85,7 @@ class FixBadPixelsList(Opcode):
     @classmethod
     def _parse(cls, r, size, **header):
         phase, n_points, n_rects = r.u32s(3, "counts")
-        _expect_size(size, 12 + 8 * n_points + 16 * n_rects,
+        expect_size(size, 12 + 8 * n_points + 16 * n_rects,
                      f"{n_points} bad points and {n_rects} bad rectangles")
         points = r.array(">u4", 2 * n_points, "bad points").reshape(n_points, 2)
         rects = r.array(">u4", 4 * n_rects, "bad rectangles").reshape(n_rects, 4)

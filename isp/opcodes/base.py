@@ -1,19 +1,19 @@
-"""Shared machinery of the opcode classes: the error type, bounds-checked
-big-endian reads and field checks, the area spec, the :class:`Opcode` base
-class (header, flags, encoding, reporting), :class:`UnknownOpcode` for IDs
-this package does not interpret, and the opcode IDs, flag bits and limits
-of DNG 1.7.1.0, chapter 7 "Opcode List Processing" (SDK ``dng_opcodes.cpp``,
-``dng_area_spec.cpp``)."""
+"""Shared machinery of the opcode classes: the area spec, the :class:`Opcode`
+base class (header, flags, encoding, reporting), :class:`UnknownOpcode` for
+IDs this package does not interpret, and the opcode IDs, flag bits and
+limits of DNG 1.7.1.0, chapter 7 "Opcode List Processing" (SDK
+``dng_opcodes.cpp``, ``dng_area_spec.cpp``). The error type, the
+bounds-checked big-endian reads and the field checks are in
+:mod:`isp.opcodes.binary`."""
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 
-from isp.errors import IspError
+from isp.opcodes.binary import AREA_SPEC, HEADER, U32_MAX, OpcodeError, Reader, as_u32, set_field
 
 #: Opcode ID -> name (DNG 1.7.1.0, chapter 7).
 OPCODE_NAMES: dict[int, str] = {
@@ -44,130 +44,6 @@ MAX_WARP_PLANES = 4
 MAX_POLYNOMIAL_DEGREE = 8
 #: Most MapTable entries: one per 16-bit input value.
 MAX_TABLE_SIZE = 0x10000
-
-_U32_MAX = 0xFFFFFFFF
-_HEADER = struct.Struct(">I4BII")       # id, version[4], flags, byte count
-_AREA = struct.Struct(">8I")
-
-
-class OpcodeError(IspError, ValueError):
-    """An opcode list or an opcode that cannot be read or is invalid.
-
-    The message is one line: which opcode (its 0-based position in the list
-    and its name) and what is wrong, with the offending value, e.g.
-    ``opcode #2 GainMap: declares 44 parameter bytes but needs 4172 for
-    32x32x1 gains``.
-
-    Attributes
-    ----------
-    reason : str
-        What is wrong, without the opcode prefix.
-    index : int or None
-        0-based position of the opcode in its list, where known.
-    name : str or None
-        The opcode's name, where known.
-    """
-
-    def __init__(self, reason: str, *, index: int | None = None, name: str | None = None):
-        self.reason = reason
-        self.index = index
-        self.name = name
-        if index is not None:
-            prefix = f"opcode #{index} {name}: " if name else f"opcode #{index}: "
-        else:
-            prefix = f"{name}: " if name else ""
-        super().__init__(prefix + reason)
-
-
-# --------------------------------------------------------------------------
-# small helpers
-
-class _Reader:
-    """Bounds-checked big-endian reads from a byte buffer."""
-
-    __slots__ = ("buf", "pos")
-
-    def __init__(self, buf):
-        self.buf = buf
-        self.pos = 0
-
-    def remaining(self) -> int:
-        return len(self.buf) - self.pos
-
-    def _need(self, n: int, what: str) -> None:
-        if n > self.remaining():
-            raise OpcodeError(f"truncated: {what} needs {n} bytes, only {self.remaining()} left")
-
-    def u32s(self, n: int, what: str) -> tuple[int, ...]:
-        self._need(4 * n, what)
-        out = struct.unpack_from(f">{n}I", self.buf, self.pos)
-        self.pos += 4 * n
-        return out
-
-    def u32(self, what: str) -> int:
-        return self.u32s(1, what)[0]
-
-    def f64s(self, n: int, what: str) -> tuple[float, ...]:
-        self._need(8 * n, what)
-        out = struct.unpack_from(f">{n}d", self.buf, self.pos)
-        self.pos += 8 * n
-        return out
-
-    def array(self, dtype: str, n: int, what: str) -> np.ndarray:
-        """``n`` items of big-endian ``dtype`` as a native-order copy."""
-        dt = np.dtype(dtype)
-        self._need(dt.itemsize * n, what)
-        a = np.frombuffer(self.buf, dtype=dt, count=n, offset=self.pos)
-        self.pos += dt.itemsize * n
-        return a.astype(dt.newbyteorder("="))
-
-    def raw(self, n: int, what: str) -> bytes:
-        self._need(n, what)
-        out = bytes(self.buf[self.pos:self.pos + n])
-        self.pos += n
-        return out
-
-
-def _u32(value, what: str) -> int:
-    """``value`` as an int in 0..2**32-1, or OpcodeError naming it."""
-    try:
-        v = int(value)
-    except (TypeError, ValueError):
-        raise OpcodeError(f"{what} must be an integer, got {value!r}") from None
-    if v != value or not 0 <= v <= _U32_MAX:
-        raise OpcodeError(f"{what} must be an integer in 0..{_U32_MAX}, got {value!r}")
-    return v
-
-
-def _floats(values, n: int | None, what: str) -> tuple[float, ...]:
-    out = tuple(float(x) for x in values)
-    if n is not None and len(out) != n:
-        raise OpcodeError(f"{what} needs {n} values, got {len(out)}")
-    return out
-
-
-def _frozen_array(values, dtype, ndim: int, what: str) -> np.ndarray:
-    a = np.array(values, dtype=dtype, order="C", copy=True)
-    if a.ndim != ndim:
-        raise OpcodeError(f"{what} must be {ndim}-D, got shape {a.shape}")
-    a.setflags(write=False)
-    return a
-
-
-def _set(obj, name: str, value) -> None:
-    object.__setattr__(obj, name, value)
-
-
-def _expect_size(size: int, need: int, detail: str) -> None:
-    if size != need:
-        raise OpcodeError(f"declares {size} parameter bytes but needs {need} for {detail}")
-
-
-def _check_center(cx: float, cy: float) -> None:
-    # SDK: dng_warp_params::IsValid / dng_vignette_radial_params::IsValid.
-    if not (0.0 <= cx <= 1.0 and 0.0 <= cy <= 1.0):
-        raise OpcodeError(f"optical centre ({cx!r}, {cy!r}) must lie in [0, 1] x [0, 1]")
-
 
 # --------------------------------------------------------------------------
 # area spec
@@ -209,7 +85,7 @@ class AreaSpec:
     def __post_init__(self):
         for name in ("top", "left", "bottom", "right", "plane", "planes",
                      "row_pitch", "col_pitch"):
-            _set(self, name, _u32(getattr(self, name), f"area {name}"))
+            set_field(self, name, as_u32(getattr(self, name), f"area {name}"))
         if self.planes < 1:
             raise OpcodeError(f"area planes is {self.planes}, must be >= 1")
         if self.row_pitch < 1 or self.col_pitch < 1:
@@ -253,7 +129,7 @@ class AreaSpec:
 
     def to_bytes(self) -> bytes:
         """The 32-byte big-endian encoding."""
-        return _AREA.pack(self.top, self.left, self.bottom, self.right,
+        return AREA_SPEC.pack(self.top, self.left, self.bottom, self.right,
                           self.plane, self.planes, self.row_pitch, self.col_pitch)
 
     def describe(self) -> dict[str, Any]:
@@ -263,7 +139,7 @@ class AreaSpec:
                 "row_pitch": self.row_pitch, "col_pitch": self.col_pitch}
 
     @classmethod
-    def _read(cls, r: _Reader) -> "AreaSpec":
+    def _read(cls, r: Reader) -> "AreaSpec":
         return cls(*r.u32s(8, "area spec"))
 
 
@@ -299,9 +175,9 @@ class Opcode:
                                         for v in version):
             raise OpcodeError(f"version must be 4 integers 0..255, got {self.version!r}",
                               name=self.name)
-        _set(self, "version", tuple(int(v) for v in version))
+        set_field(self, "version", tuple(int(v) for v in version))
         try:
-            _set(self, "flags", _u32(self.flags, "flags"))
+            set_field(self, "flags", as_u32(self.flags, "flags"))
             self._validate()
         except OpcodeError as err:
             if err.name is not None:
@@ -340,10 +216,10 @@ class Opcode:
         """The opcode's encoding: header (ID, version, flags, byte count)
         followed by its parameters."""
         params = self._params()
-        return _HEADER.pack(self.id, *self.version, self.flags, len(params)) + params
+        return HEADER.pack(self.id, *self.version, self.flags, len(params)) + params
 
     @classmethod
-    def _parse(cls, r: _Reader, size: int, **header) -> "Opcode":
+    def _parse(cls, r: Reader, size: int, **header) -> "Opcode":
         raise NotImplementedError
 
     # -- reporting --------------------------------------------------------
@@ -388,9 +264,9 @@ class UnknownOpcode(Opcode):
     MIN_VERSION = (1, 3, 0, 0)
 
     def _validate(self):
-        _set(self, "opcode_id", _u32(self.opcode_id, "opcode ID"))
-        _set(self, "data", bytes(self.data))
-        if len(self.data) > _U32_MAX:
+        set_field(self, "opcode_id", as_u32(self.opcode_id, "opcode ID"))
+        set_field(self, "data", bytes(self.data))
+        if len(self.data) > U32_MAX:
             raise OpcodeError(f"{len(self.data)} parameter bytes do not fit a uint32 count")
 
     @property

@@ -11,7 +11,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from isp.opcodes.base import AreaSpec, Opcode, OpcodeError, _expect_size, _frozen_array, _set
+from isp.opcodes.base import AreaSpec, Opcode
+from isp.opcodes.binary import OpcodeError, expect_size, frozen_array, set_field
 
 _GAIN_MAP_HEADER = struct.Struct(">II4dI")
 
@@ -41,7 +42,7 @@ class GainMap(Opcode):
 
     Parameters: area spec; uint32 MapPointsV, MapPointsH; float64
     MapSpacingV, MapSpacingH, MapOriginV, MapOriginH; uint32 MapPlanes;
-    float32 gains in the order [row][col][plane] (MapPointsV x MapPointsH x
+    float32 gains in the order ``[row][col][plane]`` (MapPointsV x MapPointsH x
     MapPlanes).
 
     Attributes
@@ -80,7 +81,7 @@ class GainMap(Opcode):
         gains = np.asarray(self.gains)
         if gains.ndim == 2:
             gains = gains[:, :, None]
-        gains = _frozen_array(gains, np.float32, 3, "gains")
+        gains = frozen_array(gains, np.float32, 3, "gains")
         if min(gains.shape) < 1:
             raise OpcodeError(f"map has {gains.shape[0]}x{gains.shape[1]} points and "
                               f"{gains.shape[2]} planes, each must be >= 1")
@@ -89,9 +90,9 @@ class GainMap(Opcode):
             first = [int(i) for i in np.argwhere(bad)[0]]
             raise OpcodeError(f"{int(bad.sum())} non-finite gain(s), first "
                               f"{gains[tuple(first)]!r} at [{first[0]}][{first[1]}][{first[2]}]")
-        _set(self, "gains", gains)
+        set_field(self, "gains", gains)
         for name in ("spacing_v", "spacing_h", "origin_v", "origin_h"):
-            _set(self, name, float(getattr(self, name)))
+            set_field(self, name, float(getattr(self, name)))
         for axis, (sp, org) in zip("vh", zip(self.map_spacing, self.map_origin)):
             if not (math.isfinite(sp) and sp > 0.0):
                 raise OpcodeError(f"map spacing {axis.upper()} is {sp!r}, must be > 0")
@@ -250,7 +251,7 @@ class GainMap(Opcode):
         if min(pv, ph, planes) < 1:
             raise OpcodeError(f"map has {pv}x{ph} points and {planes} planes, "
                               "each must be >= 1")
-        _expect_size(size, cls.HEADER_SIZE + 4 * pv * ph * planes,
+        expect_size(size, cls.HEADER_SIZE + 4 * pv * ph * planes,
                      f"{pv}x{ph}x{planes} gains")
         gains = r.array(">f4", pv * ph * planes, "gains").reshape(pv, ph, planes)
         return cls(area, gains, sv, sh, ov, oh, **header)

@@ -10,7 +10,8 @@ from typing import Iterable
 import numpy as np
 
 from isp.opcodes.bad_pixels import FixBadPixelsConstant, FixBadPixelsList
-from isp.opcodes.base import _HEADER, OPCODE_NAMES, Opcode, OpcodeError, UnknownOpcode, _Reader
+from isp.opcodes.base import OPCODE_NAMES, Opcode, UnknownOpcode
+from isp.opcodes.binary import HEADER, OpcodeError, Reader
 from isp.opcodes.gain_map import GainMap
 from isp.opcodes.per_line import DeltaPerColumn, DeltaPerRow, ScalePerColumn, ScalePerRow
 from isp.opcodes.trim import TrimBounds
@@ -67,7 +68,7 @@ def parse_opcode_list(data, *, max_opcodes: int = 1024) -> tuple[Opcode, ...]:
         ``data``.
     """
     buf = _as_buffer(data)
-    r = _Reader(buf)
+    r = Reader(buf)
     if len(buf) < 4:
         raise OpcodeError(f"opcode list: {len(buf)} bytes, needs at least 4 for the count")
     count = r.u32("count")
@@ -82,7 +83,7 @@ def parse_opcode_list(data, *, max_opcodes: int = 1024) -> tuple[Opcode, ...]:
         if r.remaining() < 16:
             raise OpcodeError(f"truncated: header needs 16 bytes, only {r.remaining()} left",
                               index=index)
-        opcode_id, v0, v1, v2, v3, flags, size = _HEADER.unpack_from(buf, r.pos)
+        opcode_id, v0, v1, v2, v3, flags, size = HEADER.unpack_from(buf, r.pos)
         r.pos += 16
         cls = _CLASSES.get(opcode_id)
         name = OPCODE_NAMES.get(opcode_id, f"Unknown({opcode_id})")
@@ -96,7 +97,7 @@ def parse_opcode_list(data, *, max_opcodes: int = 1024) -> tuple[Opcode, ...]:
             if cls is None:
                 op = UnknownOpcode(opcode_id, bytes(params), **header)
             else:
-                pr = _Reader(params)
+                pr = Reader(params)
                 op = cls._parse(pr, size, **header)
                 if pr.remaining():   # a layout bug guard: sizes are checked up front
                     raise OpcodeError(f"declares {size} parameter bytes but uses "

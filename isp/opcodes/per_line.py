@@ -10,7 +10,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from isp.opcodes.base import AreaSpec, Opcode, OpcodeError, _expect_size, _frozen_array, _set
+from isp.opcodes.base import AreaSpec, Opcode
+from isp.opcodes.binary import OpcodeError, expect_size, frozen_array, set_field
 
 # --------------------------------------------------------------------------
 # per-row / per-column deltas and scales
@@ -34,12 +35,12 @@ class _PerLine(Opcode):
         return -(-area.width // area.col_pitch)
 
     def _validate(self):
-        values = _frozen_array(self.values, np.float32, 1, "values")
+        values = frozen_array(self.values, np.float32, 1, "values")
         need = self.expected_count(self.area)
         if values.size != need:
             raise OpcodeError(f"{values.size} values but the area needs {need} "
                               f"(one per {self.AXIS} of the lattice)")
-        _set(self, "values", values)
+        set_field(self, "values", values)
 
     def _params(self):
         return (self.area.to_bytes() + struct.pack(">I", self.values.size)
@@ -56,7 +57,7 @@ class _PerLine(Opcode):
         if n != need:
             raise OpcodeError(f"count is {n} but the area needs {need} "
                               f"(one per {cls.AXIS} of the lattice)")
-        _expect_size(size, AreaSpec.SIZE + 4 + 4 * n, f"{n} values")
+        expect_size(size, AreaSpec.SIZE + 4 + 4 * n, f"{n} values")
         return cls(area, r.array(">f4", n, "values"), **header)
 
     def _describe(self):

@@ -6,7 +6,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from isp.opcodes.base import Opcode, OpcodeError, _expect_size, _set, _u32
+from isp.opcodes.base import Opcode
+from isp.opcodes.binary import OpcodeError, as_u32, expect_size, set_field
 
 # --------------------------------------------------------------------------
 # trim
@@ -27,7 +28,7 @@ class TrimBounds(Opcode):
 
     def _validate(self):
         for name in ("top", "left", "bottom", "right"):
-            _set(self, name, _u32(getattr(self, name), name))
+            set_field(self, name, as_u32(getattr(self, name), name))
         if self.top >= self.bottom or self.left >= self.right:
             raise OpcodeError(f"bounds ({self.top}, {self.left}, {self.bottom}, "
                               f"{self.right}) are empty")
@@ -37,7 +38,7 @@ class TrimBounds(Opcode):
 
     @classmethod
     def _parse(cls, r, size, **header):
-        _expect_size(size, 16, "the bounds")
+        expect_size(size, 16, "the bounds")
         return cls(*r.u32s(4, "bounds"), **header)
 
     def _describe(self):

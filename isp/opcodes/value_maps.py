@@ -10,17 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from isp.opcodes.base import (
-    MAX_POLYNOMIAL_DEGREE,
-    MAX_TABLE_SIZE,
-    AreaSpec,
-    Opcode,
-    OpcodeError,
-    _expect_size,
-    _floats,
-    _frozen_array,
-    _set,
-)
+from isp.opcodes.base import MAX_POLYNOMIAL_DEGREE, MAX_TABLE_SIZE, AreaSpec, Opcode
+from isp.opcodes.binary import OpcodeError, as_floats, expect_size, frozen_array, set_field
 
 # --------------------------------------------------------------------------
 # value maps
@@ -47,10 +38,10 @@ class MapTable(Opcode):
         if table.size and (np.any(table < 0) or np.any(table > 0xFFFF)
                            or np.any(table != np.round(table))):
             raise OpcodeError("table entries must be integers in 0..65535")
-        table = _frozen_array(table, np.uint16, 1, "table")
+        table = frozen_array(table, np.uint16, 1, "table")
         if not 1 <= table.size <= MAX_TABLE_SIZE:
             raise OpcodeError(f"table size is {table.size}, must be 1..{MAX_TABLE_SIZE}")
-        _set(self, "table", table)
+        set_field(self, "table", table)
 
     def _params(self):
         return (self.area.to_bytes() + struct.pack(">I", self.table.size)
@@ -65,7 +56,7 @@ class MapTable(Opcode):
         n = r.u32("table size")
         if not 1 <= n <= MAX_TABLE_SIZE:
             raise OpcodeError(f"table size is {n}, must be 1..{MAX_TABLE_SIZE}")
-        _expect_size(size, AreaSpec.SIZE + 4 + 2 * n, f"{n} table entries")
+        expect_size(size, AreaSpec.SIZE + 4 + 2 * n, f"{n} table entries")
         return cls(area, r.array(">u2", n, "table"), **header)
 
     def lookup(self, values) -> np.ndarray:
@@ -128,11 +119,11 @@ class MapPolynomial(Opcode):
     coefficients: tuple
 
     def _validate(self):
-        c = _floats(self.coefficients, None, "coefficients")
+        c = as_floats(self.coefficients, None, "coefficients")
         if not 1 <= len(c) <= MAX_POLYNOMIAL_DEGREE + 1:
             raise OpcodeError(f"{len(c)} coefficients, must be 1..{MAX_POLYNOMIAL_DEGREE + 1} "
                               f"(degree 0..{MAX_POLYNOMIAL_DEGREE})")
-        _set(self, "coefficients", c)
+        set_field(self, "coefficients", c)
 
     @property
     def degree(self) -> int:
@@ -152,7 +143,7 @@ class MapPolynomial(Opcode):
         degree = r.u32("degree")
         if degree > MAX_POLYNOMIAL_DEGREE:
             raise OpcodeError(f"degree is {degree}, must be 0..{MAX_POLYNOMIAL_DEGREE}")
-        _expect_size(size, AreaSpec.SIZE + 4 + 8 * (degree + 1),
+        expect_size(size, AreaSpec.SIZE + 4 + 8 * (degree + 1),
                      f"{degree + 1} coefficients (degree {degree})")
         return cls(area, r.f64s(degree + 1, "coefficients"), **header)
 

@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from isp.opcodes.base import Opcode, _check_center, _expect_size, _floats, _set
+from isp.opcodes.base import Opcode
+from isp.opcodes.binary import as_floats, check_center, expect_size, set_field
 
 # --------------------------------------------------------------------------
 # vignette
@@ -36,17 +37,17 @@ class FixVignetteRadial(Opcode):
     center_y: float = 0.5
 
     def _validate(self):
-        _set(self, "k", _floats(self.k, 5, "k"))
-        _set(self, "center_x", float(self.center_x))
-        _set(self, "center_y", float(self.center_y))
-        _check_center(self.center_x, self.center_y)
+        set_field(self, "k", as_floats(self.k, 5, "k"))
+        set_field(self, "center_x", float(self.center_x))
+        set_field(self, "center_y", float(self.center_y))
+        check_center(self.center_x, self.center_y)
 
     def _params(self):
         return struct.pack(">7d", *self.k, self.center_x, self.center_y)
 
     @classmethod
     def _parse(cls, r, size, **header):
-        _expect_size(size, 56, "5 coefficients and the optical centre")
+        expect_size(size, 56, "5 coefficients and the optical centre")
         values = r.f64s(7, "coefficients")
         return cls(values[:5], values[5], values[6], **header)
 

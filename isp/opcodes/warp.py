@@ -8,33 +8,24 @@ import struct
 from dataclasses import dataclass
 from typing import ClassVar
 
-from isp.opcodes.base import (
-    MAX_WARP_PLANES,
-    Opcode,
-    OpcodeError,
-    _check_center,
-    _expect_size,
-    _floats,
-    _Reader,
-    _set,
-    _u32,
-)
+from isp.opcodes.base import MAX_WARP_PLANES, Opcode
+from isp.opcodes.binary import OpcodeError, Reader, as_floats, as_u32, check_center, expect_size, set_field
 
 # --------------------------------------------------------------------------
 # warps
 
 def _plane_rows(rows, width: int, what: str) -> tuple[tuple[float, ...], ...]:
-    out = tuple(_floats(r, width, what) for r in rows)
+    out = tuple(as_floats(r, width, what) for r in rows)
     if not 1 <= len(out) <= MAX_WARP_PLANES:
         raise OpcodeError(f"{what}: {len(out)} planes, must be 1..{MAX_WARP_PLANES}")
     return out
 
 
-def _read_warp_planes(r: _Reader, size: int, per_plane: int, tail: int, name: str) -> int:
+def _read_warp_planes(r: Reader, size: int, per_plane: int, tail: int, name: str) -> int:
     planes = r.u32("plane count")
     if not 1 <= planes <= MAX_WARP_PLANES:
         raise OpcodeError(f"plane count is {planes}, must be 1..{MAX_WARP_PLANES}")
-    _expect_size(size, 4 + 8 * per_plane * planes + tail,
+    expect_size(size, 4 + 8 * per_plane * planes + tail,
                  f"{planes} plane(s) of {name} coefficients")
     return planes
 
@@ -63,14 +54,14 @@ class WarpRectilinear(Opcode):
     center_y: float = 0.5
 
     def _validate(self):
-        _set(self, "radial", _plane_rows(self.radial, 4, "radial coefficients"))
-        _set(self, "tangential", _plane_rows(self.tangential, 2, "tangential coefficients"))
+        set_field(self, "radial", _plane_rows(self.radial, 4, "radial coefficients"))
+        set_field(self, "tangential", _plane_rows(self.tangential, 2, "tangential coefficients"))
         if len(self.tangential) != len(self.radial):
             raise OpcodeError(f"{len(self.radial)} radial but {len(self.tangential)} "
                               "tangential planes")
-        _set(self, "center_x", float(self.center_x))
-        _set(self, "center_y", float(self.center_y))
-        _check_center(self.center_x, self.center_y)
+        set_field(self, "center_x", float(self.center_x))
+        set_field(self, "center_y", float(self.center_y))
+        check_center(self.center_x, self.center_y)
 
     @property
     def planes(self) -> int:
@@ -114,10 +105,10 @@ class WarpFisheye(Opcode):
     center_y: float = 0.5
 
     def _validate(self):
-        _set(self, "radial", _plane_rows(self.radial, 4, "radial coefficients"))
-        _set(self, "center_x", float(self.center_x))
-        _set(self, "center_y", float(self.center_y))
-        _check_center(self.center_x, self.center_y)
+        set_field(self, "radial", _plane_rows(self.radial, 4, "radial coefficients"))
+        set_field(self, "center_x", float(self.center_x))
+        set_field(self, "center_y", float(self.center_y))
+        check_center(self.center_x, self.center_y)
 
     @property
     def planes(self) -> int:
@@ -171,9 +162,9 @@ class WarpRectilinear2(Opcode):
     reciprocal: int = 0
 
     def _validate(self):
-        _set(self, "radial", _plane_rows(self.radial, self.RADIAL_TERMS, "radial coefficients"))
-        _set(self, "tangential", _plane_rows(self.tangential, 2, "tangential coefficients"))
-        _set(self, "valid_range", _plane_rows(self.valid_range, 2, "valid radius range"))
+        set_field(self, "radial", _plane_rows(self.radial, self.RADIAL_TERMS, "radial coefficients"))
+        set_field(self, "tangential", _plane_rows(self.tangential, 2, "tangential coefficients"))
+        set_field(self, "valid_range", _plane_rows(self.valid_range, 2, "valid radius range"))
         n = len(self.radial)
         if len(self.tangential) != n or len(self.valid_range) != n:
             raise OpcodeError(f"plane counts differ: radial {n}, tangential "
@@ -182,10 +173,10 @@ class WarpRectilinear2(Opcode):
             if not 0.0 <= lo < hi <= 1.0:   # SDK dng_warp_params_radial::IsValid
                 raise OpcodeError(f"plane {p}: valid radius range ({lo!r}, {hi!r}) "
                                   "must satisfy 0 <= min < max <= 1")
-        _set(self, "center_x", float(self.center_x))
-        _set(self, "center_y", float(self.center_y))
-        _check_center(self.center_x, self.center_y)
-        _set(self, "reciprocal", _u32(self.reciprocal, "reciprocal flag"))
+        set_field(self, "center_x", float(self.center_x))
+        set_field(self, "center_y", float(self.center_y))
+        check_center(self.center_x, self.center_y)
+        set_field(self, "reciprocal", as_u32(self.reciprocal, "reciprocal flag"))
 
     @property
     def planes(self) -> int:

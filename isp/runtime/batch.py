@@ -7,12 +7,14 @@ pool here, a cluster engine where one machine is not enough.
 
 from __future__ import annotations
 
-import os
-import sys
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from isp.errors import IspError
+from isp.runtime.executor import Executor, pool_executor
+
+#: what a batch task imports: rawpy's OpenMP rules out starting workers by fork, and a
+#: forkserver imports these once for all workers
+TASK_IMPORTS = ("rawpy", "isp.pipeline", "isp.io.read", "isp.io.files")
 
 #: suffixes treated as raw input (case-insensitive)
 RAW_SUFFIXES = {
@@ -48,35 +50,44 @@ def find_inputs(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in RAW_SUFFIXES)
 
 
-def run_batch(folder: Path, outdir: Path, config: dict, workers: int = 2, headerless=None,
+def _process_job(job: tuple) -> tuple[str, str | None]:
+    return process_file(*job)
+
+
+def batch_executor(workers: int = 2, files: int | None = None, *, progress: bool = True) -> Executor:
+    """The executor ``isp batch --workers N`` runs on: N worker processes
+    (no more than ``files`` or the machine's cores; one: in this process),
+    started safely for rawpy (:data:`TASK_IMPORTS`), with a progress bar."""
+    import os
+
+    n = max(1, min(int(workers), files or int(workers), os.cpu_count() or 1))
+    return pool_executor(n, progress=progress, imports=TASK_IMPORTS)
+
+
+def run_batch(folder: Path, outdir: Path, config: dict, *, executor: Executor | None = None, headerless=None,
               suffix: str = ".jpg") -> int:
     """Process every raw file of ``folder`` into ``outdir``; print a summary
-    of failures. Returns the exit code: 0, or 1 if any file failed."""
-    from tqdm import tqdm
+    of failures. Returns the exit code: 0, or 1 if any file failed.
 
+    ``executor`` runs the files, as they finish (default
+    :func:`batch_executor` with 2 workers); a file whose task fails is
+    reported with its error and the others go on."""
     files = find_inputs(folder)
     if not files:
         raise IspError(f"{folder}: no raw files ({', '.join(sorted(RAW_SUFFIXES)[:6])}, ...)")
     outdir.mkdir(parents=True, exist_ok=True)
-    jobs = [(str(f), str(outdir / (f.stem + suffix))) for f in files]
+    jobs = [(str(f), str(outdir / (f.stem + suffix)), config, headerless) for f in files]
     failures: list[str] = []
-    workers = max(1, min(workers, len(jobs), os.cpu_count() or 1))
-    bar = tqdm(total=len(jobs), unit="file", desc="isp batch", file=sys.stderr)
-    if workers == 1:
-        for src, dst in jobs:
-            _, err = process_file(src, dst, config, headerless)
+    own = executor is None
+    ex = batch_executor(2, len(jobs)) if own else executor
+    try:
+        for r in ex.as_completed(_process_job, jobs, desc="isp batch", unit="file"):
+            err = r.value[1] if r.ok else f"{r.task[0]}: internal error: {type(r.error).__name__}: {r.error}"
             if err:
                 failures.append(err)
-            bar.update()
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futs = [pool.submit(process_file, s, d, config, headerless) for s, d in jobs]
-            for fut in as_completed(futs):
-                _, err = fut.result()
-                if err:
-                    failures.append(err)
-                bar.update()
-    bar.close()
+    finally:
+        if own:
+            ex.close()
     ok = len(jobs) - len(failures)
     print(f"processed {ok} of {len(jobs)} file(s) into {outdir}")
     if failures:

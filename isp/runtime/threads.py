@@ -49,7 +49,7 @@ def one_blas_thread() -> None:
     ``OMP_NUM_THREADS`` after numpy was imported changes nothing, so the
     limit is set through ``threadpoolctl``. ``OPENBLAS_NUM_THREADS`` is set
     too, for code that asks the environment which GEMM path to take
-    (:func:`calibration.optics.psf.core._blas_on_one_thread`). Measured on a 2-core
+    (:func:`calibration.optics.psf.linalg.blas_on_one_thread`). Measured on a 2-core
     machine (``benchmarks/proxy.py --lenses e9 --devices 1 --methods
     ours_shape``, two fit workers): 112.5 s with the workers' BLAS on two
     threads each, 38.8 s on one.

@@ -132,6 +132,7 @@ __all__ = [
     "camera_neutral_to_xy",
     "camera_to_linear_srgb",
     "camera_to_xyz_d50",
+    "check_source",
     "illuminant_to_cct",
     "interpolation_weight",
     "matrix_xyz_d50_to_linear_srgb",
@@ -191,7 +192,9 @@ _NEUTRAL_TO_XY_TOLERANCE = 1e-7
 # --------------------------------------------------------------------------
 # small numeric helpers
 
-def _check_source(source: str) -> str:
+def check_source(source: str) -> str:
+    """``source`` if it is one of :data:`SOURCES` (the colour models a
+    stage may be asked for), else ValueError listing the valid names."""
     if source not in SOURCES:
         raise ValueError(f"unknown colour source {source!r}; valid: {', '.join(SOURCES)}")
     return source
@@ -582,7 +585,7 @@ def _calibration(meta: CameraMeta, i: int, ab: np.ndarray) -> _Calibration:
 def _build_spec(meta: CameraMeta, source: str) -> _Spec:
     """The colour specification for ``source`` (the SDK's dng_color_spec
     constructor). Raises InputError when the requested tags are missing."""
-    _check_source(source)
+    check_source(source)
     if not _has_color_matrix(meta):
         raise InputError(meta.path, "no ColorMatrix1/2: camera colour cannot be mapped to XYZ")
     ab = (np.ones(3) if meta.analog_balance is None
@@ -843,7 +846,7 @@ def camera_to_linear_srgb(meta: CameraMeta, applied_neutral=None, scene_neutral=
     >>> m.tolist(), notes
     ([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], ('no colour matrix: camera RGB treated as linear sRGB',))
     """
-    _check_source(source)
+    check_source(source)
     if not _has_color_matrix(meta):
         return np.eye(3), ("no colour matrix: camera RGB treated as linear sRGB",)
     m, notes = camera_to_xyz_d50(meta, neutral=scene_neutral, source=source)

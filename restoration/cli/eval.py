@@ -3,7 +3,7 @@ proxy cameras it was not trained on (:mod:`restoration.evaluate.rings`).
 
 Reached from ``isp eval ...`` and imported only then. A checkpoint needs
 torch; an ``.onnx`` file runs through onnxruntime. Errors print one line
-and exit with code 2, like the rest of ``isp``.
+and exit with code 2, like the rest of ``isp`` (:mod:`isp.cli.run`).
 """
 
 from __future__ import annotations
@@ -11,12 +11,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 from pathlib import Path
 
+from isp.cli.arguments import float_range, int_grid
 from isp.errors import ConfigError, InputError
 
-from restoration.cli.synth import _grid, _range
 from restoration.synth.optics import PSF_DEFAULTS
 
 EPILOG = """\
@@ -39,15 +38,15 @@ The JSON holds `rings` ("0.1", "0.5", "0.9": psnr_/ssim_ uncorrected, corrected,
 """
 
 
-def make_parser() -> argparse.ArgumentParser:
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``isp eval``."""
     from restoration.evaluate.baseline import BASELINES
 
-    p = argparse.ArgumentParser(
-        prog="isp eval",
-        description="Evaluate a correction model (checkpoint or ONNX) on synthesised images through "
-                    "proxy cameras not seen in training: PSNR and SSIM per field ring, against the "
-                    "uncorrected pipeline and a classical non-blind deconvolution.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.description = ("Evaluate a correction model (checkpoint or ONNX) on synthesised images through "
+                     "proxy cameras not seen in training: PSNR and SSIM per field ring, against the "
+                     "uncorrected pipeline and a classical non-blind deconvolution.")
+    p.epilog = EPILOG
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("model", help="checkpoint (restoration.nn.checkpoint) or exported .onnx file")
     p.add_argument("--images", required=True, help="folder of latent sRGB test images (recursive)")
     p.add_argument("--lens", required=True, help="the proxy camera's lens file (lens/v1 JSON, .zmx, fitted proxy)")
@@ -68,21 +67,20 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", action="append", metavar="DNG",
                    help="phone DNG for the colour models (repeatable; default those of `isp synth`)")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise")
-    p.add_argument("--exposure", type=_range, metavar="LO,HI",
+    p.add_argument("--exposure", type=float_range, metavar="LO,HI",
                    help="luminosity compression in EV (default: training's, 0,2)")
-    p.add_argument("--noise-scale", type=_range, metavar="LO,HI",
+    p.add_argument("--noise-scale", type=float_range, metavar="LO,HI",
                    help="factor on the NoiseProfile, log-uniform (default: training's, 0.5,2)")
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
     g = p.add_argument_group("PSF maps (use the training set's settings)")
     g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
                    help="PSF window in samples of half a pixel (default a 32 µm window, 64 samples on 1 µm "
                         "pixels)")
-    g.add_argument("--psf-grid", type=_grid, default=PSF_DEFAULTS["grid"], metavar="ROWS,COLS",
+    g.add_argument("--psf-grid", type=int_grid, default=PSF_DEFAULTS["grid"], metavar="ROWS,COLS",
                    help="regions of the PSF map (default 15,20)")
     g.add_argument("--psf-cache", metavar="DIR", help="PSF-map cache folder")
     g.add_argument("--workers", type=int, default=2, help="processes for the PSF maps (default 2)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    return p
 
 
 def _finite(x):
@@ -109,10 +107,13 @@ def _limited_images(images: Path, limit: int, work_dir: Path) -> Path:
     return work_dir
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Evaluate, write the JSON report, print the table per ring."""
     import tempfile
 
-    from restoration.evaluate.rings import evaluate
+    from isp.runtime.executor import pool_executor
+
+    from restoration.evaluate.rings import EvalSettings, evaluate
 
     model, images, lens = Path(args.model), Path(args.images), Path(args.lens)
     if not model.exists():
@@ -130,13 +131,13 @@ def run(args) -> int:
         raise InputError(out, "is a folder; give a file name for the JSON report")
     with tempfile.TemporaryDirectory(prefix="isp-eval-") as tmp:
         img_dir = images if args.limit is None else _limited_images(images, args.limit, Path(tmp) / "images")
-        report = evaluate(model, img_dir, lens, samples=args.samples, seed=args.seed, size=args.size,
-                          border=args.border, positions=args.positions, baseline=args.baseline,
-                          noise=False if args.no_noise else None, exposure_ev=args.exposure,
-                          noise_scale=args.noise_scale,
-                          cameras=args.camera, tolerance_scale=args.tolerance_scale, with_proxy=args.with_proxy,
-                          psf_options={"n": args.psf_n, "grid": args.psf_grid}, workers=args.workers,
-                          progress=not args.quiet, cache_dir=args.psf_cache, threads=args.threads)
+        settings = EvalSettings(size=args.size, border=args.border, positions=args.positions, baseline=args.baseline,
+                                samples=args.samples, seed=args.seed, tolerance_scale=args.tolerance_scale,
+                                with_proxy=args.with_proxy, noise=False if args.no_noise else None,
+                                exposure_ev=args.exposure, noise_scale=args.noise_scale)
+        report = evaluate(model, img_dir, lens, settings, cameras=args.camera,
+                          psf_options={"n": args.psf_n, "grid": args.psf_grid}, cache_dir=args.psf_cache,
+                          threads=args.threads, executor=pool_executor(args.workers, progress=not args.quiet))
     if args.limit is not None:
         report["images"]["dir"] = str(images)
     from isp.io.files import write_bytes_atomic
@@ -157,14 +158,3 @@ def _print_table(report: dict) -> None:
               f"{f(r['psnr_baseline'], '6.2f')}   {f(r['ssim_uncorrected'], '8.4f')} "
               f"{f(r['ssim_corrected'], '6.4f')} {f(r['ssim_baseline'], '6.4f')}")
 
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``isp eval`` (called by :func:`isp.cli.main.main`)."""
-    args = make_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    return run(args)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from isp.cli.main import _guarded
-
-    sys.exit(_guarded(lambda: main(), debug="--debug" in sys.argv, where=""))

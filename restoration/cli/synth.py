@@ -2,25 +2,19 @@
 
 Reached from ``isp synth ...`` and imported only then; it needs numpy,
 OpenCV and the calibration toolkit, not torch. Errors print one line and
-exit with code 2, like the rest of ``isp``.
+exit with code 2, like the rest of ``isp`` (:mod:`isp.cli.run`).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 from pathlib import Path
 
-from isp.errors import ConfigError, IspError
+from isp.cli.arguments import float_range, int_grid
+from isp.errors import ConfigError, InputError
 
+from restoration.synth.defaults import DATA, DEFAULT_CAMERAS
 from restoration.synth.optics import PSF_DEFAULTS
-
-#: the shared data folder beside the repository (``$ISP_DATA`` overrides)
-DATA = Path(os.environ.get("ISP_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
-
-#: phone DNGs whose metadata is used by default (the first is the sensor)
-DEFAULT_CAMERAS = ("raw/SYNTHETIC_phone_S6meta_512x384.dng", "raw/skia_sample_1mp.dng")
 
 EPILOG = f"""\
 examples:
@@ -42,30 +36,12 @@ PSF maps are cached in $ISP_CACHE/psf (else ~/.cache/phone-isp/psf).
 """
 
 
-def _range(text: str) -> tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected LOW,HIGH (two numbers), got {text!r}") from None
-    return lo, hi
-
-
-def _grid(text: str) -> tuple[int, int]:
-    try:
-        rows, cols = (int(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected ROWS,COLS (two integers), got {text!r}") from None
-    if rows < 1 or cols < 1:
-        raise argparse.ArgumentTypeError(f"the grid needs at least 1 row and 1 column, got {text!r}")
-    return rows, cols
-
-
-def make_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="isp synth",
-        description="Synthesise training pairs (camera RGB input, sRGB target) from latent images "
-                    "through a proxy camera (paper, section 4.1).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``isp synth``."""
+    p.description = ("Synthesise training pairs (camera RGB input, sRGB target) from latent images "
+                     "through a proxy camera (paper, section 4.1).")
+    p.epilog = EPILOG
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("--lens", required=True, help="lens file (lens/v1 JSON, .zmx, ...) or fitted proxy file")
     p.add_argument("--samples", type=int, default=1,
                    help="1: the lens itself (single sample); N: the lens and N-1 lenses drawn within "
@@ -86,11 +62,11 @@ def make_parser() -> argparse.ArgumentParser:
                    help="the pairs' pixel pitch, µm: the lens file's sensor area at this pitch (default the lens "
                         "file's; a proxy fitted to a binned capture carries that capture's pitch)")
     g = p.add_argument_group("what the pairs look like")
-    g.add_argument("--exposure", type=_range, default=(0.0, 2.0), metavar="LO,HI",
+    g.add_argument("--exposure", type=float_range, default=(0.0, 2.0), metavar="LO,HI",
                    help="luminosity compression in EV (default 0,2)")
-    g.add_argument("--cct", type=_range, default=(2850.0, 7500.0), metavar="LO,HI",
+    g.add_argument("--cct", type=float_range, default=(2850.0, 7500.0), metavar="LO,HI",
                    help="scene white in kelvin (default 2850,7500)")
-    g.add_argument("--noise-scale", type=_range, default=(0.5, 2.0), metavar="LO,HI",
+    g.add_argument("--noise-scale", type=float_range, default=(0.5, 2.0), metavar="LO,HI",
                    help="ISO-like factor on the NoiseProfile, log-uniform (default 0.5,2)")
     g.add_argument("--no-noise", action="store_true", help="no sensor noise")
     g.add_argument("--blend", choices=("bilinear", "nearest"), default="bilinear",
@@ -102,16 +78,18 @@ def make_parser() -> argparse.ArgumentParser:
     g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
                    help="PSF window in samples of half a pixel (default a 32 µm window, 64 samples on 1 µm "
                         "pixels: a drawn lens's corner PSF keeps >= 95 %% of its light, against 68 %% at 16 µm)")
-    g.add_argument("--psf-grid", type=_grid, default=PSF_DEFAULTS["grid"], metavar="ROWS,COLS",
+    g.add_argument("--psf-grid", type=int_grid, default=PSF_DEFAULTS["grid"], metavar="ROWS,COLS",
                    help="regions of the PSF map (default 15,20 as the paper; 30,40 cuts the blur's "
                         "interpolation error about 3x for 4x the PSFs)")
     g.add_argument("--psf-cache", metavar="DIR", help="PSF-map cache folder")
     p.add_argument("--force", action="store_true", help="replace a previous set in the output folder")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    return p
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Plan (lenses, PSF maps, inputs) and generate the pairs."""
+    from isp.runtime.executor import pool_executor
+
     from restoration.synth.pairs import SynthSettings, generate, plan
 
     if args.samples < 1:
@@ -119,31 +97,20 @@ def run(args) -> int:
     if args.pairs < 1 or args.workers < 1 or args.shard_size < 1:
         raise ConfigError("--pairs, --workers and --shard-size must be ≥ 1")
     if not Path(args.lens).exists():
-        raise IspError(f"{args.lens}: no such lens file")
+        raise InputError(args.lens, "no such lens file")
     if args.pixel_um is not None and not 0.2 <= args.pixel_um <= 20.0:
         raise ConfigError(f"--pixel-um {args.pixel_um:g}: between 0.2 and 20 µm")
     cameras = args.camera or [str(DATA / c) for c in DEFAULT_CAMERAS]
+    executor = pool_executor(args.workers, progress=not args.quiet)
     settings = SynthSettings(size=args.size, exposure_ev=args.exposure, cct_k=args.cct, noise_scale=args.noise_scale,
                              noise=not args.no_noise, blend=args.blend, demosaic=args.demosaic, tone=args.tone)
     p = plan(args.lens, samples=args.samples, latent_dir=args.latent, cameras=cameras, seed=args.seed,
              settings=settings, tolerance_scale=args.tolerance_scale,
              psf_options={"n": args.psf_n, "grid": args.psf_grid},
-             workers=args.workers, progress=not args.quiet, cache_dir=args.psf_cache, pixel_um=args.pixel_um)
-    m = generate(p, args.output, args.pairs, shard_size=args.shard_size, workers=args.workers,
-                 progress=not args.quiet, force=args.force)
+             cache_dir=args.psf_cache, pixel_um=args.pixel_um, executor=executor)
+    m = generate(p, args.output, args.pairs, shard_size=args.shard_size, force=args.force, executor=executor)
     print(f"wrote {m['pairs']} pairs of {m['size']}×{m['size']} in {len(m['shards'])} shards to {args.output} "
           f"({m['_seconds']:.1f} s; {len(p.maps)} lens{'es' if len(p.maps) > 1 else ''}; "
           f"data sha256 {m['data_sha256'][:16]}…)")
     return 0
 
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``isp synth`` (called by :func:`isp.cli.main.main`)."""
-    args = make_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    return run(args)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from isp.cli.main import _guarded
-
-    sys.exit(_guarded(lambda: main(), debug="--debug" in sys.argv, where=""))

@@ -3,13 +3,12 @@
 Reached from ``isp train ...`` and imported only then; the configuration is
 read and checked before torch is imported, so ``--help`` and a bad config
 answer at once. Errors print one line and exit with code 2, like the rest
-of ``isp``.
+of ``isp`` (:mod:`isp.cli.run`).
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from isp.errors import ConfigError
@@ -26,7 +25,7 @@ examples:
 that lens file alone -- the proxy camera `isp calib fit` fitted to the device --
 into OUT/pairs. A proxy file carries the sensor of the capture it was fitted
 to; --pixel-um makes the pairs at the pitch the model will correct instead
-(README: "That route on a simulated device").
+(docs/guide/correction.md, "A model for one device").
 
 The config (TOML or JSON) has sections [data], [synth], [model], [optim],
 [temperature] and [run]; every key and its default is listed in the docstring
@@ -39,12 +38,12 @@ A CUDA GPU is used when present (run.device = "auto").
 """
 
 
-def make_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="isp train",
-        description="Train the optical-correction network: loss on Process(Model(J)) against the sRGB "
-                    "target, Process being the pipeline's own stages after the slot (paper, eq. 24).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``isp train``."""
+    p.description = ("Train the optical-correction network: loss on Process(Model(J)) against the sRGB "
+                     "target, Process being the pipeline's own stages after the slot (paper, eq. 24).")
+    p.epilog = EPILOG
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("--config", help="training config (.toml or .json); optional with --resume")
     p.add_argument("--resume", metavar="CKPT", help="continue from a checkpoint (e.g. OUT/last.pt)")
     p.add_argument("--out", help="output folder (overrides run.out)")
@@ -58,11 +57,11 @@ def make_parser() -> argparse.ArgumentParser:
                    help="the pairs' pixel pitch, µm (overrides synth.pixel_um): e.g. 1.0 to train the "
                         "full-resolution mode from a proxy fitted to a binned capture")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    return p
 
 
-def run(args) -> int:
-    from restoration.train.config import TrainConfig, load_config
+def run(args: argparse.Namespace) -> int:
+    """Read the config (or the checkpoint's), apply the options, train."""
+    from restoration.train.config import TrainConfig, for_one_device, load_config
 
     if args.config is None and args.resume is None:
         raise ConfigError("give --config FILE (or --resume CKPT to continue with the checkpoint's config)")
@@ -87,32 +86,8 @@ def run(args) -> int:
         if config.synth is None:
             raise ConfigError("--pixel-um needs a config whose pairs come from its [synth] section")
         config = config.replace("synth", pixel_um=float(args.pixel_um))
-    from restoration.train.trainer import train
+    from restoration.train.trainer import synth_executor, train
 
-    train(config, resume=args.resume, progress=not args.quiet)
+    train(config, resume=args.resume, executor=synth_executor(config, progress=not args.quiet))
     return 0
 
-
-def for_one_device(config, lens):
-    """``config`` trained on pairs from ``lens`` alone (a fitted proxy
-    camera), synthesised into ``<run.out>/pairs``."""
-    from isp.errors import InputError
-
-    if not Path(lens).is_file():
-        raise InputError(lens, "no such lens file (a fitted proxy.json, lens/v1 or .zmx)")
-    if config.synth is None or config.data.dirs:
-        raise ConfigError("--lens needs a config whose pairs come from its [synth] section (no data.dirs)")
-    return config.replace("synth", lens=str(Path(lens).resolve()), samples=1,
-                          out=str(Path(config.run.out) / "pairs"))
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``isp train`` (called by :func:`isp.cli.main.main`)."""
-    args = make_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    return run(args)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from isp.cli.main import _guarded
-
-    sys.exit(_guarded(lambda: main(), debug="--debug" in sys.argv, where=""))

@@ -23,8 +23,8 @@ are blended with the same weights,
 a blend of overlapping region tiles with no seam (the weights sum to 1).
 ``blend="nearest"`` gives one PSF per region, as the paper's maps.
 
-Methods
--------
+The two deconvolutions
+----------------------
 ``"wiener"`` — :func:`skimage.restoration.wiener`, the Wiener–Hunt
 deconvolution with a Laplacian regulariser ``L``:
 

@@ -82,10 +82,10 @@ from restoration.evaluate.baseline import BASELINES, deconvolve, noise_variance,
 from restoration.synth.pairs import (
     SynthPlan,
     SynthSettings,
-    _blur,
-    _read_latent,
-    _rng,
-    _sensor_geometry,
+    crop_blur,
+    read_latent,
+    seeded_rng,
+    sensor_geometry,
     find_latents,
     usable_latents,
 )
@@ -110,7 +110,9 @@ PSNR_CAP_MSE = 1e-10
 
 @dataclass(frozen=True)
 class EvalSettings:
-    """How crops are placed and scored.
+    """What an evaluation covers (its lenses, the synthesis overrides) and
+    how crops are placed and scored. Checked at construction
+    (:class:`isp.errors.ConfigError` naming the field and value).
 
     Parameters
     ----------
@@ -126,6 +128,24 @@ class EvalSettings:
         Name → (low, high) normalised radius.
     min_ring_pixels : int
         Core pixels a crop needs in a ring to count for it.
+    samples : int
+        Lenses drawn within tolerance, unseen in training, ≥ 0
+        (:func:`eval_lenses`; 0 needs ``with_proxy``).
+    seed : int
+        Seed of the lenses, colours, noise and placements.
+    tolerance_scale : float
+        The drawn lenses' tolerances, × the defaults, > 0.
+    with_proxy : bool
+        Evaluate the proxy lens itself too.
+    noise : bool, optional
+        Override of the synthesis's ``noise`` (None: the training's).
+    exposure_ev : (low, high), optional
+        Override of the synthesis's ``exposure_ev`` (luminosity
+        compression, EV): the test set at other light levels than
+        training's.
+    noise_scale : (low, high), optional
+        Override of the synthesis's ``noise_scale`` (factor on the
+        NoiseProfile, > 0).
     """
 
     size: int = 256
@@ -134,8 +154,30 @@ class EvalSettings:
     baseline: str = "wiener"
     rings: dict = field(default_factory=lambda: dict(RINGS))
     min_ring_pixels: int = 256
+    samples: int = 4
+    seed: int = 0
+    tolerance_scale: float = 1.0
+    with_proxy: bool = False
+    noise: bool | None = None
+    exposure_ev: tuple[float, float] | None = None
+    noise_scale: tuple[float, float] | None = None
 
     def __post_init__(self):
+        if not (int(self.samples) == self.samples and self.samples >= 0):
+            raise ConfigError(f"EvalSettings.samples: must be an integer ≥ 0, got {self.samples!r}")
+        if not (float(self.tolerance_scale) > 0):
+            raise ConfigError(f"EvalSettings.tolerance_scale: must be > 0, got {self.tolerance_scale!r}")
+        for name in ("exposure_ev", "noise_scale"):
+            v = getattr(self, name)
+            if v is not None:
+                try:
+                    lo, hi = (float(x) for x in v)
+                except (TypeError, ValueError):
+                    raise ConfigError(f"EvalSettings.{name}: must be (low, high), got {v!r}") from None
+                if not lo <= hi or (name == "noise_scale" and lo <= 0):
+                    raise ConfigError(f"EvalSettings.{name}: need {'0 < ' if name == 'noise_scale' else ''}"
+                                      f"low ≤ high, got {v!r}")
+                object.__setattr__(self, name, (lo, hi))
         if not (int(self.size) == self.size and self.size >= 16 and self.size % 2 == 0):
             raise ConfigError(f"size must be an even integer ≥ 16, got {self.size!r}")
         if not (int(self.border) == self.border and self.border >= 0 and self.border % 2 == 0):
@@ -152,6 +194,11 @@ class EvalSettings:
     def work(self) -> int:
         """Side of the synthesised and corrected crop."""
         return self.size + 2 * self.border
+
+
+#: the EvalSettings fields of how crops are placed and scored (the report's "settings"; the
+#: lenses and synthesis overrides are reported under "lens" and "synth")
+_SCORING = ("size", "border", "positions", "baseline", "rings", "min_ring_pixels")
 
 
 # -- geometry -------------------------------------------------------------------------------
@@ -225,14 +272,12 @@ def eval_lenses(lens, samples: int, seed: int, *, tolerance_scale: float = 1.0, 
         raise ConfigError(f"samples must be ≥ 0, got {samples}")
     if int(samples) == 0 and not with_proxy:
         raise ConfigError("no lens to evaluate: samples = 0 needs with_proxy")
-    drawn = draw_lenses(lens, int(samples) + 1, _rng(seed, KEY_LENSES), tolerance_scale=tolerance_scale)[1:]
+    drawn = draw_lenses(lens, int(samples) + 1, seeded_rng(seed, KEY_LENSES), tolerance_scale=tolerance_scale)[1:]
     return ([lens] if with_proxy else []) + drawn
 
 
-def eval_plan(lens, images_dir, *, samples: int = 4, seed: int = 0, settings: EvalSettings | None = None,
-              synth: SynthSettings | None = None, cameras=None, tolerance_scale: float = 1.0,
-              with_proxy: bool = False, psf_options: dict | None = None, workers: int = 2,
-              progress: bool = True, cache_dir=None) -> SynthPlan:
+def eval_plan(lens, images_dir, settings: EvalSettings | None = None, *, synth: SynthSettings | None = None,
+              cameras=None, psf_options: dict | None = None, cache_dir=None, executor=None) -> SynthPlan:
     """Read the inputs and compute (or read from the cache) the PSF maps of
     the unseen lenses.
 
@@ -243,25 +288,26 @@ def eval_plan(lens, images_dir, *, samples: int = 4, seed: int = 0, settings: Ev
     images_dir : path
         Latent sRGB test images (searched recursively); each must hold a
         crop of ``settings.work`` plus the blur's context.
-    samples : int
-        Lenses drawn within tolerance, unseen in training (module notes).
-    seed : int
     settings : EvalSettings
+        The crops and the lenses (``samples`` drawn within tolerance, unseen
+        in training, from ``seed``; module notes).
     synth : SynthSettings, optional
         Colour, exposure and noise ranges, demosaic, tone (``size`` is
         replaced by ``settings.work``; ``augment`` is off). Default: the
         training defaults.
     cameras : sequence of path, optional
         Phone DNGs for the colour models (default ``isp synth``'s).
-    tolerance_scale, with_proxy
-        See :func:`eval_lenses`.
     psf_options : dict, optional
-        :func:`calibration.optics.psf.map.psf_map` settings (grid, n, ...), as the
-        training set's.
+        :class:`calibration.optics.psf.map.PSFMapSettings` fields (grid, n, ...),
+        as the training set's.
+    cache_dir : path, optional
+        PSF-map cache (default ``$ISP_CACHE/psf`` or ``~/.cache/phone-isp/psf``).
+    executor : isp.runtime.executor.Executor, optional
+        Runs the PSF maps' regions (default psf_map's).
     """
     from dataclasses import replace
 
-    from restoration.cli.synth import DATA, DEFAULT_CAMERAS
+    from restoration.synth.defaults import DATA, DEFAULT_CAMERAS
     from restoration.synth.colour import colour_table, read_camera
     from restoration.synth.optics import load_lens, psf_maps
     from restoration.synth.sensor import DEFAULT_NOISE_PROFILE, noise_profile_of
@@ -276,8 +322,10 @@ def eval_plan(lens, images_dir, *, samples: int = 4, seed: int = 0, settings: Ev
     files = find_latents(images_dir)
     latents = usable_latents(files, settings.work + 2 * _margin_before_maps(lens, opts), images_dir)
     cams = tuple(read_camera(p) for p in (cameras or [DATA / c for c in DEFAULT_CAMERAS]))
+    samples, seed, with_proxy = settings.samples, settings.seed, settings.with_proxy
+    tolerance_scale = settings.tolerance_scale
     lenses = eval_lenses(lens, samples, seed, tolerance_scale=tolerance_scale, with_proxy=with_proxy)
-    maps = tuple(psf_maps(lenses, workers=workers, progress=progress, cache_dir=cache_dir, **opts))
+    maps = tuple(psf_maps(lenses, executor=executor, cache_dir=cache_dir, **opts))
     sensor = maps[0].sensor
     prof = noise_profile_of(cams[0].meta)
     info = {
@@ -336,8 +384,8 @@ def synth_crop(plan: SynthPlan, k_lens: int, latent: np.ndarray, origin: tuple[i
     cam = srgb_to_camera(srgb, colour, tone=st.tone, white=st.white)
     cam *= colour.neutral.astype(np.float32)
     psfmap = plan.maps[k_lens]
-    blurred = cam if psfmap is None else _blur(plan, k_lens)(cam, work_origin)
-    sensor = sensor_model(plan.cameras[0].meta, _sensor_geometry(plan), noise_profile)
+    blurred = cam if psfmap is None else crop_blur(plan, k_lens)(cam, work_origin)
+    sensor = sensor_model(plan.cameras[0].meta, sensor_geometry(plan), noise_profile)
     mos = capture_mosaic(blurred, sensor, work_origin, rng, noise=st.noise, quantise=st.quantise)
     rgb = develop(mos, sensor.cfa.shifted(*work_origin), colour.neutral, st.demosaic)
     return rgb[m:m + n, m:m + n], srgb[m:m + n, m:m + n]
@@ -421,7 +469,7 @@ def training_pitches(meta) -> set[float]:
     return out
 
 
-def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None, *, progress: bool = True) -> dict:
+def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None, *, executor=None) -> dict:
     """Score a model on a plan's lenses and images (module notes).
 
     Parameters
@@ -432,8 +480,9 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
     runner : callable
         ``runner(J, origin, full_size) -> (h, w, 3)`` (:mod:`restoration.evaluate.runner`).
     settings : EvalSettings
-    progress : bool
-        tqdm bar on stderr.
+    executor : isp.runtime.executor.Executor, optional
+        Its progress bar counts the crops (default: a bar on stderr); the
+        crops run in this process, one after the other.
 
     Returns
     -------
@@ -442,9 +491,10 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
     ``r_range``), ``overall``, ``per_image``, ``per_lens``, ``crops`` (one
     record per crop) and ``timing`` (seconds).
     """
-    from tqdm import tqdm
+    from isp.runtime.executor import create_executor
 
     settings = settings or EvalSettings()
+    ex = create_executor("serial", progress=True) if executor is None else executor
     st = plan.settings
     if st.size != settings.work:
         raise ConfigError(f"the plan synthesises {st.size}-px crops; these settings need {settings.work} "
@@ -457,16 +507,16 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
     m, work = plan.margin, settings.work
     inner = slice(settings.border, settings.border + settings.size)
     ring_names = list(settings.rings)
-    sensor = sensor_model(plan.cameras[0].meta, _sensor_geometry(plan), plan.noise_profile)
+    sensor = sensor_model(plan.cameras[0].meta, sensor_geometry(plan), plan.noise_profile)
     qstep = quantisation_step(sensor.white_level, sensor.black_level) if st.quantise else 0.0
     timing = dict.fromkeys(("synth", "model", "baseline", "metrics"), 0.0)
     records = []
     total = len(plan.latents) * len(plan.maps) * len(ring_names) * settings.positions
     t_all = time.perf_counter()
-    with tqdm(total=total, desc="eval", unit="crop", disable=not progress) as bar:
+    with ex.bar(total=total, desc="eval", unit="crop") as bar:
         for i, path in enumerate(plan.latents):
-            latent = _centre_crop(_read_latent(path), work + 2 * m, path)
-            crng = _rng(plan.seed, KEY_COLOUR, i)
+            latent = _centre_crop(read_latent(path), work + 2 * m, path)
+            crng = seeded_rng(plan.seed, KEY_COLOUR, i)
             colour = draw_colour(plan.colours, crng, exposure_ev=st.exposure_ev)
             lo, hi = st.noise_scale
             k_noise = float(math.exp(crng.uniform(math.log(lo), math.log(hi))))
@@ -482,14 +532,14 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
                 lo_r, hi_r = settings.rings[ring]
                 for p in range(settings.positions):
                     origin = ring_origin(full, work, 0.5 * (lo_r + hi_r), (lo_r, hi_r),
-                                         _rng(plan.seed, KEY_PLACE, i, j, p))
+                                         seeded_rng(plan.seed, KEY_PLACE, i, j, p))
                     rows = np.arange(settings.size) + origin[0] + settings.border
                     cols = np.arange(settings.size) + origin[1] + settings.border
                     radius = field_radius(rows, cols, full)
                     for k in range(len(plan.maps)):
                         t0 = time.perf_counter()
                         J, target = synth_crop(plan, k, latent, origin, colour, profile,
-                                               _rng(plan.seed, KEY_NOISE, i, k, j, p))
+                                               seeded_rng(plan.seed, KEY_NOISE, i, k, j, p))
                         t1 = time.perf_counter()
                         if at_end:  # an sRGB → sRGB model: fed the processed input, scored as it is
                             corrected = np.clip(np.asarray(runner(process(J), origin, full), dtype=np.float32),
@@ -510,7 +560,7 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
                             else:
                                 sigma2 = noise_variance(J, profile if st.noise else (0.0, 0.0), colour.neutral, qstep)
                                 outs["baseline"], rec = deconvolve(
-                                    J, _blur(plan, k).bank, origin, full, method=settings.baseline,
+                                    J, crop_blur(plan, k).bank, origin, full, method=settings.baseline,
                                     sigma2=sigma2, blend=st.blend)
                                 balance = rec.balance
                         t3 = time.perf_counter()
@@ -554,11 +604,9 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
             "per_lens": per_lens, "crops": crops, "timing": timing}
 
 
-def evaluate(model, images_dir, lens, *, samples: int = 4, seed: int = 0, size: int = 256, border: int = 32,
-             positions: int = 1, baseline: str = "wiener", synth: SynthSettings | None = None,
-             noise: bool | None = None, exposure_ev=None, noise_scale=None, cameras=None,
-             tolerance_scale: float = 1.0, with_proxy: bool = False, psf_options: dict | None = None,
-             workers: int = 2, progress: bool = True, cache_dir=None, threads: int = 2) -> dict:
+def evaluate(model, images_dir, lens, settings: EvalSettings | None = None, *, synth: SynthSettings | None = None,
+             cameras=None, psf_options: dict | None = None, cache_dir=None, threads: int = 2,
+             executor=None) -> dict:
     """Evaluate a model file on ``images_dir`` × ``samples`` proxy cameras not
     seen in training (module notes).
 
@@ -571,25 +619,22 @@ def evaluate(model, images_dir, lens, *, samples: int = 4, seed: int = 0, size: 
         Latent sRGB test images.
     lens : path or PerturbedLens
         The proxy camera's lens file (or fitted proxy file).
-    samples, seed, tolerance_scale, with_proxy
-        The unseen lenses (:func:`eval_lenses`).
-    size, border, positions, baseline
-        :class:`EvalSettings`.
+    settings : EvalSettings, optional
+        The unseen lenses (``samples``, ``seed``, ``tolerance_scale``,
+        ``with_proxy``: :func:`eval_lenses`), the crops (``size``,
+        ``border``, ``positions``, ``baseline``) and the overrides of
+        ``synth`` (``noise``, ``exposure_ev``, ``noise_scale``).
     synth : SynthSettings, optional
         Colour, exposure, noise, demosaic, tone (:func:`eval_plan`);
         default the training defaults with the tone curve and white point
         of the model's metadata ``process``.
-    noise : bool, optional
-        Override of ``synth.noise``.
-    exposure_ev, noise_scale : (low, high), optional
-        Overrides of ``synth.exposure_ev`` (luminosity compression, EV) and
-        ``synth.noise_scale`` (factor on the NoiseProfile): the test set at
-        other light levels than training's.
-    cameras, psf_options, workers, cache_dir
+    cameras, psf_options, cache_dir
         :func:`eval_plan`.
-    progress : bool
     threads : int
-        onnxruntime threads.
+        onnxruntime threads (a kernel setting, ≥ 1).
+    executor : isp.runtime.executor.Executor, optional
+        Runs the PSF maps' regions and shows progress (default: up to 2
+        worker processes, with progress bars).
 
     Returns
     -------
@@ -599,20 +644,26 @@ def evaluate(model, images_dir, lens, *, samples: int = 4, seed: int = 0, size: 
     """
     from restoration.evaluate.runner import load_runner
 
+    from isp.runtime.executor import pool_executor
+
     t0 = time.perf_counter()
-    settings = EvalSettings(size=size, border=border, positions=positions, baseline=baseline)
+    settings = EvalSettings() if settings is None else settings
+    if not isinstance(settings, EvalSettings):
+        raise ConfigError(f"settings must be an EvalSettings, got {type(settings).__name__}")
+    ex = pool_executor(None, progress=True) if executor is None else executor
+    seed, baseline = settings.seed, settings.baseline
     runner = load_runner(model, threads=threads) if isinstance(model, (str, os.PathLike)) else model
     t_load = time.perf_counter() - t0
     synth = _with_model_process(synth, getattr(runner, "meta", {}) or {})
-    given = {"noise": None if noise is None else bool(noise), "exposure_ev": exposure_ev, "noise_scale": noise_scale}
+    given = {"noise": None if settings.noise is None else bool(settings.noise), "exposure_ev": settings.exposure_ev,
+             "noise_scale": settings.noise_scale}
     given = {k: v for k, v in given.items() if v is not None}
     if given:
         from dataclasses import replace
 
         synth = replace(synth or SynthSettings(), **given)
-    plan = eval_plan(lens, images_dir, samples=samples, seed=seed, settings=settings, synth=synth, cameras=cameras,
-                     tolerance_scale=tolerance_scale, with_proxy=with_proxy, psf_options=psf_options,
-                     workers=workers, progress=progress, cache_dir=cache_dir)
+    plan = eval_plan(lens, images_dir, settings=settings, synth=synth, cameras=cameras, psf_options=psf_options,
+                     cache_dir=cache_dir, executor=ex)
     t_plan = time.perf_counter() - t0 - t_load
     meta = dict(getattr(runner, "meta", {}) or {})
     trained = _training_keys(getattr(runner, "info", meta))
@@ -629,7 +680,7 @@ def evaluate(model, images_dir, lens, *, samples: int = 4, seed: int = 0, size: 
     if pitch and other:
         warnings.warn(f"the model was trained on pairs at {', '.join(f'{p:g}' for p in other)} µm pixels, these "
                       f"lenses' sensor has {pitch:g} µm pixels (isp train --pixel-um {pitch:g})", stacklevel=2)
-    res = evaluate_plan(plan, runner, settings, progress=progress)
+    res = evaluate_plan(plan, runner, settings, executor=ex)
     res["timing"] = {"load_model": t_load, "psf_maps": t_plan, **res["timing"],
                      "wall": time.perf_counter() - t0}
     return {
@@ -641,7 +692,7 @@ def evaluate(model, images_dir, lens, *, samples: int = 4, seed: int = 0, size: 
                    "skipped": plan.info.get("skipped_images", [])},
         "lens": {**plan.info["lens"], "model_lens": model_lens,
                  "disjoint_from_training": (not seen) if trained else None},
-        "settings": {**{k: v for k, v in asdict(settings).items()}, "seed": int(seed),
+        "settings": {**{k: v for k, v in asdict(settings).items() if k in _SCORING}, "seed": int(seed),
                      "synth": asdict(plan.settings), "psf_map": plan.info.get("psf_map"),
                      "noise_profile": list(plan.noise_profile), "full_size": list(plan.full_size),
                      "cameras": [c.path for c in plan.cameras],

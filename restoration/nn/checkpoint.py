@@ -31,11 +31,14 @@ key                 meaning
 Writes are atomic (a temporary file beside the target, then a rename), so
 an interrupted save never leaves a truncated checkpoint.
 
->>> from restoration.nn.network import build_model          # doctest: +SKIP
->>> m = build_model("doconv", depths=(1, 1, 1))           # doctest: +SKIP
->>> save_checkpoint("m.pt", m, variant="doconv", model_kwargs={"depths": [1, 1, 1]})  # doctest: +SKIP
->>> model, info = load_model("m.pt")                       # doctest: +SKIP
->>> info["variant"], model.training                       # doctest: +SKIP
+>>> import tempfile
+>>> from pathlib import Path
+>>> from restoration.nn.network import build_model
+>>> m = build_model("doconv", depths=(1, 1, 1))
+>>> path = save_checkpoint(Path(tempfile.mkdtemp()) / "m.pt", m, variant="doconv",
+...                        model_kwargs={"depths": [1, 1, 1]})
+>>> model, info = load_model(path)
+>>> info["variant"], model.training
 ('doconv', False)
 """
 

@@ -106,7 +106,9 @@ SPATIAL_MODES = ("none", "tap", "frozen")
 POOL_MODES = ("local", "global")
 
 
-def _choose(value: str, valid: tuple[str, ...], what: str) -> str:
+def choose(value: str, valid: tuple[str, ...], what: str) -> str:
+    """``value`` if it is one of ``valid``, else ConfigError naming the
+    option ``what``, the value and the valid ones."""
     if value not in valid:
         raise ConfigError(f"{what} must be one of {', '.join(map(repr, valid))}; got {value!r}")
     return value
@@ -306,8 +308,8 @@ class DOConv2d(nn.Module):
                  field_channels: int = 0, reduction: float = 0.25, min_hidden: int = 8,
                  momentum: float = 0.01):
         super().__init__()
-        _choose(spatial, SPATIAL_MODES, "spatial")
-        _choose(pool, POOL_MODES, "pool")
+        choose(spatial, SPATIAL_MODES, "spatial")
+        choose(pool, POOL_MODES, "pool")
         if kernel_size % 2 != 1 or window % 2 != 1:
             raise ConfigError(f"kernel_size and window must be odd; got {kernel_size}, {window}")
         if not dilations or min(dilations) < 1:
@@ -539,7 +541,7 @@ def set_spatial(model: nn.Module, spatial: str) -> int:
     has one between ``"tap"`` (exact) and ``"frozen"`` (running mean, folded)
     — e.g. to measure what freezing costs a tap-trained model. Returns how
     many layers changed."""
-    _choose(spatial, ("tap", "frozen"), "spatial")
+    choose(spatial, ("tap", "frozen"), "spatial")
     n = 0
     for m in model.modules():
         if isinstance(m, DOConv2d) and m.attention.spatial_head is not None:

@@ -49,17 +49,17 @@ default 0, 4, 0; resolutions relative to the input)::
   power of 3; 0: off): the residual minus its box mean, per packed channel
   (:class:`ResidualHighPass`). A PSF normalised to 1 moves no light further
   than its own reach, so its inverse leaves every mean over a larger region
-  unchanged. Without this constraint the e9 default (2026-11-26) had learnt
-  part of its sharpening as a tone curve: on flat fields at the slot it
-  darkened 0.01 by 7.8 % and brightened 0.7 by 2.0 % (FP32,
+  unchanged. Without this constraint the e9 network learns part of its
+  sharpening as a tone curve: on flat fields at the slot it darkened 0.01
+  by 7.8 % and brightened 0.7 by 2.0 % (FP32,
   ``benchmarks/flat_fields.py``), and it moved the
   demo's ColorChecker by 0.85 ΔE00 (``isp demo``). Its training pairs are
-  unbiased to 0.1 % in the mean; the network found the curve a cheap
+  unbiased to 0.1 % in the mean; the network finds the curve a cheap
   stand-in for the contrast that blur takes from natural images. The light
   a PSF keeps is linear, so the means to keep are linear:
   ``highpass_domain="linear"`` filters the residual the network makes in
   linear RGB, ``r (r + 2u)`` with ``u = √x`` (the default config's
-  choice since 2026-11-26); ``"encoded"`` filters ``r`` itself, which keeps
+  choice); ``"encoded"`` filters ``r`` itself, which keeps
   the means of ``u`` only.
 
 Input ``(N, 5, H, W)`` (``(N, 3, H, W)`` without field encoding), ``H`` and
@@ -97,7 +97,7 @@ from torch import Tensor, nn
 
 from isp.errors import ConfigError
 
-from restoration.nn.doconv import POOL_MODES, SPATIAL_MODES, DOConv2d, _choose
+from restoration.nn.doconv import POOL_MODES, SPATIAL_MODES, DOConv2d, choose
 
 #: ``conv`` choices of the blocks' spatial convolution
 CONV_KINDS = ("doconv", "static")
@@ -194,9 +194,9 @@ class DOConvUNet(nn.Module):
     window : int
         Box side (odd) of the local attention statistics, in pixels of each
         block's resolution (×2 resp. ×4 at full resolution); 1: each pixel's
-        own features (no box: the e9 default since stop 26, whose 7² box
-        moved no quality figure, cost INT8 7 % of its time and widened
-        the receptive radius by 12 px a block at ¼ resolution).
+        own features (no box: the e9 default; a 7² box moves no quality
+        figure, costs INT8 7 % of its time and widens the receptive
+        radius by 12 px a block at ¼ resolution).
     field : bool
         Field-position encoding: input has 5 channels (RGB, x, y), else 3.
     kernel_size : int
@@ -217,11 +217,11 @@ class DOConvUNet(nn.Module):
         :class:`ResidualHighPass` on the residual; 0 (default): none. A
         larger box frees more of the residual's low frequencies and binds
         its level less: on the e9 default 9 (18 px at full resolution)
-        beat 27 in PSNR, on flat fields and in speed (README, "Local
-        means").
+        beats 27 in PSNR, on flat fields and in speed (``isp eval``,
+        ``benchmarks/flat_fields.py``).
     highpass_domain : {"encoded", "linear"}
-        What the high-pass filters. ``"encoded"`` (what models trained
-        before 2026-11-26 used): the residual ``r`` added to ``u = √x``;
+        What the high-pass filters. ``"encoded"``: the residual ``r``
+        added to ``u = √x``;
         it keeps the local means of ``u``, and squaring back adds ``r``'s
         local variance to the linear means (small ColorChecker patches
         moved by 1.26 ΔE00 on a 400 × 300 demo) and lifts a noisy black
@@ -250,11 +250,11 @@ class DOConvUNet(nn.Module):
                  kernel_size: int = 3, scale: int = 2, encoding: str = "linear", highpass: int = 0,
                  highpass_domain: str = "encoded", group_width: int = 1):
         super().__init__()
-        _choose(encoding, ENCODINGS, "encoding")
-        _choose(highpass_domain, HIGHPASS_DOMAINS, "highpass_domain")
-        _choose(conv, CONV_KINDS, "conv")
-        _choose(spatial, SPATIAL_MODES, "spatial")
-        _choose(pool, POOL_MODES, "pool")
+        choose(encoding, ENCODINGS, "encoding")
+        choose(highpass_domain, HIGHPASS_DOMAINS, "highpass_domain")
+        choose(conv, CONV_KINDS, "conv")
+        choose(spatial, SPATIAL_MODES, "spatial")
+        choose(pool, POOL_MODES, "pool")
         if len(widths) != 2 or len(depths) != 3 or min(widths) < 1 or min(depths) < 0:
             raise ConfigError(f"widths must be 2 positive ints and depths 3 ints ≥ 0; got {widths}, {depths}")
         if scale not in (2, 4):
@@ -445,8 +445,8 @@ def highpass_removed_power(model: nn.Module) -> Tensor | float:
 
     Whatever the network puts into its residual's local means, the
     high-pass takes out again: a null space the output never sees. The e9
-    default (2026-11-26, linear domain) used it freely; on a flat 0.9 its
-    linear residual reached 0.2 before the high-pass, which sets the range,
+    network (linear domain) trained without the penalty uses it freely: on
+    a flat 0.9 its linear residual reaches 0.2 before the high-pass, which sets the range,
     and so the step, of that tensor's INT8 quantisation. The penalty costs
     the output nothing and keeps the range for detail.
     """

@@ -83,12 +83,12 @@ __all__ = ["CropBlur", "blur_crop", "draw_lenses", "load_lens", "map_margin_px",
 #: :func:`calibration.optics.psf.map.psf_map`). The window: ``n`` None is
 #: psf_map's 32 µm (:data:`calibration.optics.psf.map.WINDOW_UM`; 64 samples of
 #: half a pixel on e9's 1 µm pixels). A lens drawn within tolerance throws
-#: light far out, and a 16 µm window dropped up to 32 % of a corner PSF of
+#: light far out, and a 16 µm window drops up to 32 % of a corner PSF of
 #: the default training set's lenses (2.5 % even at the centre), so the
-#: pairs were blurred less than the lenses blur; at 32 µm every region
-#: keeps ≥ 95 % (the same lenses), for 1.3× the map's cost. Until
-#: 2026-11-26 it was 64 samples whatever the pixel: pairs made at 2.8 µm
-#: pixels (``--pixel-um``) got a 90 µm window, past the pupil sampling's
+#: pairs would be blurred less than the lenses blur; at 32 µm every region
+#: keeps ≥ 95 % (the same lenses), for 1.3× the map's cost. The window is
+#: set in µm, not samples: a fixed 64 samples would give pairs made at
+#: 2.8 µm pixels (``--pixel-um``) a 90 µm window, past the pupil sampling's
 #: replica period.
 PSF_DEFAULTS = {"grid": (15, 20), "n": None}
 
@@ -163,15 +163,16 @@ def draw_lenses(lens, samples: int, rng: np.random.Generator, *, tolerance_scale
     return out
 
 
-def psf_maps(lenses: Sequence, *, workers: int = 2, progress: bool = True, cache_dir=None, **options) -> list:
+def psf_maps(lenses: Sequence, *, executor=None, cache_dir=None, **options) -> list:
     """PSF maps of the lenses (:func:`calibration.optics.psf.map.psf_map`, cached on
-    disk), computed one lens after the other with ``workers`` processes
-    over the regions. ``options`` go to ``psf_map`` (grid, n, method, ...)
-    over :data:`PSF_DEFAULTS`."""
-    from calibration.optics.psf.map import psf_map
+    disk), computed one lens after the other, ``executor`` (an
+    :class:`isp.runtime.executor.Executor`; default psf_map's) running the
+    regions. ``options`` are :class:`calibration.optics.psf.map.PSFMapSettings`
+    fields (grid, n, method, ...) over :data:`PSF_DEFAULTS`."""
+    from calibration.optics.psf.map import PSFMapSettings, psf_map
 
-    options = psf_options(options)
-    return [psf_map(pl, workers=workers, progress=progress, cache_dir=cache_dir, **options) for pl in lenses]
+    settings = PSFMapSettings(**psf_options(options))
+    return [psf_map(pl, settings, cache_dir=cache_dir, executor=executor) for pl in lenses]
 
 
 def map_margin_px(psfmap) -> int:

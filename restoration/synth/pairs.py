@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from isp.errors import ConfigError, InputError
+from isp.runtime.executor import worker_payload
 
 from restoration.synth.colour import (
     CameraProfile,
@@ -83,7 +84,8 @@ from restoration.synth.shards import (
     write_shard,
 )
 
-__all__ = ["SynthPlan", "SynthSettings", "find_latents", "generate", "make_pair", "plan"]
+__all__ = ["SynthPlan", "SynthSettings", "crop_blur", "find_latents", "generate", "make_pair", "plan", "read_latent",
+           "seeded_rng", "sensor_geometry"]
 
 #: image suffixes read as latent images
 LATENT_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -275,7 +277,7 @@ def usable_latents(files, work: int, where=None) -> list[Path]:
 
 
 @lru_cache(maxsize=64)
-def _read_latent(path: str) -> np.ndarray:
+def read_latent(path: str) -> np.ndarray:
     """(H, W, 3) uint8 or uint16 RGB of an image file (alpha dropped, grey expanded)."""
     import cv2
 
@@ -293,7 +295,11 @@ def _read_latent(path: str) -> np.ndarray:
 
 # -- one pair ----------------------------------------------------------------------------
 
-def _rng(seed: int, *key: int) -> np.random.Generator:
+def seeded_rng(seed: int, *key: int) -> np.random.Generator:
+    """The generator of stream ``key`` under ``seed``
+    (``SeedSequence(seed, spawn_key=key)``): each draw of a pair (lenses,
+    colour, place, noise) has its own stream, so changing one leaves the
+    others as they were."""
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=tuple(int(k) for k in key)))
 
 
@@ -308,7 +314,7 @@ def make_pair(plan: SynthPlan, index: int) -> dict:
         per-pair metadata of :data:`restoration.synth.shards.SHARD_KEYS`.
     """
     st = plan.settings
-    rng = _rng(plan.seed, 1, index)
+    rng = seeded_rng(plan.seed, 1, index)
     k_lens = index % len(plan.maps)
     psfmap = plan.maps[k_lens]
     colour = draw_colour(plan.colours, rng, exposure_ev=st.exposure_ev)
@@ -320,7 +326,7 @@ def make_pair(plan: SynthPlan, index: int) -> dict:
     m, n = plan.margin, st.size
     work = n + 2 * m
     li = int(rng.integers(len(plan.latents)))
-    latent = _read_latent(plan.latents[li])
+    latent = read_latent(plan.latents[li])
     lh, lw = latent.shape[:2]
     if lh < work or lw < work:
         raise InputError(plan.latents[li], f"latent image {lh}×{lw} is smaller than a crop with its context "
@@ -339,8 +345,8 @@ def make_pair(plan: SynthPlan, index: int) -> dict:
     srgb = crop.astype(np.float32) * np.float32(1.0 / np.iinfo(crop.dtype).max)
     cam = srgb_to_camera(srgb, colour, tone=st.tone, white=st.white)
     cam *= colour.neutral.astype(np.float32)                    # unbalanced: what the sensor sees
-    blurred = cam if psfmap is None else _blur(plan, k_lens)(cam, work_origin)
-    sensor = sensor_model(plan.cameras[0].meta, _sensor_geometry(plan), profile)
+    blurred = cam if psfmap is None else crop_blur(plan, k_lens)(cam, work_origin)
+    sensor = sensor_model(plan.cameras[0].meta, sensor_geometry(plan), profile)
     mos = capture_mosaic(blurred, sensor, work_origin, rng, noise=st.noise, quantise=st.quantise)
     rgb = develop(mos, sensor.cfa.shifted(*work_origin), colour.neutral, st.demosaic)
     return {
@@ -355,7 +361,7 @@ def make_pair(plan: SynthPlan, index: int) -> dict:
 _BLURS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _blur(plan: SynthPlan, k: int) -> CropBlur:
+def crop_blur(plan: SynthPlan, k: int) -> CropBlur:
     """The plan's :class:`CropBlur` of lens ``k`` (built once per process)."""
     per = _BLURS.setdefault(plan, {})
     if k not in per:
@@ -363,7 +369,10 @@ def _blur(plan: SynthPlan, k: int) -> CropBlur:
     return per[k]
 
 
-def _sensor_geometry(plan: SynthPlan):
+def sensor_geometry(plan: SynthPlan):
+    """The :class:`calibration.optics.lens.Sensor` the plan's PSF maps were
+    made for (size and pitch of the full frame); 1 µm pixels over
+    ``plan.full_size`` where the plan has no map."""
     from calibration.optics.lens import Sensor
 
     for mp in plan.maps:
@@ -376,8 +385,8 @@ def _sensor_geometry(plan: SynthPlan):
 # -- building a plan -----------------------------------------------------------------------
 
 def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings: SynthSettings | None = None,
-         tolerance_scale: float = 1.0, psf_options: dict | None = None, workers: int = 2,
-         progress: bool = True, cache_dir=None, pixel_um: float | None = None) -> SynthPlan:
+         tolerance_scale: float = 1.0, psf_options: dict | None = None, cache_dir=None,
+         pixel_um: float | None = None, executor=None) -> SynthPlan:
     """Read the inputs and compute (or read from the cache) the PSF maps.
 
     Parameters
@@ -395,9 +404,7 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
     seed : int
     settings : SynthSettings, optional
     psf_options : dict, optional
-        Passed to :func:`calibration.optics.psf.map.psf_map` (grid, n, ...).
-    workers : int
-        Processes for the PSF maps.
+        :class:`calibration.optics.psf.map.PSFMapSettings` fields (grid, n, ...).
     cache_dir : path, optional
         PSF-map cache (default ``$ISP_CACHE/psf`` or ``~/.cache/phone-isp/psf``).
     pixel_um : float, optional
@@ -405,6 +412,9 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
         this pitch (:meth:`calibration.optics.lens.Sensor.at_pitch`). A proxy
         fitted to a binned capture carries that capture's sensor; the pairs
         must be made at the pitch the correction will run on.
+    executor : isp.runtime.executor.Executor, optional
+        Runs the PSF maps' regions (default psf_map's: up to 2 worker
+        processes, with progress bars).
     """
     from calibration.optics.perturb import apply
 
@@ -426,8 +436,8 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
     cams = tuple(read_camera(p) for p in cameras)
     if not cams:
         raise ConfigError("no camera metadata: give at least one DNG with colour tags")
-    lenses = draw_lenses(lens, int(samples), _rng(seed, 0), tolerance_scale=tolerance_scale)
-    maps = tuple(psf_maps(lenses, workers=workers, progress=progress, cache_dir=cache_dir, **opts))
+    lenses = draw_lenses(lens, int(samples), seeded_rng(seed, 0), tolerance_scale=tolerance_scale)
+    maps = tuple(psf_maps(lenses, executor=executor, cache_dir=cache_dir, **opts))
     sensor = maps[0].sensor
     prof = noise_profile_of(cams[0].meta)
     info = {
@@ -445,25 +455,25 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
 
 # -- many pairs ----------------------------------------------------------------------------
 
-_WORKER: dict = {}
-
-
-def _init_worker(p: SynthPlan) -> None:
+def _setup_worker(p: SynthPlan) -> SynthPlan:
+    """A synthesis worker's setup (once per worker; in this process for a
+    serial executor): OpenCV and BLAS on one thread, one process per core;
+    the plan is its payload."""
     import cv2
 
     from isp.runtime.threads import one_blas_thread
 
     cv2.setNumThreads(1)        # one process per core: no nested threads
     one_blas_thread()
-    _WORKER["plan"] = p
+    return p
 
 
 def _pair_task(index: int) -> dict:
-    return make_pair(_WORKER["plan"], index)
+    return make_pair(worker_payload(), index)
 
 
 def _target_dtype(p: SynthPlan):
-    return np.uint16 if any(_read_latent(f).dtype == np.uint16 for f in p.latents) else np.uint8
+    return np.uint16 if any(read_latent(f).dtype == np.uint16 for f in p.latents) else np.uint8
 
 
 def _input_for_shard(pair: dict) -> dict:
@@ -472,8 +482,8 @@ def _input_for_shard(pair: dict) -> dict:
     return pair
 
 
-def generate(p: SynthPlan, out_dir, pairs: int, *, shard_size: int = 100, workers: int = 2,
-             progress: bool = True, force: bool = False) -> dict:
+def generate(p: SynthPlan, out_dir, pairs: int, *, shard_size: int = 100, force: bool = False,
+             executor=None) -> dict:
     """Synthesise ``pairs`` pairs into shards under ``out_dir`` and write the
     manifest.
 
@@ -485,22 +495,23 @@ def generate(p: SynthPlan, out_dir, pairs: int, *, shard_size: int = 100, worker
     pairs : int
     shard_size : int
         Pairs per shard file.
-    workers : int
-        Processes (1: in this process). Pairs are independent tasks.
-    progress : bool
-        tqdm bar on stderr.
     force : bool
         Replace a previous set in ``out_dir``.
+    executor : isp.runtime.executor.Executor, optional
+        Runs the pairs, independent tasks, the plan each worker's payload
+        (default: 2 worker processes with a progress bar; "serial": in this
+        process). The pairs are the same on any executor.
 
     Returns
     -------
     dict
         The manifest (also written to ``out_dir/manifest.json``).
     """
-    from tqdm import tqdm
+    from isp.runtime.executor import pool_executor
 
-    if int(pairs) < 1 or int(shard_size) < 1 or int(workers) < 1:
-        raise ConfigError(f"pairs, shard_size and workers must be ≥ 1, got {pairs}, {shard_size}, {workers}")
+    if int(pairs) < 1 or int(shard_size) < 1:
+        raise ConfigError(f"pairs and shard_size must be ≥ 1, got {pairs}, {shard_size}")
+    ex = pool_executor(2, progress=True) if executor is None else executor
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(out, "output exists and is not a folder")
@@ -518,22 +529,13 @@ def generate(p: SynthPlan, out_dir, pairs: int, *, shard_size: int = 100, worker
         shards.append(write_shard(out / shard_name(len(shards)), [_input_for_shard(q) for q in buf], tdtype))
         buf.clear()
 
-    with tqdm(total=int(pairs), desc="synth", unit="pair", disable=not progress, smoothing=0.1) as bar:
-        def consume(results):
-            for pair in results:
-                buf.append(pair)
-                bar.update()
-                if len(buf) == shard_size:
-                    flush()
-
-        if workers == 1:
-            _init_worker(p)
-            consume(_pair_task(i) for i in range(int(pairs)))
-        else:
-            from concurrent.futures import ProcessPoolExecutor
-
-            with ProcessPoolExecutor(max_workers=int(workers), initializer=_init_worker, initargs=(p,)) as ex:
-                consume(ex.map(_pair_task, range(int(pairs)), chunksize=4))
+    with ex.bar(total=int(pairs), desc="synth", unit="pair", smoothing=0.1) as bar, \
+            ex.bind(p, setup=_setup_worker) as job:
+        for pair in job.imap(_pair_task, range(int(pairs)), chunksize=4 if job.isolated else 1):
+            buf.append(pair)        # written a shard at a time, as the pairs arrive
+            bar.update()
+            if len(buf) == shard_size:
+                flush()
         if buf:
             flush()
     seconds = time.perf_counter() - t0

@@ -22,7 +22,7 @@ from isp.errors import ConfigError, InputError
 
 from restoration.synth.optics import PSF_DEFAULTS
 
-__all__ = ["SECTIONS", "TrainConfig", "load_config", "resolve_path"]
+__all__ = ["SECTIONS", "TrainConfig", "for_one_device", "load_config", "resolve_path"]
 
 LOSSES = ("l2", "l1")
 SCHEDULES = ("step", "cosine", "constant")
@@ -290,7 +290,27 @@ def load_config(path) -> TrainConfig:
 def resolve_path(value: str) -> Path:
     """A config path: ``data:REST`` → the shared data folder / REST; others as given."""
     if str(value).startswith("data:"):
-        from restoration.cli.synth import DATA
+        from restoration.synth.defaults import DATA
 
         return DATA / str(value)[5:]
     return Path(value)
+
+
+def for_one_device(config: TrainConfig, lens) -> TrainConfig:
+    """``config`` trained for one device (``isp train --lens``): pairs from
+    ``lens`` alone (a fitted proxy camera; ``synth.samples = 1``),
+    synthesised into ``<run.out>/pairs``.
+
+    Raises
+    ------
+    InputError
+        ``lens`` is not a file.
+    ConfigError
+        The config's pairs do not come from its ``[synth]`` section.
+    """
+    if not Path(lens).is_file():
+        raise InputError(lens, "no such lens file (a fitted proxy.json, lens/v1 or .zmx)")
+    if config.synth is None or config.data.dirs:
+        raise ConfigError("--lens needs a config whose pairs come from its [synth] section (no data.dirs)")
+    return config.replace("synth", lens=str(Path(lens).resolve()), samples=1,
+                          out=str(Path(config.run.out) / "pairs"))

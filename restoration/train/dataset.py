@@ -76,6 +76,12 @@ def verify(directory) -> list[str]:
 class SynthPairs:
     """Random access to the pairs of a synthesised set.
 
+    Each item is a dict: ``input`` (H, W, 3) float32 camera RGB (the slot's
+    input), ``target`` (H, W, 3) float32 sRGB in [0, 1], ``fov`` (2, H, W)
+    float32, ``ccm`` (3, 3), ``exposure_ev``, ``luma_weights`` (3,),
+    ``neutral`` (3,), ``origin`` (2,), ``index``, ``lens``, ``camera``,
+    ``noise_profile`` (2,).
+
     Parameters
     ----------
     directory : path
@@ -84,12 +90,6 @@ class SynthPairs:
         Shards kept in memory (a shard of 100 pairs of 256² is ~60 MB);
         read shard by shard (shuffle within and across shards) to avoid
         reloading.
-
-    Each item is a dict: ``input`` (H, W, 3) float32 camera RGB (the slot's
-    input), ``target`` (H, W, 3) float32 sRGB in [0, 1], ``fov`` (2, H, W)
-    float32, ``ccm`` (3, 3), ``exposure_ev``, ``luma_weights`` (3,),
-    ``neutral`` (3,), ``origin`` (2,), ``index``, ``lens``, ``camera``,
-    ``noise_profile`` (2,).
     """
 
     def __init__(self, directory, cache_shards: int = 2):

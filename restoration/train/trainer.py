@@ -142,7 +142,7 @@ from isp.errors import ConfigError, InputError
 from restoration.train.config import PLACEMENTS, TrainConfig, resolve_path
 
 __all__ = ["PairBank", "batch_plan", "ensure_data", "learning_rate", "process_batch", "split_pairs",
-           "split_seed", "synth_argv", "train"]
+           "split_seed", "synth_argv", "synthesise", "train"]
 
 #: domain and placement of the correction slot the pairs are made for
 DOMAIN, PLACEMENT = PLACEMENTS["pipeline"]
@@ -207,9 +207,59 @@ def _synth_mismatch(manifest: dict, config: TrainConfig) -> list[str]:
     return [f"{k} {have!r} ≠ {need!r}" for k, (have, need) in want.items() if have != need]
 
 
-def ensure_data(config: TrainConfig, *, progress: bool = True, log=print) -> list[Path]:
-    """The data folders, synthesised first (by ``isp synth``'s own entry
-    point) where a ``[synth]`` section names a folder without a set.
+def synthesise(config: TrainConfig, *, executor=None, log=print) -> dict:
+    """Synthesise the pairs of the config's ``[synth]`` section into
+    ``synth.out``, as ``isp synth`` with :func:`synth_argv` would
+    (:func:`restoration.synth.pairs.plan`, then
+    :func:`~restoration.synth.pairs.generate`), on ``executor`` (an
+    :class:`isp.runtime.executor.Executor`; default :func:`synth_executor`).
+
+    Returns
+    -------
+    dict
+        The set's manifest.
+
+    Raises
+    ------
+    InputError
+        The lens file does not exist; ``synth.out`` holds a set already.
+    """
+    from restoration.synth.defaults import DATA, DEFAULT_CAMERAS
+    from restoration.synth.optics import PSF_DEFAULTS
+    from restoration.synth.pairs import SynthSettings, generate, plan
+
+    s = config.synth
+    lens, out = resolve_path(s.lens), resolve_path(s.out)
+    if not lens.exists():
+        raise InputError(lens, "no such lens file")
+    cameras = [str(resolve_path(c)) for c in s.cameras] or [str(DATA / c) for c in DEFAULT_CAMERAS]
+    settings = SynthSettings(size=s.size, exposure_ev=tuple(map(float, s.exposure_ev)),
+                             cct_k=tuple(map(float, s.cct_k)), noise_scale=tuple(map(float, s.noise_scale)),
+                             noise=s.noise, blend=s.blend, demosaic=s.demosaic, tone=s.tone)
+    ex = synth_executor(config) if executor is None else executor
+    p = plan(str(lens), samples=s.samples, latent_dir=str(resolve_path(s.latent)), cameras=cameras, seed=s.seed,
+             settings=settings, tolerance_scale=float(s.tolerance_scale),
+             psf_options={"n": s.psf_n or PSF_DEFAULTS["n"], "grid": tuple(int(v) for v in s.psf_grid)},
+             pixel_um=float(s.pixel_um) if s.pixel_um else None, executor=ex)
+    m = generate(p, str(out), s.pairs, shard_size=s.shard_size, executor=ex)
+    log(f"wrote {m['pairs']} pairs of {m['size']}×{m['size']} in {len(m['shards'])} shards to {out} "
+        f"({m['_seconds']:.1f} s; {len(p.maps)} lens{'es' if len(p.maps) > 1 else ''}; "
+        f"data sha256 {m['data_sha256'][:16]}…)")
+    return m
+
+
+def synth_executor(config: TrainConfig, *, progress: bool = True):
+    """The executor the config's synthesis runs on: ``synth.workers``
+    processes (1: in this process), with a progress bar."""
+    from isp.runtime.executor import pool_executor
+
+    return pool_executor(config.synth.workers if config.synth is not None else 1, progress=progress)
+
+
+def ensure_data(config: TrainConfig, *, executor=None, log=print) -> list[Path]:
+    """The data folders, synthesised first (:func:`synthesise`, on
+    ``executor``: default :func:`synth_executor`) where a ``[synth]``
+    section names a folder without a set.
 
     Raises
     ------
@@ -229,11 +279,10 @@ def ensure_data(config: TrainConfig, *, progress: bool = True, log=print) -> lis
                 raise ConfigError(f"{out} holds a set made with other settings ({'; '.join(bad)}); "
                                   "delete it or change synth.out")
         else:
-            from restoration.cli.synth import main as synth_main
-
-            argv = synth_argv(config) + ([] if progress else ["--quiet"])
+            ex = synth_executor(config) if executor is None else executor
+            argv = synth_argv(config) + ([] if ex.progress else ["--quiet"])
             log("synthesising: isp synth " + " ".join(argv))
-            synth_main(argv)
+            synthesise(config, executor=ex, log=log)
     for d in dirs:
         read_manifest(d)  # InputError naming the folder
     return dirs
@@ -648,7 +697,7 @@ def _receptive_radius(model, measure, start: int = 128, largest: int = 512) -> i
         size *= 2
 
 
-def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print) -> dict:
+def train(config: TrainConfig, *, resume=None, executor=None, log=print) -> dict:
     """Train (or resume) as ``config`` says; see the module docstring.
 
     Parameters
@@ -657,8 +706,11 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
     resume : path, optional
         A checkpoint of an earlier run: weights, optimiser state and step
         are restored and training continues to ``config.run.steps``.
-    progress : bool
-        tqdm bar on stderr.
+    executor : isp.runtime.executor.Executor, optional
+        Runs the synthesis where the config asks for one, and shows the
+        progress bars (default :func:`synth_executor`: ``synth.workers``
+        processes, with progress). The steps run in this process, on
+        ``run.threads`` torch threads.
     log : callable
         Where one-line messages go.
 
@@ -685,7 +737,9 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
         torch.backends.cudnn.benchmark = False
 
     ckpt = load_checkpoint(resume) if resume is not None else None
-    dirs = ensure_data(config, progress=progress, log=log)
+    ex = synth_executor(config) if executor is None else executor
+    progress = ex.progress
+    dirs = ensure_data(config, executor=ex, log=log)
     train_ids, val_ids, held = split_pairs(dirs, d.val_latents, d.val_pairs, split_seed(config))
     t0 = time.perf_counter()
     bank = PairBank.load(dirs, train_ids)
@@ -791,7 +845,7 @@ def train(config: TrainConfig, *, resume=None, progress: bool = True, log=print)
         return info
     if not val_log and vbank is not None and step == 0:
         checkpoint(0)   # step 0: the untrained (near-identity) model and the uncorrected input
-    bar = tqdm(total=r.steps, initial=step, desc="train", unit="step", disable=not progress, smoothing=0.05)
+    bar = ex.bar(total=r.steps, initial=step, desc="train", unit="step", smoothing=0.05)
     ema = None
     try:
         while step < r.steps:

@@ -1,9 +1,11 @@
-"""benchmarks/ablations.py: the step count that ``--minutes`` picks."""
+"""benchmarks/ablations.py: the step count that ``--minutes`` picks (kind: property)."""
 
 import pytest
 
 from benchmarks import ablations
 from benchmarks.ablations import ENTRIES, entry_model, steps_in
+
+pytestmark = pytest.mark.property
 
 
 def test_steps_fill_the_minutes_at_the_slowest_step_rounded_down():

@@ -1,6 +1,10 @@
-"""benchmarks/correction.py: how the sweep spreads its runs."""
+"""benchmarks/correction.py: how the sweep spreads its runs (kind: property)."""
+
+import pytest
 
 import benchmarks.correction as bc
+
+pytestmark = pytest.mark.property
 
 
 def test_runs_alternate_between_models_over_two_passes_the_second_reversed(monkeypatch):

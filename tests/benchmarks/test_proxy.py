@@ -1,6 +1,7 @@
 """The proxy benchmark's paired verdicts (benchmarks/proxy.py::paired):
-the interval is Student's t over the devices (scipy's one-sample t-test
-interval is the reference), and the verdict follows it."""
+the interval is Student's t over the devices (kind: published — scipy's
+one-sample t-test interval is the reference), and the verdict follows it;
+merging runs, the summary and device naming (kind: property)."""
 
 import json
 
@@ -18,6 +19,7 @@ def _case(lens, device, mse: dict, ssim: dict):
                         for m, v in mse.items()}}
 
 
+@pytest.mark.published
 def test_the_interval_is_students_t_over_devices_and_the_verdicts_follow_it():
     other = [2.0, 3.0, 1.5, 2.5]      # ref wins by 1.5–3× on every device
     mixed = [0.5, 2.0, 0.8, 1.6]      # ref wins on two, loses on two
@@ -46,6 +48,7 @@ def test_the_interval_is_students_t_over_devices_and_the_verdicts_follow_it():
     assert reg["0.9"]["pixel"]["verdict"] == "better" and reg["0.5"]["pixel"]["verdict"] == "worse"
 
 
+@pytest.mark.property
 def test_runs_of_the_same_devices_merge_into_one_case(tmp_path):
     a = _case("L", 0, {"nominal": 9.0, "scipy": 2.0}, {"nominal": 0.5, "scipy": 0.9})
     b = _case("L", 0, {"nominal": 9.0, "ours_shape": 1.0}, {"nominal": 0.5, "ours_shape": 0.9})
@@ -55,6 +58,7 @@ def test_runs_of_the_same_devices_merge_into_one_case(tmp_path):
     assert len(cases) == 1 and methods == ["nominal", "scipy", "ours_shape"]
 
 
+@pytest.mark.property
 def test_the_summary_counts_the_parameters_left_on_the_bounds():
     fk = {k: 1.0 for k in ("0.1", "0.5", "0.9")}
     rec = lambda u: {"sfr_mse": fk, "sfr_mse_truth": fk, "ssim": fk, "seconds": 1.0, "evaluations": 1, "u": u}
@@ -63,6 +67,7 @@ def test_the_summary_counts_the_parameters_left_on_the_bounds():
     assert summarise(cases, ["ours_shape"])["0.004"]["ours_shape"]["at_bounds"] == [1, 2]
 
 
+@pytest.mark.property
 def test_merits_are_compared_only_between_fits_of_the_same_residuals():
     """merit_comparison: scipy_shape and ours_box minimise ours_shape's
     residuals and are compared (devices where ours ends lower, geometric-mean
@@ -82,6 +87,7 @@ def test_merits_are_compared_only_between_fits_of_the_same_residuals():
     assert out["scipy_shape"]["ratio"] == pytest.approx(np.sqrt(0.9 * 1.6))
 
 
+@pytest.mark.property
 def test_only_names_a_device_by_lens_token_and_index():
     """``--only e11:3`` picks device 3 of the e11 lens and nothing else
     (a token is the lens name's last part, as ``--lenses`` takes it)."""
@@ -93,17 +99,16 @@ def test_only_names_a_device_by_lens_token_and_index():
     assert _is_case("US-11906710-B2-e1:4", "US-11906710-B2-e1", 4)
 
 
-def test_the_truth_lens_rendered_as_a_device_gives_back_its_own_clean_edges():
+@pytest.mark.property
+def test_the_truth_lens_rendered_as_a_device_gives_back_its_own_clean_edges(e9_lens):
     """``ssim_device``'s renderer is the devices' own: the truth lens through
     it reproduces the noise-free edges the measurement was made from (to
     rounding), and a perturbed lens does not."""
     from benchmarks.proxy import device_map, render_as_device
-    from calibration.optics.io.lens_json import read_lens
     from calibration.fit.proxy import default_names, parameter_space
     from calibration.fit.synthetic_devices import synthetic_observations
-    from tests.helpers import data_file
 
-    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    lens = e9_lens
     space = parameter_space(lens, default_names(lens))
     truth = space.apply(np.random.default_rng(4).uniform(-1, 1, len(space.names)) * space.tolerance)
     grid = (2, 3)

@@ -17,7 +17,7 @@ from export.int8_form import (float_form, int8_form, pad_thin_convs, spread_broa
                               unpad_thin_convs, unspread_broadcast_muls)
 from export.onnx_export import op_counts  # noqa: E402
 
-pytestmark = [pytest.mark.filterwarnings("ignore:Please consider to run pre-processing"),
+pytestmark = [pytest.mark.property, pytest.mark.filterwarnings("ignore:Please consider to run pre-processing"),
               pytest.mark.filterwarnings("ignore::DeprecationWarning")]
 
 KW = {"widths": [8, 16], "depths": [1, 1, 1], "window": 1}

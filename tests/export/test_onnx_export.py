@@ -1,5 +1,5 @@
-"""``export/``: checkpoint → ONNX FP32 → static INT8, and the checks issue 7
-asks for. Property tests (ONNX ↔ torch parity, metadata round trip through
+"""``export/``: checkpoint → ONNX FP32 → static INT8, and the checks the
+export makes. Property tests (ONNX ↔ torch parity, metadata round trip through
 the correction stage, constant conv weights, every conv quantised) on a
 tiny untrained model; the INT8 PSNR check on smooth random pairs (see
 :func:`test_int8_psnr_drop`)."""
@@ -19,7 +19,7 @@ from isp.errors import ConfigError, InputError
 from restoration.nn.checkpoint import save_checkpoint
 from restoration.nn.network import build_model
 
-pytestmark = [pytest.mark.filterwarnings("ignore:Please consider to run pre-processing"),
+pytestmark = [pytest.mark.property, pytest.mark.filterwarnings("ignore:Please consider to run pre-processing"),
               pytest.mark.filterwarnings("ignore::DeprecationWarning")]
 
 KW = {"widths": [8, 16], "depths": [1, 1, 1]}
@@ -202,7 +202,7 @@ def test_int8_copy_gets_its_own_tile_overlap(exported, quantized, tmp_path):
 
 
 def test_int8_psnr_drop(exported, quantized):
-    """INT8 vs FP32 PSNR drop ≤ 0.2 dB (issue 7's limit), here on 4 smooth
+    """INT8 vs FP32 PSNR drop ≤ 0.2 dB (``PSNR_DROP_LIMIT``), here on 4 smooth
     random pairs (target = a random-ish frame, input = its Gaussian blur),
     PSNR in linear RGB of the whole output, and with the tiny *untrained*
     model (close to the identity), not the restoration test set: the CLI
@@ -376,8 +376,8 @@ def test_int8_highpass_shares_the_residual_range_and_keeps_flat_fields(tmp_path,
     as Pad + dilated 3×3 box convs + Sub, every conv quantised, and its box
     means get the residual's own quantisation range. Calibrated on their
     own they get the narrow range natural crops give a local mean, and clip
-    on a flat field (8.7 % too bright at grey 0.7 on the e9 model,
-    2026-11-26). Checked: the scales are shared (and differ without the
+    on a flat field (8.7 % too bright at grey 0.7 on an e9 model).
+    Checked: the scales are shared (and differ without the
     overrides, so the check can fail), and a flat field brighter than any
     calibration crop keeps the FP32 model's level in INT8. The high-pass of
     the linear residual (``highpass_domain="linear"``) filters ``r (r + 2u)``,

@@ -11,6 +11,8 @@ from isp import CFA, CameraMeta, Domain, Frame, Pipeline, PlacementError
 from isp.errors import ConfigError
 from modules.correction import field_coordinates
 
+pytestmark = pytest.mark.property
+
 onnx = pytest.importorskip("onnx")
 
 
@@ -164,7 +166,7 @@ def _run(model, frame, **kw):
 
 
 def test_tiled_equals_untiled_700x900(tmp_path, rng):
-    """Deliverable: max seam error ≤ 1 DN at 8 bits against an untiled run
+    """Max seam error ≤ 1 DN at 8 bits against an untiled run
     (measured: ~1e-6, float rounding); the field channels depend on the
     tile's position, so a wrong origin would show."""
     from modules.correction import Correction

@@ -1,15 +1,15 @@
 """Tests of :mod:`modules.demosaic`.
 
-Kinds, labelled on each test:
+Kinds, as marked on each test:
 
 * property — analytic facts any correct demosaic satisfies (constant colour,
-  linear ramps, sampled values kept, no clipping, dtype, shapes), and parity
-  with an independent implementation (colour-demosaicing's bilinear and
-  Malvar 2004, scipy convolution in float64);
+  linear ramps, sampled values kept, no clipping, dtype, shapes);
 * golden — CPSNR floors on a Kodak image, measured here (not published):
-  ``python tests/test_demosaic.py`` prints the values the floors were set
+  ``python -m tests.modules.test_demosaic`` prints the values the floors were set
   from;
-* published — Malvar et al.'s claimed gain over bilinear on Kodak.
+* published — Malvar et al.'s claimed gain over bilinear on Kodak, and
+  parity with an independent implementation (colour-demosaicing's bilinear
+  and Malvar 2004, scipy convolution in float64).
 """
 
 from __future__ import annotations
@@ -84,6 +84,7 @@ def kodim19() -> np.ndarray:
 # parity with colour-demosaicing
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("cfa", list(CFA))
 @pytest.mark.parametrize("ours, theirs", [
     (demosaic_bilinear, "demosaicing_CFA_Bayer_bilinear"),
@@ -106,6 +107,7 @@ def test_parity_with_colour_demosaicing(astronaut, cfa, ours, theirs):
 # analytic properties
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("cfa", list(CFA))
 @pytest.mark.parametrize("method", list(METHODS))
 def test_constant_colour_is_reproduced(method, cfa):
@@ -124,6 +126,7 @@ def test_constant_colour_is_reproduced(method, cfa):
         np.testing.assert_allclose(out, np.broadcast_to(rgb, out.shape), rtol=0, atol=atol)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("cfa", list(CFA))
 @pytest.mark.parametrize("method", list(LINEAR))
 def test_linear_ramp_is_reproduced_inside(method, cfa):
@@ -138,6 +141,7 @@ def test_linear_ramp_is_reproduced_inside(method, cfa):
     np.testing.assert_allclose(out[2:-2, 2:-2], rgb[2:-2, 2:-2], rtol=0, atol=2e-6)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("cfa", list(CFA))
 @pytest.mark.parametrize("method", list(LINEAR))
 def test_sampled_values_are_kept(astronaut, method, cfa):
@@ -149,6 +153,7 @@ def test_sampled_values_are_kept(astronaut, method, cfa):
     np.testing.assert_array_equal(out[mask], astronaut[mask])
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("cfa", list(CFA))
 @pytest.mark.parametrize("method", OPENCV)
 def test_opencv_phase_and_quantisation(astronaut, method, cfa):
@@ -165,6 +170,7 @@ def test_opencv_phase_and_quantisation(astronaut, method, cfa):
     np.testing.assert_allclose(out[mask], astronaut[mask], rtol=0, atol=0.5 * step + 1e-6)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("cfa", list(CFA))
 def test_opencv_four_letter_aliases_agree(cfa):
     # property: where OpenCV ships the sensor-order aliases (COLOR_BayerRGGB2RGB,
@@ -175,6 +181,7 @@ def test_opencv_four_letter_aliases_agree(cfa):
     assert getattr(cv2, alias) == getattr(cv2, f"COLOR_Bayer{OPENCV_BAYER[cfa]}2RGB_EA")
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("suffix, dtype", [("_EA", np.uint16), ("_VNG", np.uint8)])
 def test_opencv_commutes_with_an_offset(astronaut, suffix, dtype):
     # property: what demosaic_opencv relies on to keep negative values
@@ -193,6 +200,7 @@ def test_opencv_commutes_with_an_offset(astronaut, suffix, dtype):
 # the data convention: no clipping, float32, any size
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("method", list(LINEAR))
 def test_no_clipping(method):
     # property: values above 1 and below 0 survive, where sampled and in
@@ -207,6 +215,7 @@ def test_no_clipping(method):
     assert out.max() >= 1.5 - 1e-6 and out.min() <= -0.01 + 1e-6
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("method", OPENCV)
 def test_opencv_keeps_values_outside_0_1(method):
     # property: the quantisation range covers the data, so values above 1
@@ -220,6 +229,7 @@ def test_opencv_keeps_values_outside_0_1(method):
     np.testing.assert_allclose(out[..., 2], -0.01, rtol=0, atol=atol)
 
 
+@pytest.mark.property
 def test_opencv_vng_overshoot_is_kept(astronaut):
     # property: VNG overshoots at edges of natural images; the headroom left
     # in the 8-bit codes lets that through instead of saturating at 0 and 1.
@@ -227,6 +237,7 @@ def test_opencv_vng_overshoot_is_kept(astronaut):
     assert out.min() < -0.02 and out.max() > 1.02
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("shape", [(2, 2), (3, 5), (7, 4), (33, 17)])
 @pytest.mark.parametrize("method", list(METHODS))
 def test_sizes_and_dtype(method, shape):
@@ -242,6 +253,7 @@ def test_sizes_and_dtype(method, shape):
         assert np.isfinite(out).all()
 
 
+@pytest.mark.property
 def test_invalid_inputs_name_the_value():
     # property: errors at the boundary carry the offending value.
     with pytest.raises(ValueError, match=r"2-D \(H, W\) array, got shape \(4, 4, 3\)"):
@@ -260,6 +272,7 @@ def test_invalid_inputs_name_the_value():
         demosaic_opencv(bad, CFA.RGGB)
 
 
+@pytest.mark.property
 def test_cfa_name_is_accepted():
     # property: the pattern may be given by name.
     m = np.random.default_rng(2).random((8, 8)).astype(np.float32)
@@ -287,6 +300,7 @@ def kodim19_cpsnr(kodim19) -> dict[tuple[str, CFA], float]:
             for name, f in METHODS.items() for cfa in CFA}
 
 
+@pytest.mark.golden
 @pytest.mark.parametrize("cfa", list(CFA))
 @pytest.mark.parametrize("method", list(METHODS))
 def test_cpsnr_floor(kodim19_cpsnr, method, cfa):
@@ -294,6 +308,7 @@ def test_cpsnr_floor(kodim19_cpsnr, method, cfa):
     assert kodim19_cpsnr[method, cfa] >= CPSNR_FLOOR[method]
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("cfa", list(CFA))
 def test_cpsnr_ranking(kodim19_cpsnr, cfa):
     # property: the gradient correction helps (Malvar et al. report
@@ -303,6 +318,7 @@ def test_cpsnr_ranking(kodim19_cpsnr, cfa):
     assert q["bilinear"] < q["malvar2004"] < q["menon2007"]
 
 
+@pytest.mark.published
 def test_malvar_gain_over_bilinear_on_kodak():
     # published: Malvar et al. (2004), abstract: "an improvement in PSNR of
     # over 5.5 dB when compared to bilinear demosaicing" on the Kodak set.
@@ -325,6 +341,7 @@ def test_malvar_gain_over_bilinear_on_kodak():
 # the stage
 
 
+@pytest.mark.property
 def test_method_names_are_one_list():
     # property: the stage's Literal and the METHODS mapping agree.
     assert typing.get_args(Method) == tuple(METHODS)
@@ -332,6 +349,7 @@ def test_method_names_are_one_list():
     assert typing.get_args(hints["method"]) == tuple(METHODS)
 
 
+@pytest.mark.property
 def test_stage_demosaics_a_mosaic():
     # property: (H, W) raw_linear → (H, W, 3) camera_rgb, method recorded.
     m = np.random.default_rng(3).random((10, 15)).astype(np.float32)
@@ -343,6 +361,7 @@ def test_stage_demosaics_a_mosaic():
     assert str(out.history[-1]) == "demosaic: malvar2004"
 
 
+@pytest.mark.property
 def test_stage_passes_linear_raw_through():
     # property: a linear DNG (already demosaiced) keeps its data.
     rgb = np.random.default_rng(4).random((6, 8, 3)).astype(np.float32)
@@ -352,6 +371,7 @@ def test_stage_passes_linear_raw_through():
     assert out.history[-1].note == "passed through: data already demosaiced (LinearRaw)"
 
 
+@pytest.mark.property
 def test_stage_refuses_a_mosaic_without_cfa():
     # property: the error names the file.
     frame = Frame(np.zeros((4, 4), np.float32), Domain.RAW_LINEAR,
@@ -360,6 +380,7 @@ def test_stage_refuses_a_mosaic_without_cfa():
         Demosaic()(frame)
 
 
+@pytest.mark.property
 def test_stage_refuses_other_domains():
     # property: consumes raw_linear only.
     frame = Frame(np.zeros((4, 4), np.float32), Domain.RAW, CameraMeta(cfa=CFA.RGGB))
@@ -367,6 +388,7 @@ def test_stage_refuses_other_domains():
         Demosaic()(frame)
 
 
+@pytest.mark.property
 def test_stage_from_registry():
     # property: registered through the isp.stages entry point; parameters
     # are validated there (Literal check → ConfigError) and in the class

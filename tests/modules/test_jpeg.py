@@ -1,5 +1,6 @@
 """JPEG stage: EXIF read back by an independent decoder (Pillow), orientation
-against Pillow's exif_transpose, fidelity (kinds: oracle / property)."""
+against Pillow's exif_transpose (kind: published), fidelity and banded
+encoding (kind: property)."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ META = CameraMeta(make="phone-isp", model="test phone", exposure_time_s=1 / 250,
                   iso=200.0, focal_length_mm=4.2, datetime="2026:11:21 09:08:07", lens="lens x")
 
 
+@pytest.mark.published
 def test_exif_written_and_readable():
     f = Frame(_display(), Domain.DISPLAY_RGB, META)
     out = create_stage("jpeg", quality=90)(f)
@@ -38,6 +40,7 @@ def test_exif_written_and_readable():
     assert float(sub[0x920A]) == pytest.approx(4.2) and sub[0xA434] == "lens x"
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("orientation", range(1, 9))
 def test_orientation_applied_like_pillow(orientation):
     img = (_display() * 255).round().astype(np.uint8)
@@ -52,6 +55,7 @@ def test_orientation_applied_like_pillow(orientation):
     assert np.abs(dec.astype(int) - expect).mean() < 2.0
 
 
+@pytest.mark.property
 def test_quality_and_fidelity():
     rgb = _display(256, 256)
     sizes = []
@@ -64,6 +68,7 @@ def test_quality_and_fidelity():
     assert sizes[0] < sizes[1]
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("shape,subsampling", [((300, 200), "420"), ((257, 333), "444"), ((130, 96), "422")])
 @pytest.mark.parametrize("threads", [2, 3])
 def test_banded_encoding_is_the_single_encoder_stream(shape, subsampling, threads):

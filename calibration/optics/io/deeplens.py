@@ -24,10 +24,15 @@ import math
 import re
 from pathlib import Path
 
+from calibration.optics.io.common import (
+    DEFAULT_PIXEL_PITCH_UM,
+    Source,
+    default_sensor,
+    default_wavelengths,
+    read_json_lens,
+)
 from calibration.optics.lens import Lens, LensError, Sensor, Surface
-from calibration.optics.io.lens_json import Source
 from calibration.optics.materials import AIR, model_material
-from calibration.optics.io.formats import default_wavelengths
 
 TYPES = ("Spheric", "Aspheric", "Stop", "Aperture", "Plane")
 _NV = re.compile(r"^\s*([0-9.]+)\s*/\s*([0-9.]+)\s*$")
@@ -49,8 +54,6 @@ def read_deeplens(path, *, data=None, pixel_pitch_um: float | None = None) -> Le
     LensError
         One line naming the file and the surface.
     """
-    from calibration.optics.io.formats import read_json_lens
-
     return read_json_lens(path, data, pixel_pitch_um, _build, "DeepLens")
 
 
@@ -126,8 +129,6 @@ def _half_fov(src: Source, d: dict, lens: Lens) -> float:
 
 
 def _sensor(src: Source, d: dict, lens: Lens, pixel_pitch_um) -> Sensor:
-    from calibration.optics.io.formats import DEFAULT_PIXEL_PITCH_UM, default_sensor
-
     size = d.get("sensor_size")
     if size is None:
         return default_sensor(lens, pixel_pitch_um or DEFAULT_PIXEL_PITCH_UM)

@@ -1,6 +1,7 @@
-"""Lens files: the JSON format ``lens/v1``, and :func:`read_lens`, which also
-reads Zemax ``.zmx``, optiland, DeepLens and rayoptics files
-(:mod:`calibration.optics.io.formats`).
+"""The project's lens file format, ``lens/v1`` JSON: :func:`load_lens`,
+:func:`save_lens`, and the dict form (:func:`lens_from_dict`,
+:func:`lens_to_dict`). :func:`calibration.optics.io.read.read_lens` reads
+this format and the other programs' files alike.
 
 The format
 ----------
@@ -61,7 +62,10 @@ float values, so ``load_lens(save_lens(lens))`` equals ``lens``.
 
 Errors are :class:`~calibration.optics.lens.LensError` with one line that names the
 file and the surface: ``lens.json: surface 3: conic must be a number, got
-'x'``.
+'x'`` (:class:`calibration.optics.io.common.Source`).
+
+Imports :mod:`calibration.optics` (lens, materials, paraxial),
+:mod:`~calibration.optics.io.common` and ``isp.io.files`` (atomic writes).
 """
 
 from __future__ import annotations
@@ -72,7 +76,8 @@ from pathlib import Path
 from typing import Any
 
 from calibration.optics.lens import Lens, LensError, Sensor, Surface
-from calibration.optics.materials import MaterialError, material, material_to_spec
+from calibration.optics.io.common import Source, read_json
+from calibration.optics.materials import material_to_spec
 
 SCHEMA = "lens/v1"
 
@@ -85,67 +90,6 @@ FIELD_KEYS = ("half_fov_deg", "image_height")
 SENSOR_KEYS = ("pixel_pitch_um", "width_px", "height_px")
 
 _DEFAULT = Lens((Surface(),), epd=1.0)
-
-
-class Source:
-    """Error messages for one input: ``"<file>: surface <i>: <what>"``.
-
-    Parameters
-    ----------
-    label : str
-        The file as the caller named it (or ``"<dict>"``).
-    """
-
-    def __init__(self, label: str):
-        self.label = str(label)
-
-    def error(self, message: str, surface: int | None = None) -> LensError:
-        """A :class:`LensError`; ``surface`` is the 1-based surface number."""
-        where = f"surface {surface}: " if surface is not None else ""
-        return LensError(f"{self.label}: {where}{message}")
-
-    def number(self, value: Any, what: str, surface: int | None = None, *,
-               positive: bool = False, allow_inf: bool = False) -> float:
-        """``value`` as a float, or a LensError naming ``what``."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.error(f"{what} must be a number, got {value!r}", surface)
-        v = float(value)
-        if math.isnan(v) or (math.isinf(v) and not allow_inf):
-            raise self.error(f"{what} must be finite, got {value!r}", surface)
-        if positive and not v > 0:
-            raise self.error(f"{what} must be positive, got {value!r}", surface)
-        return v
-
-    def keys(self, d: Any, valid: tuple[str, ...], what: str, surface: int | None = None) -> dict:
-        """Check that ``d`` is an object with only ``valid`` keys."""
-        if not isinstance(d, dict):
-            raise self.error(f"{what} must be a JSON object, got {d!r}", surface)
-        unknown = [k for k in d if k not in valid]
-        if unknown:
-            raise self.error(f"unknown key {unknown[0]!r} in {what} (valid: {', '.join(valid)})", surface)
-        return d
-
-    def material(self, spec: Any, surface: int | None = None):
-        try:
-            return material(spec)
-        except MaterialError as e:
-            raise self.error(str(e), surface) from None
-
-    def replace(self, lens: Lens, **changes) -> Lens:
-        """``lens.replace(**changes)`` with validation errors prefixed by the
-        file name."""
-        try:
-            return lens.replace(**changes)
-        except LensError as e:
-            raise self.error(str(e)) from None
-
-    def build(self, **kwargs) -> Lens:
-        """``Lens(**kwargs)`` with the model's own validation errors prefixed
-        by the file name."""
-        try:
-            return Lens(**kwargs)
-        except LensError as e:
-            raise self.error(str(e)) from None
 
 
 # -- dict <-> Lens ------------------------------------------------------------
@@ -397,21 +341,7 @@ def load_lens(path) -> Lens:
         Unreadable, not JSON (e.g. truncated), or not a valid lens; the
         message starts with ``path``.
     """
-    return lens_from_dict(_read_json(path), str(path))
-
-
-def _read_json(path) -> Any:
-    src = Source(str(path))
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except OSError as e:
-        raise src.error(f"cannot read: {e.strerror or e}") from None
-    except UnicodeDecodeError as e:
-        raise src.error(f"not UTF-8 text ({e.reason} at byte {e.start})") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as e:
-        raise src.error(f"not valid JSON ({e.msg} at line {e.lineno} column {e.colno})") from None
+    return lens_from_dict(read_json(path), str(path))
 
 
 def save_lens(lens: Lens, path) -> Path:
@@ -423,56 +353,3 @@ def save_lens(lens: Lens, path) -> Path:
 
     write_bytes_atomic(path, text.encode("utf-8"))
     return path
-
-
-FORMATS = ("lens/v1 JSON", "Zemax .zmx", "optiland JSON", "DeepLens JSON", "rayoptics .roa")
-
-
-def read_lens(path, *, sensor: Sensor | None = None, pixel_pitch_um: float | None = None) -> Lens:
-    """Read a lens from any supported file, choosing the reader by file type.
-
-    ``.zmx`` → :func:`~calibration.optics.io.formats.read_zmx`; ``.roa`` →
-    :func:`~calibration.optics.io.formats.read_rayoptics`; ``.json`` → by content:
-    ``lens/v1`` (a ``"schema"`` key), rayoptics (``"optical_model"``),
-    optiland (``"surface_group"``), DeepLens (``"surfaces"`` with
-    ``"d_sensor"``).
-
-    Parameters
-    ----------
-    path : str or Path
-    sensor : Sensor, optional
-        Replaces the file's (or the default) sensor.
-    pixel_pitch_um : float, optional
-        Pixel pitch (µm) of the default sensor given to files without one
-        (see :func:`calibration.optics.io.formats.default_sensor`); default 1.0.
-
-    Raises
-    ------
-    LensError
-        Unsupported file type or an invalid file; the message names it.
-    """
-    from calibration.optics.io import formats as importers
-    src = Source(str(path))
-    suffix = Path(path).suffix.lower()
-    pitch = {} if pixel_pitch_um is None else {"pixel_pitch_um": pixel_pitch_um}
-    if suffix == ".zmx":
-        lens = importers.read_zmx(path, **pitch)
-    elif suffix == ".roa":
-        lens = importers.read_rayoptics(path, **pitch)
-    elif suffix == ".json":
-        data = _read_json(path)
-        if isinstance(data, dict) and "schema" in data:
-            lens = lens_from_dict(data, str(path))
-        elif isinstance(data, dict) and "optical_model" in data:
-            lens = importers.read_rayoptics(path, data=data, **pitch)
-        elif isinstance(data, dict) and "surface_group" in data:
-            lens = importers.read_optiland(path, data=data, **pitch)
-        elif isinstance(data, dict) and "surfaces" in data and "d_sensor" in data:
-            lens = importers.read_deeplens(path, data=data, **pitch)
-        else:
-            raise src.error("unrecognised JSON lens file (expected one of: " + ", ".join(FORMATS) + ")")
-    else:
-        raise src.error(f"unsupported lens file type {suffix or '(none)'!r} (supported: .json, .zmx, .roa)")
-    if sensor is not None:
-        lens = lens.replace(sensor=sensor)
-    return lens

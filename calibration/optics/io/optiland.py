@@ -22,10 +22,16 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from calibration.optics.io.common import (
+    DEFAULT_PIXEL_PITCH_UM,
+    Source,
+    combined_field_angle,
+    default_sensor,
+    default_wavelengths,
+    read_json_lens,
+)
 from calibration.optics.lens import Lens, LensError, Surface
-from calibration.optics.io.lens_json import Source
 from calibration.optics.materials import AIR, Material, model_material
-from calibration.optics.io.formats import combined_field_angle, default_wavelengths
 
 GEOMETRIES = ("Plane", "StandardGeometry", "EvenAsphere", "OddAsphere")
 APERTURES = ("EPD", "imageFNO")
@@ -48,8 +54,6 @@ def read_optiland(path, *, data=None, pixel_pitch_um: float | None = None) -> Le
     LensError
         One line naming the file and the surface.
     """
-    from calibration.optics.io.formats import read_json_lens
-
     return read_json_lens(path, data, pixel_pitch_um, _build, "optiland")
 
 
@@ -77,8 +81,6 @@ def _build(src: Source, d: dict, pixel_pitch_um) -> Lens:
                      name=d.get("name") or Path(src.label).stem,
                      metadata={"source": {"format": "optiland", "file": Path(src.label).name}})
     lens = src.replace(lens, half_fov_deg=_half_fov(src, d.get("fields") or {}, lens))
-    from calibration.optics.io.formats import DEFAULT_PIXEL_PITCH_UM, default_sensor
-
     return lens.replace(sensor=default_sensor(lens, pixel_pitch_um or DEFAULT_PIXEL_PITCH_UM))
 
 

@@ -33,10 +33,16 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from calibration.optics.io.common import (
+    DEFAULT_PIXEL_PITCH_UM,
+    Source,
+    combined_field_angle,
+    default_sensor,
+    default_wavelengths,
+    read_json_lens,
+)
 from calibration.optics.lens import Lens, LensError, Surface
-from calibration.optics.io.lens_json import Source
 from calibration.optics.materials import AIR, LAMBDA_D, Material, MaterialError, abbe_number, lookup, model_material
-from calibration.optics.io.formats import combined_field_angle, default_wavelengths
 
 PROFILES = ("Spherical", "Conic", "EvenPolynomial", "RadialPolynomial")
 
@@ -57,8 +63,6 @@ def read_rayoptics(path, *, data=None, pixel_pitch_um: float | None = None) -> L
     LensError
         One line naming the file and the surface.
     """
-    from calibration.optics.io.formats import read_json_lens
-
     return read_json_lens(path, data, pixel_pitch_um, _build, "rayoptics")
 
 
@@ -96,8 +100,6 @@ def _build(src: Source, d: dict, pixel_pitch_um) -> Lens:
                                           "version": om.get("ro_version", "")}})
     lens = src.replace(lens, half_fov_deg=_half_fov(src, spec.get("field_of_view", {}).get("attributes", {}),
                                                     lens))
-    from calibration.optics.io.formats import DEFAULT_PIXEL_PITCH_UM, default_sensor
-
     return lens.replace(sensor=default_sensor(lens, pixel_pitch_um or DEFAULT_PIXEL_PITCH_UM))
 
 

@@ -56,10 +56,15 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from calibration.optics.io.common import (
+    DEFAULT_PIXEL_PITCH_UM,
+    Source,
+    combined_field_angle,
+    default_sensor,
+    default_wavelengths,
+)
 from calibration.optics.lens import Lens, LensError, Surface
-from calibration.optics.io.lens_json import Source
 from calibration.optics.materials import AIR, MaterialError, lookup, model_material
-from calibration.optics.io.formats import combined_field_angle, default_wavelengths
 
 SUPPORTED_TYPES = ("STANDARD", "EVENASPH", "ODDASPH", "XASPHERE", "XOSPHERE")
 
@@ -309,8 +314,6 @@ def _build(src: Source, sys: dict, surfs: list[_Surf], pixel_pitch_um, unknown_g
                      primary_nm=primary, object_distance=object_distance,
                      name=sys.get("name", Path(src.label).stem), metadata=meta)
     lens = _apply_field(src, sys, lens, scale)
-    from calibration.optics.io.formats import DEFAULT_PIXEL_PITCH_UM, default_sensor
-
     return lens.replace(sensor=default_sensor(lens, pixel_pitch_um or DEFAULT_PIXEL_PITCH_UM))
 
 

@@ -3,7 +3,7 @@
 The paper divides the sensor into 15 × 20 regions and blurs each with the
 PSF of its centre (section 3.1.2 and 4.1). :func:`psf_map` computes them for
 a (perturbed) lens: region centres on the sensor → object fields by
-inverting the real chief ray → per-wavelength PSFs (:mod:`calibration.optics.psf.core`)
+inverting the real chief ray → per-wavelength PSFs (:mod:`calibration.optics.psf`)
 → weighted per channel (eq. 14), with an on-disk cache.
 
 Sensor coordinates
@@ -26,7 +26,7 @@ along the light (looking along +z from the lens), x right, y down — a
 right-handed frame with z into the page. Consequences:
 
 * A PSF's ``data[i, j]`` (rows along image-plane +y, columns along +x, see
-  :mod:`calibration.optics.psf.core`) is directly a convolution kernel on the sensor
+  :mod:`calibration.optics.psf`) is directly a convolution kernel on the sensor
   array (rows = y_px): no flip, no transpose. Its centre sample
   ``data[n//2, n//2]`` sits on the region centre.
 * A chief ray at a positive field θy (travelling toward +y) lands at
@@ -72,36 +72,32 @@ import json
 import math
 import os
 import warnings
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from isp.errors import ConfigError
+from isp.runtime.executor import Executor, pool_executor, worker_payload
+
 from calibration.optics import paraxial
 from calibration.optics.lens import Lens, Sensor
 from calibration.optics.perturb import PerturbedLens, nominal
-from calibration.optics.psf.core import (
+from calibration.optics.psf.methods import METHODS, monochromatic_samples
+from calibration.optics.psf.pupil import exit_pupil_z, reference_sphere, trace_pupils
+from calibration.optics.psf.result import PSF, PSFError
+from calibration.optics.psf.sampling import grid_offsets_mm
+from calibration.optics.psf.spectral import (
     DEFAULT_CAMERA,
     DEFAULT_WAVELENGTHS_PER_CHANNEL,
-    METHODS,
-    PSF,
-    PSFError,
-    _exit_pupil_z,
-    _grid_offsets_mm,
-    _mono,
-    _positive_int,
-    _sphere,
-    _trace_set,
-    spectral_quadrature,
-    spectral_response,
+    channel_quadrature,
 )
 from calibration.optics.trace import Rays, stop_and_pupil, trace
 
 __all__ = [
     "CACHE_VERSION",
     "PSFMap",
+    "PSFMapSettings",
     "WINDOW_UM",
     "cache_key",
     "check_window",
@@ -222,7 +218,7 @@ class PSFMap:
     Attributes
     ----------
     psfs : (rows, cols, channels, n, n) ndarray, float32
-        Each PSF sums to 1; sample grid as :class:`calibration.optics.psf.core.PSF`
+        Each PSF sums to 1; sample grid as :class:`calibration.optics.psf.result.PSF`
         (rows along image-plane +y = sensor +y, columns along +x), centre
         sample ``[n//2, n//2]`` on the region centre.
     pitch_um : float
@@ -244,7 +240,7 @@ class PSFMap:
     method : str
     window_energy : (rows, cols, channels) ndarray
         Fraction of each PSF's power inside its window (see
-        :attr:`calibration.optics.psf.core.PSF.window_energy`).
+        :attr:`calibration.optics.psf.result.PSF.window_energy`).
     settings : dict
         Everything that went into the key, JSON-safe.
     """
@@ -534,12 +530,12 @@ def _region_task(args) -> tuple[np.ndarray, np.ndarray]:
     """One region: (channels, m, m) PSFs and (channels,) window energies.
     A plain picklable function of its inputs (DESIGN.md, scale-out)."""
     pl, fld, center, nodes, weights, method, samples, m, pitch, aiming, aim_each, threads = args
-    o = _grid_offsets_mm(m, pitch)
+    o = grid_offsets_mm(m, pitch)
     out = np.zeros((weights.shape[0], m, m))
     energy = np.zeros(weights.shape[0])
-    traced = _trace_set(pl, (float(fld[0]), float(fld[1])), nodes, samples, aiming, _exit_pupil_z(pl), aim_each)
+    traced = trace_pupils(pl, (float(fld[0]), float(fld[1])), nodes, samples, aiming, exit_pupil_z(pl), aim_each)
     for k, tr in enumerate(traced):
-        data, e = _mono(_sphere(tr, np.asarray(center)), method, o, o, workers=threads)
+        data, e = monochromatic_samples(reference_sphere(tr, np.asarray(center)), method, o, o, workers=threads)
         for c in range(weights.shape[0]):
             if weights[c, k] != 0.0:
                 out[c] += weights[c, k] * data
@@ -547,41 +543,21 @@ def _region_task(args) -> tuple[np.ndarray, np.ndarray]:
     return out, energy
 
 
-def _wavelength_plan(channels, n_wavelengths, camera, illuminant) -> tuple[np.ndarray, np.ndarray]:
-    """Shared nodes (K,) and per-channel weights (C, K): each channel's Gauss
-    nodes, pooled (a node two channels share is computed once)."""
-    per = []
-    for ch in channels:
-        wl, c = spectral_response(ch, camera=camera, illuminant=illuminant)
-        x, w = spectral_quadrature(wl, c, n_wavelengths)
-        per.append((np.round(x, 9), w / w.sum()))
-    nodes = np.unique(np.concatenate([x for x, _ in per]))
-    weights = np.zeros((len(channels), len(nodes)))
-    for i, (x, w) in enumerate(per):
-        for xv, wv in zip(x, w):
-            weights[i, np.searchsorted(nodes, xv)] += wv
-    return nodes, weights
-
-
-def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = (15, 20),
-            channels: Sequence[str] = ("R", "G", "B"), method: str = "debye", n: int | None = None,
-            pitch_um: float | None = None, pupil_samples: int = 64, n_wavelengths: int | None = None,
-            camera: str = DEFAULT_CAMERA, illuminant: str = "D65", aiming: str = "real",
-            aim_each_wavelength: bool = False, symmetry: str = "auto", sensor: Sensor | None = None,
-            cache_dir=None, cache: bool = True, workers: int | None = None, progress: bool = True) -> PSFMap:
-    """PSFs of every sensor region and channel of a (perturbed) lens.
+@dataclass(frozen=True)
+class PSFMapSettings:
+    """What a PSF map computes (:func:`psf_map`): every field changes the
+    numbers and enters the cache key. Checked at construction
+    (:class:`isp.errors.ConfigError` naming the field and value).
 
     Parameters
     ----------
-    lens_or_perturbed : Lens or PerturbedLens
-        Its ``sensor`` (the nominal lens's) defines the regions, unless
-        ``sensor`` is given.
     grid : (rows, cols)
-        Regions over the sensor (the paper's 15 × 20).
+        Regions over the sensor, each ≥ 1 (the paper's 15 × 20).
     channels : sequence of {"R", "G", "B"}
-        Channels of ``camera`` under ``illuminant`` (:func:`calibration.optics.psf.core.spectral_response`).
+        Channels of ``camera`` under ``illuminant``
+        (:func:`calibration.optics.psf.spectral.spectral_response`); at least one.
     method : {"debye", "fft", "huygens"}
-        Diffraction model (:mod:`calibration.optics.psf.core`). "debye" (default) is the
+        Diffraction model (:mod:`calibration.optics.psf`). "debye" (default) is the
         Huygens sum in the Debye approximation on the requested grid: on e9
         within 0.06 % of the Huygens PSFs' peak at ≈ ¼ of their cost at 32²
         (1/20 at 128²); "fft" costs about the same as "debye" here, but its
@@ -592,24 +568,112 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
         each), on 6 regions from the centre to the corner
         (``benchmarks/psf.py``).
     n : int, optional
-        PSF size (n × n); default :func:`default_psf_n` at ``pitch_um``:
-        a :data:`WINDOW_UM` (32 µm) window, at least 32 samples.
+        PSF size (n × n samples, ≥ 1); default :func:`default_psf_n` at
+        ``pitch_um``: a :data:`WINDOW_UM` (32 µm) window, at least 32 samples.
     pitch_um : float, optional
-        PSF sample spacing; default half the sensor's pixel pitch.
+        PSF sample spacing, µm, > 0; default half the sensor's pixel pitch.
     pupil_samples : int
-        Pupil grid across the stop.
+        Pupil grid across the stop, samples, ≥ 1.
     n_wavelengths : int, optional
-        Gauss nodes per channel (default
-        :data:`calibration.optics.psf.core.DEFAULT_WAVELENGTHS_PER_CHANNEL`).
+        Gauss nodes per channel, ≥ 1 (default
+        :data:`calibration.optics.psf.spectral.DEFAULT_WAVELENGTHS_PER_CHANNEL`).
     camera, illuminant : str
+        Names known to :func:`calibration.optics.psf.spectral.spectral_response`.
     aiming : {"real", "paraxial"}
     aim_each_wavelength : bool
         Real aiming at every wavelength, or (default) once per region at the
         primary wavelength — half the tracing for ≤ 0.6 % of the peak on e9
-        (:func:`calibration.optics.psf.core.polychromatic_psf`).
+        (:func:`calibration.optics.psf.spectral.polychromatic_psf`).
     symmetry : {"auto", "none"}
         "auto": mirror one quadrant when the lens is coaxial (see the module
         docstring); "none": compute every region.
+
+    Examples
+    --------
+    >>> PSFMapSettings(grid=(3, 4), channels=("g",)).channels
+    ('G',)
+    >>> PSFMapSettings(method="zemax")
+    Traceback (most recent call last):
+    ...
+    isp.errors.ConfigError: PSFMapSettings.method: unknown PSF method 'zemax'; valid: huygens, fft, debye
+    """
+
+    grid: tuple[int, int] = (15, 20)
+    channels: tuple[str, ...] = ("R", "G", "B")
+    method: str = "debye"
+    n: int | None = None
+    pitch_um: float | None = None
+    pupil_samples: int = 64
+    n_wavelengths: int | None = None
+    camera: str = DEFAULT_CAMERA
+    illuminant: str = "D65"
+    aiming: str = "real"
+    aim_each_wavelength: bool = False
+    symmetry: str = "auto"
+
+    def __post_init__(self):
+        def bad(name, why):
+            return ConfigError(f"PSFMapSettings.{name}: {why}")
+
+        def positive_int(name, v):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise bad(name, f"must be an integer ≥ 1, got {v!r}")
+            return int(v)
+
+        if self.method not in METHODS:
+            raise bad("method", f"unknown PSF method {self.method!r}; valid: {', '.join(METHODS)}")
+        if self.symmetry not in ("auto", "none"):
+            raise bad("symmetry", f"unknown symmetry {self.symmetry!r}; valid: 'auto', 'none'")
+        if self.aiming not in ("real", "paraxial"):
+            raise bad("aiming", f"unknown aiming {self.aiming!r}; valid: 'real', 'paraxial'")
+        try:
+            rows, cols = self.grid
+        except (TypeError, ValueError):
+            raise bad("grid", f"must be (rows, cols), got {self.grid!r}") from None
+        object.__setattr__(self, "grid", (positive_int("grid", rows), positive_int("grid", cols)))
+        if isinstance(self.channels, str):
+            raise bad("channels", f"must be a sequence of 'R', 'G', 'B', got {self.channels!r}")
+        channels = tuple(str(c).upper() for c in self.channels)
+        if not channels or not set(channels) <= {"R", "G", "B"}:
+            raise bad("channels", f"must be one or more of 'R', 'G', 'B', got {self.channels!r}")
+        object.__setattr__(self, "channels", channels)
+        if self.n is not None:
+            object.__setattr__(self, "n", positive_int("n", self.n))
+        if self.pitch_um is not None:
+            try:
+                pitch = float(self.pitch_um)
+            except (TypeError, ValueError):
+                raise bad("pitch_um", f"must be a positive number of µm, got {self.pitch_um!r}") from None
+            if not (math.isfinite(pitch) and pitch > 0):
+                raise bad("pitch_um", f"must be a positive number of µm, got {self.pitch_um!r}")
+            object.__setattr__(self, "pitch_um", pitch)
+        object.__setattr__(self, "pupil_samples", positive_int("pupil_samples", self.pupil_samples))
+        if self.n_wavelengths is not None:
+            object.__setattr__(self, "n_wavelengths", positive_int("n_wavelengths", self.n_wavelengths))
+        object.__setattr__(self, "aim_each_wavelength", bool(self.aim_each_wavelength))
+
+
+def _region_job(task) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_region_task` of one region's (field, centre), the rest of its
+    arguments read from the executor's payload (sent to each worker once)."""
+    pl, *rest = worker_payload()
+    fld, center = task
+    return _region_task((pl, fld, center, *rest))
+
+
+def psf_map(lens_or_perturbed: Lens | PerturbedLens, settings: PSFMapSettings | None = None, *,
+            sensor: Sensor | None = None, cache_dir=None, cache: bool = True,
+            executor: Executor | None = None) -> PSFMap:
+    """PSFs of every sensor region and channel of a (perturbed) lens.
+
+    Parameters
+    ----------
+    lens_or_perturbed : Lens or PerturbedLens
+        Its ``sensor`` (the nominal lens's) defines the regions, unless
+        ``sensor`` is given.
+    settings : PSFMapSettings, optional
+        What to compute (default ``PSFMapSettings()``: 15 × 20 regions,
+        R, G, B, the Debye method, a 32 µm window at half a pixel).
     sensor : Sensor, optional
         The sensor whose regions are mapped (default the lens's; centred on
         the optical axis).
@@ -617,50 +681,38 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
         Default ``$ISP_CACHE/psf`` or ``~/.cache/phone-isp/psf``.
     cache : bool
         Read and write the cache.
-    workers : int, optional
-        Processes over regions (1: in this process; default: up to 2, the
-        phone budget, where the machine has the cores). On 2 free cores
-        (``benchmarks/psf.py``, e9, default settings): nominal 13.4 s → 7.3 s,
-        perturbed 54.6 s → 24.8 s; with one core busy elsewhere, no gain.
-    progress : bool
-        A tqdm progress bar on stderr.
+    executor : isp.runtime.executor.Executor, optional
+        Runs the regions (each a task; the lens and wavelength plan are its
+        payload); its progress bar counts them. Default: up to 2 worker
+        processes, the phone budget, where the machine has the cores, with
+        a progress bar (:func:`isp.runtime.executor.pool_executor`). On 2
+        free cores (``benchmarks/psf.py``, e9, default settings): nominal
+        13.4 s → 7.3 s, perturbed 54.6 s → 24.8 s; with one core busy
+        elsewhere, no gain.
 
     Returns
     -------
     PSFMap
     """
     pl = nominal(lens_or_perturbed)
-    if method not in METHODS:
-        raise PSFError(f"unknown PSF method {method!r}; valid: {', '.join(METHODS)}")
-    if symmetry not in ("auto", "none"):
-        raise PSFError(f"unknown symmetry {symmetry!r}; valid: 'auto', 'none'")
-    if aiming not in ("real", "paraxial"):
-        raise PSFError(f"unknown aiming {aiming!r}; valid: 'real', 'paraxial'")
-    try:
-        rows, cols = (int(g) for g in grid)
-    except (TypeError, ValueError):
-        raise PSFError(f"grid must be (rows, cols), got {grid!r}") from None
-    _positive_int(rows, "grid rows")
-    _positive_int(cols, "grid cols")
-    samples = _positive_int(pupil_samples, "pupil_samples")
-    if workers is None:
-        workers = max(1, min(2, os.cpu_count() or 1))
-    workers = _positive_int(workers, "workers")
-    channels = tuple(str(c).upper() for c in channels)
-    if not channels:
-        raise PSFError("channels is empty; e.g. ('R', 'G', 'B')")
+    s = PSFMapSettings() if settings is None else settings
+    if not isinstance(s, PSFMapSettings):
+        raise ConfigError(f"settings must be a PSFMapSettings, got {type(s).__name__}")
+    rows, cols = s.grid
+    channels, method, samples = s.channels, s.method, s.pupil_samples
+    camera, illuminant, aiming, aim_each_wavelength = s.camera, s.illuminant, s.aiming, s.aim_each_wavelength
     sensor = pl.lens.sensor if sensor is None else sensor
     if not isinstance(sensor, Sensor):
         raise PSFError(f"sensor must be a calibration.optics.lens.Sensor, got {type(sensor).__name__}")
-    pitch = 0.5 * sensor.pixel_pitch_um if pitch_um is None else float(pitch_um)
+    pitch = 0.5 * sensor.pixel_pitch_um if s.pitch_um is None else s.pitch_um
     if not (math.isfinite(pitch) and pitch > 0):
-        raise PSFError(f"pitch_um must be positive, got {pitch_um!r}")
-    n = default_psf_n(pitch) if n is None else _positive_int(n, "n")
-    n_wl = DEFAULT_WAVELENGTHS_PER_CHANNEL if n_wavelengths is None else _positive_int(n_wavelengths, "n_wavelengths")
-    nodes, weights = _wavelength_plan(channels, n_wl, camera, illuminant)
+        raise PSFError(f"pitch_um must be positive, got {pitch!r} (the sensor's pixel pitch)")
+    n = default_psf_n(pitch) if s.n is None else s.n
+    n_wl = DEFAULT_WAVELENGTHS_PER_CHANNEL if s.n_wavelengths is None else s.n_wavelengths
+    nodes, weights = channel_quadrature(channels, n_wl, camera, illuminant)
     if method != "fft":          # the FFT method checks its own period
         check_window(pl, n, pitch, samples, float(np.min(nodes)))
-    symmetric = symmetry == "auto" and _is_coaxial(pl)
+    symmetric = s.symmetry == "auto" and _is_coaxial(pl)
     settings = {"grid": [rows, cols], "channels": list(channels), "method": method, "n": n, "pitch_um": pitch,
                 "pupil_samples": samples, "n_wavelengths": n_wl, "camera": camera, "illuminant": illuminant,
                 "aiming": aiming, "aim_each_wavelength": bool(aim_each_wavelength), "symmetric": symmetric,
@@ -685,29 +737,17 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, *, grid: tuple[int, int] = 
     rr, cc = np.meshgrid(r_sel, c_sel, indexing="ij")
     todo = list(zip(rr.ravel().tolist(), cc.ravel().tolist()))
     fields = chief_ray_fields(pl, np.array([centers[r, c] for r, c in todo]))
-    threads = 1 if workers > 1 else None
-    tasks = [(pl, fields[i], centers[r, c], nodes, weights, method, samples, m, pitch, aiming,
-              bool(aim_each_wavelength), threads)
-             for i, (r, c) in enumerate(todo)]
-    from tqdm import tqdm
-
-    results = []
-    with tqdm(total=len(tasks), desc=f"PSF map {rows}×{cols}×{len(channels)} ({method})", unit="region",
-              disable=not progress, leave=False) as bar:
-        if workers > 1:
-            # The platform's default start method (fork on Linux: no `if __name__ ==
-            # "__main__"` guard needed; spawn elsewhere needs it). FFTs run on one
-            # thread per worker, and so does BLAS (one_blas_thread).
-            from isp.runtime.threads import one_blas_thread
-
-            with ProcessPoolExecutor(max_workers=workers, initializer=one_blas_thread) as ex:
-                for res in ex.map(_region_task, tasks, chunksize=max(1, len(tasks) // (8 * workers))):
-                    results.append(res)
-                    bar.update()
-        else:
-            for t in tasks:
-                results.append(_region_task(t))
-                bar.update()
+    ex = pool_executor(None, progress=True) if executor is None else executor
+    threads = 1 if ex.parallel else None     # FFTs and sums on one thread per worker, as BLAS is
+    payload = (pl, nodes, weights, method, samples, m, pitch, aiming, bool(aim_each_wavelength), threads)
+    tasks = [(fields[i], centers[r, c]) for i, (r, c) in enumerate(todo)]
+    try:
+        with ex.bind(payload) as job:
+            results = job.map(_region_job, tasks, chunksize=max(1, len(tasks) // (8 * ex.workers)),
+                              desc=f"PSF map {rows}×{cols}×{len(channels)} ({method})", unit="region")
+    finally:
+        if executor is None:
+            ex.close()
 
     nc = len(channels)
     psfs = np.zeros((rows, cols, nc, n, n), dtype=np.float32)

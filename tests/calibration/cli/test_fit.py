@@ -12,32 +12,35 @@ import numpy as np
 import pytest
 
 from isp.cli.main import main
-from tests.helpers import data_file
+from isp.runtime.executor import create_executor
+
+pytestmark = pytest.mark.property
 
 
 @pytest.fixture(scope="module")
-def device_obs(tmp_path_factory):
-    from calibration.optics.io.lens_json import read_lens
+def device_obs(tmp_path_factory, e9_lens):
     from calibration.fit.proxy import parameter_space
     from calibration.fit.synthetic_devices import synthetic_observations
-    from calibration.optics.psf.map import psf_map
+    from calibration.optics.psf.map import PSFMapSettings, psf_map
+    from isp.runtime.executor import pool_executor
 
-    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    lens = e9_lens
     names = ["e1.decenter_x", "s17.thickness"]
     truth = parameter_space(lens, names).apply(np.array([0.8, 0.6]) * parameter_space(lens, names).tolerance)
-    pm = psf_map(truth, grid=(2, 3), channels=("G",), n=32, pupil_samples=32, n_wavelengths=2, progress=False)
+    pm = psf_map(truth, PSFMapSettings(grid=(2, 3), channels=("G",), n=32, pupil_samples=32, n_wavelengths=2),
+                 executor=pool_executor(None))
     obs = synthetic_observations(pm, noise=0.003, rng=1)
     path = tmp_path_factory.mktemp("fit") / "obs.json"
     obs.save(path)
     return lens, path
 
 
-def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device_obs):
+def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device_obs, e9_zmx):
     from calibration.fit.proxy import load_proxy
 
     lens, obs_path = device_obs
     out = tmp_path / "proxy"
-    code = main(["calib", "fit", "--lens", str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")),
+    code = main(["calib", "fit", "--lens", str(e9_zmx),
                  "--measured", str(obs_path), "-o", str(out), "--n-params", "3", "--max-iter", "4",
                  "--workers", "1", "--restarts", "1"])
     printed = capsys.readouterr()
@@ -64,9 +67,9 @@ def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device
         assert back.get(name, 0.0) == pytest.approx(value, rel=1e-9, abs=1e-15)
 
 
-def test_missing_measurement_is_one_line_exit_2(capsys, tmp_path):
+def test_missing_measurement_is_one_line_exit_2(capsys, tmp_path, e9_zmx):
     out = tmp_path / "proxy"
-    code = main(["calib", "fit", "--lens", str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")),
+    code = main(["calib", "fit", "--lens", str(e9_zmx),
                  "--measured", str(tmp_path / "nope.json"), "-o", str(out)])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "nope.json" in err and "\n" not in err and "Traceback" not in err
@@ -79,7 +82,7 @@ def test_screened_fit_on_two_workers_starts_from_the_screening_secants(device_ob
     in that space, zeros elsewhere, which is the same lens: checked to
     1e-12); the fit's first Jacobian is the screening's, so its first record
     holds one evaluation, and the proxy still beats the nominal lens."""
-    from calibration.fit.proxy import _residuals, fit_proxy, parameter_space, residual_bias
+    from calibration.fit.proxy import ProxyFitSettings, _residuals, fit_proxy, parameter_space, residual_bias
     from calibration.fit.observations import Observations
     from calibration.fit.forward_model import SfrModel
 
@@ -87,13 +90,14 @@ def test_screened_fit_on_two_workers_starts_from_the_screening_secants(device_ob
     obs = Observations.load(obs_path)
     names = ["e1.decenter_x", "e2.tilt_zx", "s17.thickness", "e3.decenter_y"]
     model = SfrModel(lens, obs)
-    bias = residual_bias(model, lens, "sfra", 1)
+    bias = residual_bias(model, lens, "sfra")
     u = np.array([0.7, -0.4])
     sub = _residuals(model, parameter_space(lens, ["e1.decenter_x", "s17.thickness"]), bias, u)
     full = _residuals(model, parameter_space(lens, names), bias, np.array([0.7, 0.0, -0.4, 0.0]))
     assert np.allclose(sub, full, rtol=0, atol=1e-12)
 
-    fit = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False, restarts=0)
+    fit = fit_proxy(lens, obs, ProxyFitSettings(n_params=3, residuals="sfra", max_iter=3, restarts=0),
+                    executor=create_executor("processes", 2))
     assert len(fit.space.names) == 3 and "s17.thickness" in fit.space.names
     assert fit.result.history[0]["evaluations"] == 1
     e = fit.errors()
@@ -101,18 +105,19 @@ def test_screened_fit_on_two_workers_starts_from_the_screening_secants(device_ob
 
 
 def test_a_tolerance_prior_adds_one_residual_per_parameter_and_holds_them_near_nominal(device_obs):
-    """fit_proxy(prior=σ): the residuals end with u/σ (a Gaussian prior,
+    """ProxyFitSettings(prior=σ): the residuals end with u/σ (a Gaussian prior,
     MAP), the screening's secant Jacobian gains the prior's rows (the first
     record still one evaluation), and a tight prior keeps the parameters
     far closer to the nominal lens than the free fit puts them."""
-    from calibration.fit.proxy import fit_proxy
+    from calibration.fit.proxy import ProxyFitSettings, fit_proxy
     from calibration.fit.observations import Observations
 
     lens, obs_path = device_obs
     obs = Observations.load(obs_path)
-    free = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False, restarts=0)
-    tight = fit_proxy(lens, obs, n_params=3, residuals="sfra", workers=2, max_iter=3, progress=False, prior=0.005,
-                      restarts=0)
+    kw = dict(n_params=3, residuals="sfra", max_iter=3, restarts=0)
+    with create_executor("processes", 2) as ex:
+        free = fit_proxy(lens, obs, ProxyFitSettings(**kw), executor=ex)
+        tight = fit_proxy(lens, obs, ProxyFitSettings(prior=0.005, **kw), executor=ex)
     assert tight.result.residuals.size == free.result.residuals.size + 3
     np.testing.assert_allclose(tight.result.residuals[-3:], tight.u / 0.005, rtol=1e-12)
     assert tight.result.history[0]["evaluations"] == 1
@@ -124,15 +129,16 @@ def test_scipy_fits_restart_as_dls_fits_do(device_obs):
     the noise floor (three parameters for this device) tries the same
     seeded starts, counts their evaluations, and keeps a start only if it
     ends lower."""
-    from calibration.fit.proxy import fit_proxy
+    from calibration.fit.proxy import ProxyFitSettings, fit_proxy
     from calibration.fit.observations import Observations
 
     lens, obs_path = device_obs
     obs = Observations.load(obs_path)
     names = ["e1.decenter_x", "s17.thickness", "e3.decenter_y"]
-    kw = dict(names=names, residuals="sfra", method="scipy", workers=1, max_iter=3, progress=False)
-    plain = fit_proxy(lens, obs, restarts=0, **kw)
-    again = fit_proxy(lens, obs, restarts=2, seed=5, **kw)
+    kw = dict(residuals="sfra", method="scipy", max_iter=3)
+    serial = create_executor("serial")
+    plain = fit_proxy(lens, obs, ProxyFitSettings(restarts=0, **kw), names=names, executor=serial)
+    again = fit_proxy(lens, obs, ProxyFitSettings(restarts=2, seed=5, **kw), names=names, executor=serial)
     assert plain.restarts == [] and len(again.restarts) == 2
     assert again.result.merit <= plain.result.merit
     assert again.evaluations > plain.evaluations
@@ -141,22 +147,22 @@ def test_scipy_fits_restart_as_dls_fits_do(device_obs):
 
 
 @pytest.mark.parametrize("bad", [["--coarse", "-1", "7"], ["--coarse", "0", "7"], ["--bootstrap", "-1"]])
-def test_a_bad_option_is_one_line_exit_2(capsys, tmp_path, device_obs, bad):
+def test_a_bad_option_is_one_line_exit_2(capsys, tmp_path, device_obs, bad, e9_zmx):
     _, obs_path = device_obs
     out = tmp_path / "proxy"
-    code = main(["calib", "fit", "--lens", str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")),
+    code = main(["calib", "fit", "--lens", str(e9_zmx),
                  "--measured", str(obs_path), "-o", str(out), *bad])
     err = capsys.readouterr().err.strip()
     assert code == 2 and bad[0] in err and "\n" not in err and "Traceback" not in err
     assert not out.exists()
 
 
-def test_a_wider_window_grows_the_pupil_grid_with_it(capsys, tmp_path, device_obs):
+def test_a_wider_window_grows_the_pupil_grid_with_it(capsys, tmp_path, device_obs, e9_zmx):
     """`--window-um 48`: past the default pupil grid's replica period on e9
     (≈ 45 µm), so the pupil grid grows in proportion (48 → 72 samples) and
     the fit runs and records both; a window out of range is one line."""
     _, obs_path = device_obs
-    lens = str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    lens = str(e9_zmx)
     out = tmp_path / "proxy"
     code = main(["calib", "fit", "--lens", lens, "--measured", str(obs_path), "-o", str(out), "--n-params", "2",
                  "--max-iter", "1", "--workers", "1", "--restarts", "0", "--coarse", "0", "0",

@@ -14,6 +14,8 @@ from scipy.ndimage import gaussian_filter
 
 from isp.cli.main import main
 
+pytestmark = pytest.mark.property
+
 KEYS = ("effects_added", "error_before", "error_after", "noise_floor")
 
 
@@ -51,12 +53,6 @@ def chart_png(tmp_path_factory):
     return _write_png(tmp_path_factory.mktemp("chart") / "chart.png", _chart())
 
 
-def _run(capsys, *argv):
-    code = main(["calib", "loop", *map(str, argv)])
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
 def _check_report(out_dir):
     doc = json.loads((out_dir / "report.json").read_text())
     for k in KEYS:
@@ -71,9 +67,9 @@ def _check_report(out_dir):
     return doc
 
 
-def test_loop_on_a_chart_image_finds_the_sharpening(capsys, tmp_path, chart_png):
+def test_loop_on_a_chart_image_finds_the_sharpening(cli, tmp_path, chart_png):
     out = tmp_path / "rep"
-    code, stdout, stderr = _run(capsys, "--lens", "parametric", "--measured", chart_png, "-o", out)
+    code, stdout, stderr = cli("calib", "loop", "--lens", "parametric", "--measured", chart_png, "-o", out)
     assert code == 0, stderr
     doc = _check_report(out)
     assert doc["effects_added"][:1] == ["sharpening"]
@@ -83,20 +79,20 @@ def test_loop_on_a_chart_image_finds_the_sharpening(capsys, tmp_path, chart_png)
     assert "loop" in stderr                      # the progress bar
 
 
-def test_loop_on_the_sfr_json_of_isp_calib_sfr(capsys, tmp_path, chart_png):
+def test_loop_on_the_sfr_json_of_isp_calib_sfr(cli, capsys, tmp_path, chart_png):
     js = tmp_path / "chart.json"
     assert main(["calib", "sfr", str(chart_png), "--chart", "--json", str(js)]) == 0
     capsys.readouterr()
     out = tmp_path / "rep"
-    code, _, stderr = _run(capsys, "--lens", "parametric", "--measured", js, "-o", out,
-                           "--effects", "sharpening,focus_shift", "--max-effects", "1")
+    code, _, stderr = cli("calib", "loop", "--lens", "parametric", "--measured", js, "-o", out,
+                          "--effects", "sharpening,focus_shift", "--max-effects", "1")
     assert code == 0, stderr
     doc = _check_report(out)
     assert doc["effects_added"] == ["sharpening"]
     assert {t["effect"] for t in doc["tried"]} == {"sharpening", "focus_shift"}
 
 
-def test_single_edge_image_is_split_into_segments(capsys, tmp_path):
+def test_single_edge_image_is_split_into_segments(cli, tmp_path):
     """An ISO 12233 ROI file (one edge filling the frame): one field region,
     so the edge is cut into segments that the loop cross-validates over."""
     from calibration.sfr.synthetic import render_slanted_edge
@@ -105,7 +101,7 @@ def test_single_edge_image_is_split_into_segments(capsys, tmp_path):
     img = img + np.random.default_rng(1).normal(0.0, 0.003, img.shape)
     png = _write_png(tmp_path / "edge.png", np.clip(np.round(img * 65535), 0, 65535).astype(np.uint16))
     out = tmp_path / "rep"
-    code, stdout, stderr = _run(capsys, "--lens", "parametric", "--measured", png, "-o", out, "--f-number", "4")
+    code, stdout, stderr = cli("calib", "loop", "--lens", "parametric", "--measured", png, "-o", out, "--f-number", "4")
     assert code == 0, stderr
     assert "segments" in stdout and "4 observations in 4 field region" in stdout
     doc = _check_report(out)
@@ -113,7 +109,7 @@ def test_single_edge_image_is_split_into_segments(capsys, tmp_path):
     assert "sharpening" in doc["effects_added"]
 
 
-def test_raw_capture_is_measured_on_the_mosaic(capsys, tmp_path):
+def test_raw_capture_is_measured_on_the_mosaic(cli, tmp_path):
     """The demo DNG (six slanted squares, Gaussian blur 0.7 px): edges found
     on the 2×2 average, measured on the green CFA plane."""
     from calibration.demo import make_capture
@@ -122,23 +118,23 @@ def test_raw_capture_is_measured_on_the_mosaic(capsys, tmp_path):
     dn, meta, _ = make_capture(600, 800, seed=1)
     dng = write_dng(tmp_path / "demo.dng", dn, meta)
     out = tmp_path / "rep"
-    code, stdout, stderr = _run(capsys, "--lens", "parametric", "--measured", dng, "-o", out,
-                                "--effects", "sharpening", "--pixel-um", "1.4")
+    code, stdout, stderr = cli("calib", "loop", "--lens", "parametric", "--measured", dng, "-o", out,
+                               "--effects", "sharpening", "--pixel-um", "1.4")
     assert code == 0, stderr
     assert "pixel pitch unknown" not in stdout
     doc = _check_report(out)
     assert doc["base_parameters"]["sigma_px"] < 1.5
 
 
-def test_observations_json_and_an_existing_report_folder(capsys, tmp_path, chart_png):
-    from calibration.cli.loop import load_measured
+def test_observations_json_and_an_existing_report_folder(cli, tmp_path, chart_png):
+    from calibration.fit.measurements import load_measured
 
     obs, _ = load_measured(str(chart_png))
     js = obs.save(tmp_path / "obs.json")
     out = tmp_path / "rep"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
-    code, _, stderr = _run(capsys, "--lens", "parametric", "--measured", js, "-o", out, "--max-effects", "0")
+    code, _, stderr = cli("calib", "loop", "--lens", "parametric", "--measured", js, "-o", out, "--max-effects", "0")
     assert code == 0, stderr
     doc = _check_report(out)
     assert doc["effects_added"] == [] and doc["error_after"] == doc["error_before"]
@@ -168,10 +164,10 @@ def _bad_inputs(tmp):
 
 @pytest.mark.parametrize("case", ["missing", "corrupt image", "JSON of the wrong schema", "not JSON",
                                   "empty observations", "no edge"])
-def test_bad_measurement_is_one_line_and_leaves_nothing(capsys, tmp_path, case):
+def test_bad_measurement_is_one_line_and_leaves_nothing(cli, tmp_path, case):
     argv, name = _bad_inputs(tmp_path)[case]
     out = tmp_path / "rep"
-    code, stdout, stderr = _run(capsys, "--lens", "parametric", *argv, "-o", out)
+    code, stdout, stderr = cli("calib", "loop", "--lens", "parametric", *argv, "-o", out)
     assert code == 2, (stdout, stderr)
     assert len(stderr.strip().splitlines()) == 1 and name in stderr and "Traceback" not in stderr
     assert not out.exists()
@@ -184,9 +180,9 @@ def test_bad_measurement_is_one_line_and_leaves_nothing(capsys, tmp_path, case):
     (["--lens", "parametric", "--f-number", "fast"], "--f-number"),
     (["--lens", "parametric", "--folds", "1"], "--folds"),
 ])
-def test_bad_options_are_one_line(capsys, tmp_path, chart_png, argv, what):
+def test_bad_options_are_one_line(cli, tmp_path, chart_png, argv, what):
     out = tmp_path / "rep"
-    code, _, stderr = _run(capsys, *argv, "--measured", chart_png, "-o", out)
+    code, _, stderr = cli("calib", "loop", *argv, "--measured", chart_png, "-o", out)
     assert code == 2 and len(stderr.strip().splitlines()) == 1 and what in stderr
     assert not out.exists()
 
@@ -204,7 +200,7 @@ def test_bootstrap_gives_each_edge_its_own_sigma(tmp_path, chart_png):
     bootstrap spread, which grows with the noise (4× the noise: σ 2.5–6×,
     as σ_SFRA ∝ noise for small noise) and repeats on a second measurement
     (seeded); without, every edge has the 0.002 cycles/pixel default."""
-    from calibration.cli.loop import load_measured
+    from calibration.fit.measurements import load_measured
 
     plain, _ = load_measured(str(chart_png))
     assert np.all(plain.sfra_std == 2e-3)

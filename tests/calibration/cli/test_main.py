@@ -13,12 +13,7 @@ from tests.helpers import data_file
 from isp.cli.main import main
 
 
-def _run(capsys, *argv):
-    code = main(list(argv))
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
+@pytest.mark.property
 def test_calib_help_is_reachable(capsys):
     with pytest.raises(SystemExit) as e:
         main(["calib", "--help"])
@@ -26,10 +21,11 @@ def test_calib_help_is_reachable(capsys):
     assert "isp calib sfr" in capsys.readouterr().out
 
 
-def test_lens_report_and_conversion(capsys, tmp_path):
-    zmx = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
+@pytest.mark.property
+def test_lens_report_and_conversion(cli, tmp_path, e9_zmx):
+    zmx = e9_zmx
     out = tmp_path / "e9.json"
-    code, stdout, stderr = _run(capsys, "calib", "lens", str(zmx), "--save", str(out), "--json")
+    code, stdout, stderr = cli("calib", "lens", str(zmx), "--save", str(out), "--json")
     assert code == 0, stderr
     rep = json.loads(stdout[stdout.index("{"):])
     assert rep["efl_mm"] == pytest.approx(4.6704, rel=1e-3)        # lenses/README.md
@@ -37,45 +33,49 @@ def test_lens_report_and_conversion(capsys, tmp_path):
     assert [f["field"] for f in rep["fields"]] == [0.0, 0.5, 0.7, 1.0]
     assert rep["fields"][2]["transmitted"] == pytest.approx(0.77, abs=0.02)
     # the converted file reads back to the same lens
-    code, stdout2, _ = _run(capsys, "calib", "lens", str(out), "--json")
+    code, stdout2, _ = cli("calib", "lens", str(out), "--json")
     assert json.loads(stdout2)["efl_mm"] == pytest.approx(rep["efl_mm"], rel=1e-12)
 
 
-def test_bad_lens_file_is_one_line(capsys, tmp_path):
+@pytest.mark.property
+def test_bad_lens_file_is_one_line(cli, tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text('{"schema": "lens/v1", "surfaces": [{"curvature": "x"}]}')
-    code, _, stderr = _run(capsys, "calib", "lens", str(bad))
+    code, _, stderr = cli("calib", "lens", str(bad))
     assert code == 2 and "bad.json" in stderr and len(stderr.strip().splitlines()) == 1
 
 
-def test_spot_and_psf_plots(capsys, tmp_path):
-    zmx = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
-    code, stdout, stderr = _run(capsys, "calib", "spot", str(zmx), "--fields", "0,1", "--rays", "2000",
-                                "--plot", str(tmp_path / "s.png"))
+@pytest.mark.property
+def test_spot_and_psf_plots(cli, tmp_path, e9_zmx):
+    zmx = e9_zmx
+    code, stdout, stderr = cli("calib", "spot", str(zmx), "--fields", "0,1", "--rays", "2000",
+                               "--plot", str(tmp_path / "s.png"))
     assert code == 0, stderr and (tmp_path / "s.png").stat().st_size > 1000
-    code, stdout, stderr = _run(capsys, "calib", "psf", str(zmx), "--field", "0,20", "--n", "32",
-                                "--pupil-samples", "32", "--plot", str(tmp_path / "p.png"))
+    code, stdout, stderr = cli("calib", "psf", str(zmx), "--field", "0,20", "--n", "32",
+                               "--pupil-samples", "32", "--plot", str(tmp_path / "p.png"))
     assert code == 0, stderr
     assert "centroid" in stdout and (tmp_path / "p.png").stat().st_size > 1000
 
 
-def test_sfr_roi_matches_the_reference_tool(capsys, tmp_path):
+@pytest.mark.published
+def test_sfr_roi_matches_the_reference_tool(cli, tmp_path):
     img = data_file("edges", "sfrmat3_v_edge_mono.tif")
     ref = json.loads(data_file("edges", "reference", "sfrmat3_v_edge_mono.json").read_text())
     out = tmp_path / "v.json"
-    code, stdout, stderr = _run(capsys, "calib", "sfr", str(img), "--json", str(out), "--plot",
-                                str(tmp_path / "v.png"))
+    code, stdout, stderr = cli("calib", "sfr", str(img), "--json", str(out), "--plot",
+                               str(tmp_path / "v.png"))
     assert code == 0, stderr
     edge = json.loads(out.read_text())["edges"][0]
     assert set(edge) >= {"freq", "sfr", "mtf50", "sfra", "angle_deg", "roi", "field", "orientation", "warnings"}
     assert edge["mtf50"] == pytest.approx(ref["sfrmat5"]["mtf50"], rel=0.02)
 
 
-def test_sfr_chart_mode(capsys, tmp_path):
+@pytest.mark.property
+def test_sfr_chart_mode(cli, tmp_path):
     img = data_file("edges", "sfrmat3_ISO_DSC_300a.jpg")
     out = tmp_path / "c.json"
-    code, stdout, stderr = _run(capsys, "calib", "sfr", str(img), "--chart", "--encoding", "srgb",
-                                "--json", str(out))
+    code, stdout, stderr = cli("calib", "sfr", str(img), "--chart", "--encoding", "srgb",
+                               "--json", str(out))
     assert code == 0, stderr
     res = json.loads(out.read_text())
     assert len(res["edges"]) == 4          # the tilted dark square's four sides
@@ -84,46 +84,48 @@ def test_sfr_chart_mode(capsys, tmp_path):
         assert 0.2 < e["mtf50"] < 0.5 and 2 < abs(e["angle_deg"]) < 12
 
 
-def test_sfr_bad_roi_is_one_line(capsys, tmp_path):
+@pytest.mark.property
+def test_sfr_bad_roi_is_one_line(cli, tmp_path):
     img = data_file("edges", "sfrmat3_v_edge_mono.tif")
-    code, _, stderr = _run(capsys, "calib", "sfr", str(img), "--roi", "5000,0,40,40")
+    code, _, stderr = cli("calib", "sfr", str(img), "--roi", "5000,0,40,40")
     assert code == 2 and "outside" in stderr and len(stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.property
 @pytest.mark.slow
-def test_simulate_writes_a_capture_the_isp_reads(capsys, tmp_path):
-    zmx = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
+def test_simulate_writes_a_capture_the_isp_reads(cli, tmp_path, e9_zmx):
+    zmx = e9_zmx
     dng = tmp_path / "sim.dng"
-    code, stdout, stderr = _run(capsys, "calib", "simulate", str(zmx), "-o", str(dng), "--size", "640,480",
-                                "--cache", str(tmp_path / "cache"))
+    code, stdout, stderr = cli("calib", "simulate", str(zmx), "-o", str(dng), "--size", "640,480",
+                               "--cache", str(tmp_path / "cache"))
     assert code == 0, stderr
     from isp.io.read import read_raw
 
     f = read_raw(dng)
     assert f.shape == (480, 640) and len(f.meta.opcodes[2]) == 4
     assert np.isfinite(f.data).all()
-    code, _, stderr = _run(capsys, "process", str(dng), "-o", str(tmp_path / "sim.jpg"))
+    code, _, stderr = cli("process", str(dng), "-o", str(tmp_path / "sim.jpg"))
     assert code == 0, stderr
 
 
+@pytest.mark.property
 @pytest.mark.slow
-def test_simulate_saves_the_devices_true_lens(capsys, tmp_path):
+def test_simulate_saves_the_devices_true_lens(cli, tmp_path, e9_zmx):
     """`--save-lens`: the prescription (its own sensor, not the capture's
     --size) with exactly the device's drawn and refocused perturbation."""
-    import argparse
-
-    from calibration.cli.main import _load, _perturbed
     from calibration.fit.proxy import load_proxy
+    from calibration.optics.io import read_lens
+    from calibration.simulate.device import device_lens
 
-    zmx = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
+    zmx = e9_zmx
     saved = tmp_path / "dev3.json"
-    code, stdout, stderr = _run(capsys, "calib", "simulate", str(zmx), "-o", str(tmp_path / "dev3.dng"),
-                                "--size", "640,480", "--perturb", "random", "--seed", "3",
-                                "--save-lens", str(saved), "--cache", str(tmp_path / "cache"))
+    code, stdout, stderr = cli("calib", "simulate", str(zmx), "-o", str(tmp_path / "dev3.dng"),
+                               "--size", "640,480", "--perturb", "random", "--seed", "3",
+                               "--save-lens", str(saved), "--cache", str(tmp_path / "cache"))
     assert code == 0, stderr
     assert "true lens" in stdout
-    lens = _load(str(zmx))
-    device, _ = _perturbed(lens, argparse.Namespace(perturb="random", seed=3))
+    lens = read_lens(str(zmx))
+    device, _ = device_lens(lens, "random", seed=3)
     back = load_proxy(saved)
     want, got = device.perturbation.as_dict(), back.perturbation.as_dict()
     assert set(got) == set(want) and any(abs(v) > 0 for v in want.values())
@@ -131,7 +133,8 @@ def test_simulate_saves_the_devices_true_lens(capsys, tmp_path):
     assert back.nominal.sensor == lens.sensor and lens.sensor.width_px != 640
 
 
-def test_sfr_chart_on_a_raw_capture(capsys, tmp_path):
+@pytest.mark.property
+def test_sfr_chart_on_a_raw_capture(cli, tmp_path):
     """The demo capture (a DNG from the project's writer) has six slanted dark
     squares: chart mode on the raw mosaic finds their sides and measures the
     green channel per CFA plane."""
@@ -141,7 +144,7 @@ def test_sfr_chart_on_a_raw_capture(capsys, tmp_path):
     dn, meta, _ = make_capture(600, 800, seed=1, optics="gaussian")
     dng = write_dng(tmp_path / "demo.dng", dn, meta)
     out = tmp_path / "c.json"
-    code, stdout, stderr = _run(capsys, "calib", "sfr", str(dng), "--chart", "--channel", "G", "--json", str(out))
+    code, stdout, stderr = cli("calib", "sfr", str(dng), "--chart", "--channel", "G", "--json", str(out))
     assert code == 0, stderr
     res = json.loads(out.read_text())
     assert res["kind"] == "raw" and len(res["edges"]) >= 16

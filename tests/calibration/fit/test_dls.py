@@ -1,20 +1,25 @@
-"""The damped least-squares core (kind: analytic / oracle: scipy's
-least_squares on the same residuals)."""
+"""The damped least-squares core: closed forms and the statistics of least
+squares (kind: property), and scipy's ``least_squares`` on the same
+residuals (kind: published)."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from calibration.fit.dls import damped_least_squares
+from calibration.fit.dls import DLSSettings, damped_least_squares
 
 
+@pytest.mark.property
 def test_linear_problem_reaches_the_normal_equations_solution(rng):
     B = rng.normal(size=(40, 5))
     y = rng.normal(size=40)
-    res = damped_least_squares(lambda x: B @ x - y, np.zeros(5), lower=-1e3 * np.ones(5),
-                               upper=1e3 * np.ones(5), h=1e-3, gtol=1e-10)
+    res = damped_least_squares(lambda x: B @ x - y, np.zeros(5),
+                               lower=-1e3 * np.ones(5), upper=1e3 * np.ones(5),
+                               settings=DLSSettings(h=1e-3, gtol=1e-10))
     ref = np.linalg.lstsq(B, y, rcond=None)[0]
     assert np.allclose(res.x, ref, atol=1e-6)
     # covariance of a unit-noise linear problem is (BᵀB)⁻¹ × max(1, χ²_red)
@@ -22,6 +27,7 @@ def test_linear_problem_reaches_the_normal_equations_solution(rng):
     assert np.allclose(res.covariance, np.linalg.inv(B.T @ B) * max(1.0, chi2), rtol=1e-5)
 
 
+@pytest.mark.published
 def test_nonlinear_fit_matches_scipy(rng):
     t = np.linspace(0, 4, 60)
     truth = np.array([2.0, 1.3, 0.4])
@@ -31,7 +37,8 @@ def test_nonlinear_fit_matches_scipy(rng):
         return (p[0] * np.exp(-p[1] * t) + p[2] - y) / 0.01
 
     lo, hi = np.array([0.0, 0.0, -5.0]), np.array([10.0, 10.0, 5.0])
-    ours = damped_least_squares(f, np.array([1.0, 0.5, 0.0]), lower=lo, upper=hi, h=1e-6, gtol=1e-8)
+    ours = damped_least_squares(f, np.array([1.0, 0.5, 0.0]),
+                                lower=lo, upper=hi, settings=DLSSettings(h=1e-6, gtol=1e-8))
     ref = least_squares(f, np.array([1.0, 0.5, 0.0]), bounds=(lo, hi), x_scale="jac")
     assert np.allclose(ours.x, ref.x, rtol=1e-4, atol=1e-5)
     assert ours.merit <= ref.cost * 2 * (1 + 1e-6)
@@ -39,24 +46,28 @@ def test_nonlinear_fit_matches_scipy(rng):
     assert np.all(ours.std < 0.05) and np.all(ours.std > 1e-4)
 
 
+@pytest.mark.property
 def test_bounds_hold_and_stop_on_the_boundary():
     # minimum at x = 3, bound at 2
     res = damped_least_squares(lambda x: np.array([x[0] - 3.0, 0.1 * (x[1] - 1.0)]), np.array([0.0, 0.0]),
-                               lower=np.array([-2.0, -2.0]), upper=np.array([2.0, 2.0]), h=1e-4)
+                               lower=np.array([-2.0, -2.0]), upper=np.array([2.0, 2.0]), settings=DLSSettings(h=1e-4))
     assert res.x[0] == pytest.approx(2.0) and res.x[1] == pytest.approx(1.0, abs=1e-3)
 
 
+@pytest.mark.property
 def test_strongly_nonlinear_parameter_converges():
     # Rosenbrock as least squares: the curved valley needs damping
     def f(x):
         return np.array([10 * (x[1] - x[0] ** 2), 1 - x[0]])
 
-    res = damped_least_squares(f, np.array([-1.2, 1.0]), lower=np.full(2, -5.0), upper=np.full(2, 5.0),
-                               h=1e-6, max_iter=200, gtol=1e-10, ftol=0.0)
+    res = damped_least_squares(f, np.array([-1.2, 1.0]),
+                               lower=np.full(2, -5.0), upper=np.full(2, 5.0),
+                               settings=DLSSettings(h=1e-6, max_iter=200, gtol=1e-10, ftol=0.0))
     assert np.allclose(res.x, [1.0, 1.0], atol=1e-4)
     assert all(h["merit"] <= h0["merit"] + 1e-12 for h0, h in zip(res.history, res.history[1:]))
 
 
+@pytest.mark.property
 def test_stops_at_the_noise_floor():
     calls = []
 
@@ -64,7 +75,8 @@ def test_stops_at_the_noise_floor():
         calls.append(1)
         return np.array([x[0] - 1.0, 1.0, 1.0])   # irreducible part: φ/M ≥ 2/3
 
-    res = damped_least_squares(f, np.array([5.0]), lower=[-10.0], upper=[10.0], h=1e-4, target_chi2=0.7)
+    res = damped_least_squares(f, np.array([5.0]),
+                               lower=[-10.0], upper=[10.0], settings=DLSSettings(h=1e-4, target_chi2=0.7))
     # stops where the χ² left to gain is below 1: (x − 1)² < 1 on top of φ/M ≤ 0.7
     assert res.reason == "noise floor" and res.merit / 3 <= 0.7 and abs(res.x[0] - 1.0) < 0.3
 
@@ -89,6 +101,7 @@ def _decay_sine(seed: int, sigma: float):
     return f, x0, least_squares(f, x0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
 
 
+@pytest.mark.property
 def test_the_noise_floor_stop_lands_within_one_chi2_of_the_minimum():
     """Property (statistics of least squares): a minimum's χ² is about
     M − N, so φ/M ≤ 1 alone stops a fit with about N of χ² still to gain.
@@ -99,14 +112,16 @@ def test_the_noise_floor_stop_lands_within_one_chi2_of_the_minimum():
     for seed in range(5):
         f, x0, best = _decay_sine(seed, sigma=1.0)   # σ = 1: φ is a χ²
         phi_min = float(np.sum(best.fun ** 2))
-        res = damped_least_squares(f, x0, lower=np.full(6, -100.0), upper=np.full(6, 100.0), h=1e-6,
-                                   target_chi2=1.0, max_iter=200)
+        res = damped_least_squares(f, x0,
+                                   lower=np.full(6, -100.0), upper=np.full(6, 100.0),
+                                   settings=DLSSettings(h=1e-6, target_chi2=1.0, max_iter=200))
         assert res.merit - phi_min < 1.0, (seed, res.merit, phi_min, res.reason)
         assert phi_min < T.size - 6 + 3 * np.sqrt(2 * (T.size - 6))   # a χ²(M − N) draw
         early += any(h["merit"] / T.size <= 1.0 and h["merit"] - phi_min > 1.0 for h in res.history)
     assert early >= 3
 
 
+@pytest.mark.property
 def test_with_no_chi2_target_it_stops_within_one_scaled_unit_of_the_minimum():
     """A model that cannot reach the noise (residuals 3× their stated σ: χ²
     per degree of freedom about 9): ``target_chi2=inf`` stops on the gain
@@ -120,27 +135,32 @@ def test_with_no_chi2_target_it_stops_within_one_scaled_unit_of_the_minimum():
         phi_min = float(np.sum(best.fun ** 2))
         unit = phi_min / (T.size - 6)
         assert unit > 5.0
-        res = damped_least_squares(f, x0, lower=np.full(6, -100.0), upper=np.full(6, 100.0), h=1e-6,
-                                   target_chi2=np.inf, max_iter=200)
+        res = damped_least_squares(f, x0,
+                                   lower=np.full(6, -100.0), upper=np.full(6, 100.0),
+                                   settings=DLSSettings(h=1e-6, target_chi2=np.inf, max_iter=200))
         assert res.reason == "noise floor" and res.merit - phi_min < unit, (seed, res.merit, phi_min)
         assert np.all(np.abs(res.x - best.x) < res.std), (seed, res.x - best.x, res.std)
         sooner += res.merit - phi_min > 1.0
     assert sooner >= 2
 
 
+@pytest.mark.property
 def test_steps_stay_within_the_trust_radius():
     # the Gauss–Newton step is 7.07 long; the first step must respect Δ = 0.1 (and keep GN's direction)
     y = np.array([5.0, -4.0, 3.0])
-    res = damped_least_squares(lambda x: x - y, np.zeros(3), lower=np.full(3, -1e3), upper=np.full(3, 1e3),
-                               h=1e-3, radius=0.1, max_iter=1)
+    res = damped_least_squares(lambda x: x - y, np.zeros(3),
+                               lower=np.full(3, -1e3), upper=np.full(3, 1e3),
+                               settings=DLSSettings(h=1e-3, radius=0.1, max_iter=1))
     assert 0.05 <= np.linalg.norm(res.x) <= 0.1 + 1e-12
     assert np.allclose(res.x / np.linalg.norm(res.x), y / np.linalg.norm(y), atol=1e-9)
     # without a radius the same damping takes (nearly) the whole Gauss–Newton step
-    free = damped_least_squares(lambda x: x - y, np.zeros(3), lower=np.full(3, -1e3), upper=np.full(3, 1e3),
-                                h=1e-3, radius=None, max_iter=1)
+    free = damped_least_squares(lambda x: x - y, np.zeros(3),
+                                lower=np.full(3, -1e3), upper=np.full(3, 1e3),
+                                settings=DLSSettings(h=1e-3, radius=None, max_iter=1))
     assert np.linalg.norm(free.x) > 0.9 * np.linalg.norm(y)
 
 
+@pytest.mark.property
 def test_central_differences_are_exact_on_a_quadratic():
     from calibration.fit.dls import forward_jacobian
 
@@ -158,6 +178,7 @@ def test_central_differences_are_exact_on_a_quadratic():
     assert np.allclose(forward - exact, [[0.5, 0.0], [0.0, 0.5]], atol=1e-12)
 
 
+@pytest.mark.property
 def test_cheap_jacobian_reaches_the_same_minimum(rng):
     t = np.linspace(0, 4, 50)
     y = 2.0 * np.exp(-1.3 * t) + 0.4
@@ -169,8 +190,9 @@ def test_cheap_jacobian_reaches_the_same_minimum(rng):
         return [np.repeat(f(p)[::2], 2)[: t.size] for p in points]
 
     lo, hi = np.array([0.0, 0.0, -5.0]), np.array([10.0, 10.0, 5.0])
-    res = damped_least_squares(f, np.array([1.0, 0.5, 0.0]), lower=lo, upper=hi, h=1e-6, gtol=1e-9,
-                               jac_many=cheap, max_iter=60)
+    res = damped_least_squares(f, np.array([1.0, 0.5, 0.0]),
+                               lower=lo, upper=hi, jac_many=cheap,
+                               settings=DLSSettings(h=1e-6, gtol=1e-9, max_iter=60))
     assert np.allclose(res.x, [2.0, 1.3, 0.4], atol=2e-3)
 
 
@@ -191,15 +213,16 @@ def _two_peaks(rng):
 
     lo, hi = np.array([0, -1, 0.05, 0, -1, 0.05]), np.array([3, 1, 1, 3, 1, 1.0])
     x0 = np.array([0.7, -0.2, 0.3, 0.6, 0.3, 0.25])
-    return f, x0, {"lower": lo, "upper": hi, "h": 1e-6, "gtol": 1e-6, "ftol": 1e-8, "max_iter": 100}
+    return f, x0, {"lower": lo, "upper": hi, "settings": DLSSettings(h=1e-6, gtol=1e-6, ftol=1e-8, max_iter=100)}
 
 
+@pytest.mark.property
 def test_broyden_reuse_reaches_the_same_minimum_with_fewer_evaluations(rng):
     # the secant updates must not change the answer, and must get near it for fewer
     # evaluations than a Jacobian every step
     f, x0, kw = _two_peaks(rng)
     full = damped_least_squares(f, x0, **kw)
-    reuse = damped_least_squares(f, x0, refresh=2, **kw)
+    reuse = damped_least_squares(f, x0, **{**kw, "settings": dataclasses.replace(kw["settings"], refresh=2)})
     assert reuse.merit == pytest.approx(full.merit, rel=1e-8)
     assert np.allclose(reuse.x, full.x, atol=1e-5)
     assert any(h.get("secant") for h in reuse.history)
@@ -213,6 +236,7 @@ def test_broyden_reuse_reaches_the_same_minimum_with_fewer_evaluations(rng):
     assert all(h["merit"] <= h0["merit"] + 1e-9 for h0, h in zip(reuse.history, reuse.history[1:]))
 
 
+@pytest.mark.property
 def test_broyden_update_is_exact_on_a_linear_map(rng):
     from calibration.fit.dls import broyden_update
 
@@ -223,6 +247,7 @@ def test_broyden_update_is_exact_on_a_linear_map(rng):
     assert np.allclose(A, B, atol=1e-12)
 
 
+@pytest.mark.property
 def test_a_wide_secant_start_jacobian_reaches_the_same_minimum(rng):
     # the proxy fit starts from its screening's secants (h = 0.5 tolerances): a start
     # Jacobian that is only roughly right must not change the answer, must save the first
@@ -240,6 +265,7 @@ def test_a_wide_secant_start_jacobian_reaches_the_same_minimum(rng):
         damped_least_squares(f, x0, jac0=wide[:, :5], **kw)
 
 
+@pytest.mark.property
 def test_bracketed_trials_let_the_damping_fall_and_halve_the_iterations_on_a_linear_problem():
     """A linear problem is its own Gauss–Newton model: the bolder of two
     trials always wins, so bracketed trials divide λ by 4 (and the gain rule
@@ -248,9 +274,10 @@ def test_bracketed_trials_let_the_damping_fall_and_halve_the_iterations_on_a_lin
     rng = np.random.default_rng(0)
     a = rng.normal(size=(40, 6)) @ np.diag([1, 1, 0.3, 0.1, 0.03, 0.01])   # condition 100
     b = a @ rng.uniform(-1, 1, 6)
-    runs = {br: damped_least_squares(lambda x: a @ x - b, np.zeros(6), lower=-2 * np.ones(6), upper=2 * np.ones(6),
-                                     trials=2, max_iter=30, h=1e-3, bracket=br, gtol=1e-10, ftol=1e-12,
-                                     jacobian="forward")
+    runs = {br: damped_least_squares(lambda x: a @ x - b, np.zeros(6),
+                                     lower=-2 * np.ones(6), upper=2 * np.ones(6),
+                                     settings=DLSSettings(trials=2, max_iter=30, h=1e-3, bracket=br, gtol=1e-10,
+                                                          ftol=1e-12, jacobian="forward"))
             for br in (False, True)}
     lam = {br: [h["lambda"] for h in r.history] for br, r in runs.items()}
     assert lam[True][1] == pytest.approx(lam[True][0] / 12) and lam[False][1] == pytest.approx(lam[False][0] / 3)
@@ -259,6 +286,7 @@ def test_bracketed_trials_let_the_damping_fall_and_halve_the_iterations_on_a_lin
     assert 2 * iters[True] <= iters[False], iters
 
 
+@pytest.mark.property
 def test_box_step_is_the_damped_models_minimiser_in_the_box():
     """bounds="box": the step minimises ‖AΔ + f‖² + Δᵀ D Δ inside the box
     (oracle: scipy's lsq_linear on the augmented system [A; √D], trust-region
@@ -287,6 +315,7 @@ def test_box_step_is_the_damped_models_minimiser_in_the_box():
     assert clip_worse >= 10
 
 
+@pytest.mark.property
 def test_box_steps_reach_the_bounded_solution_in_fewer_iterations():
     """Six bounded linear problems whose solutions sit on 1–4 bounds: both
     bound rules reach scipy's lsq_linear solution; the box steps in fewer
@@ -301,9 +330,10 @@ def test_box_steps_reach_the_bounded_solution_in_fewer_iterations():
         ref = lsq_linear(a, b, bounds=(-2, 2), tol=1e-12)
         assert np.any(ref.active_mask != 0)
         for rule in iters:
-            r = damped_least_squares(lambda x: a @ x - b, np.zeros(8), lower=-2 * np.ones(8), upper=2 * np.ones(8),
-                                     trials=2, max_iter=30, h=1e-3, gtol=1e-10, ftol=1e-12, jacobian="forward",
-                                     bounds=rule)
+            r = damped_least_squares(lambda x: a @ x - b, np.zeros(8),
+                                     lower=-2 * np.ones(8), upper=2 * np.ones(8),
+                                     settings=DLSSettings(trials=2, max_iter=30, h=1e-3, gtol=1e-10, ftol=1e-12,
+                                                          jacobian="forward", bounds=rule))
             np.testing.assert_allclose(r.x, ref.x, atol=1e-6)
             iters[rule] += len(r.history) - 1
     assert iters["box"] < 0.85 * iters["clip"], iters

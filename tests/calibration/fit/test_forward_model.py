@@ -1,10 +1,16 @@
-"""The fast SFR forward model against the full render-and-measure path."""
+"""The fast SFR forward model (calibration.fit.forward_model), kind:
+property: the MTF of a Gaussian PSF against its closed form, the model
+against the full render-and-measure path, and the re-measurement of a render
+as its observation was measured (an edge on a raw mosaic's green plane is
+measured on that plane)."""
 
 import numpy as np
 import pytest
 
-from calibration.fit.forward_model import ModelSettings, SfrModel, mtf_along, sfra_of
-from tests.helpers import data_file
+from calibration.fit.forward_model import ModelSettings, SfrModel, measure_like, mtf_along, sfra_of
+from calibration.sfr.esfr import measure_sfr, measure_sfr_bayer
+
+pytestmark = pytest.mark.property
 
 
 def test_mtf_of_a_gaussian_psf_is_analytic():
@@ -23,16 +29,16 @@ def test_sfra_of_flat_curve():
 
 
 @pytest.fixture(scope="module")
-def device():
+def device(e9_lens):
     from calibration.optics.psf import map as M
-    from calibration.optics.io.lens_json import read_lens
+    from isp.runtime.executor import pool_executor
     from calibration.optics.perturb import apply
     from calibration.fit.synthetic_devices import synthetic_observations
 
-    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    lens = e9_lens
     pl = apply(lens, {"e1.decenter_x": 0.002, "e2.tilt_yz": 0.02})
-    pm = M.psf_map(pl, grid=(3, 4), channels=("G",), n=96, pupil_samples=64, n_wavelengths=3, cache=False,
-                   progress=False)
+    pm = M.psf_map(pl, M.PSFMapSettings(grid=(3, 4), channels=("G",), n=96, pupil_samples=64, n_wavelengths=3),
+                   cache=False, executor=pool_executor(None))
     return lens, pl, synthetic_observations(pm, noise=0.0)
 
 
@@ -53,25 +59,21 @@ def test_model_matches_render_and_measure(device):
 
 def _node_psfs_per_field(model, lens, defocus_mm=None, method="debye"):
     """The oracle of SfrModel.node_psfs: every node traced alone (its real
-    aim, pupil_rays, _finish) and diffracted alone (_sphere, _mono)."""
+    aim, pupil_rays, pupil_from_trace) and diffracted alone (reference_sphere,
+    monochromatic_samples)."""
     import dataclasses
 
     from calibration.optics.perturb import nominal
-    from calibration.optics.psf.core import (
-        _exit_pupil_z,
-        _finish,
-        _grid_offsets_mm,
-        _mono,
-        _pupil_points,
-        _sphere,
-    )
+    from calibration.optics.psf.methods import monochromatic_samples
+    from calibration.optics.psf.pupil import exit_pupil_z, pupil_from_trace, pupil_points, reference_sphere
+    from calibration.optics.psf.sampling import grid_offsets_mm
     from calibration.optics.trace import Rays, pupil_rays, trace_to_exit
 
     pl, s = nominal(lens), model.settings
-    pupil, z_pupil = _pupil_points(s.pupil_samples), _exit_pupil_z(pl)
+    pupil, z_pupil = pupil_points(s.pupil_samples), exit_pupil_z(pl)
     k = len(model.fields)
     dz = np.zeros(k) if defocus_mm is None else np.broadcast_to(defocus_mm, (k,))
-    o = _grid_offsets_mm(model.psf_n, model.pitch_um)
+    o = grid_offsets_mm(model.psf_n, model.pitch_um)
     ref = int(np.argmin(np.abs(model.wavelengths - pl.nominal.primary_nm)))
     ep, status = model._aim
     out = np.zeros((k, len(model.channels), model.psf_n, model.psf_n))
@@ -81,11 +83,12 @@ def _node_psfs_per_field(model, lens, defocus_mm=None, method="debye"):
         for lam in model.wavelengths:
             r = pupil_rays(pl, fd, s.pupil_samples, float(lam), aiming="paraxial", pupil=ep[i])
             r = Rays(r.origin, r.direction, float(lam), r.opl, status[i], pupil, r.field_deg)
-            t = _finish(pl, r, trace_to_exit(pl, r), fd, s.pupil_samples, z_pupil)
+            t = pupil_from_trace(pl, r, trace_to_exit(pl, r), fd, s.pupil_samples, z_pupil)
             trs.append(dataclasses.replace(t, z_image=t.z_image + dz[i]))
         centre = trs[ref].chief_image_point()
         for j, t in enumerate(trs):
-            out[i] += model.wl_weights[:, j, None, None] * _mono(_sphere(t, centre), method, o, o, workers=1)[0][None]
+            data = monochromatic_samples(reference_sphere(t, centre), method, o, o, workers=1)[0]
+            out[i] += model.wl_weights[:, j, None, None] * data[None]
     return out
 
 
@@ -95,13 +98,13 @@ def test_node_psfs_all_nodes_at_once_match_each_node_alone(device, monkeypatch, 
     nodes, batched pupil fits and Debye sums) equal the per-node path, to
     1e-9 of the peak with complex128 sums and 1e-6 with the default
     complex64 ones; in focus and with a per-node defocus (the trace reused)."""
-    from calibration.optics.psf import core as psf
+    from calibration.optics.psf import debye
     lens, pl, obs = device
     m = SfrModel(lens, obs, ModelSettings(pupil_samples=32, psf_n=32))
     dz = None if defocus_um is None else np.linspace(-1.0, 1.0, len(m.regions)) * defocus_um * 1e-3
     ref = _node_psfs_per_field(m, pl, dz)
     np.testing.assert_allclose(m.node_psfs(pl, dz), ref, rtol=0, atol=1e-6 * ref.max())
-    monkeypatch.setattr(psf, "DEBYE_SUM_DTYPE", np.complex128)
+    monkeypatch.setattr(debye, "DEBYE_SUM_DTYPE", np.complex128)
     np.testing.assert_allclose(m.node_psfs(pl, dz), ref, rtol=0, atol=1e-9 * ref.max())
 
 
@@ -161,11 +164,12 @@ def test_window_energy_matches_the_psf_map_and_grows_with_the_window(device):
     energy (per-field path, its own chief-ray aiming) within 0.01, is ≈ 1
     on a generous window and falls on a small one."""
     from calibration.optics.psf import map as M
+    from isp.runtime.executor import pool_executor
     lens, pl, obs = device
     m = SfrModel(lens, obs, ModelSettings(psf_n=32))
     e = m.window_energy(pl)
-    pm = M.psf_map(pl, grid=obs.grid, channels=("G",), n=32, pupil_samples=48, n_wavelengths=2, cache=False,
-                   progress=False)
+    pm = M.psf_map(pl, M.PSFMapSettings(grid=obs.grid, channels=("G",), n=32, pupil_samples=48, n_wavelengths=2),
+                   cache=False, executor=pool_executor(None))
     ref = np.array([pm.window_energy[r, c, 0] for r, c in obs.region])
     np.testing.assert_allclose(e, ref, atol=0.01)
     wide = SfrModel(lens, obs, ModelSettings(psf_n=96, pupil_samples=64)).window_energy(pl)
@@ -201,3 +205,13 @@ def test_the_psf_window_is_as_wide_in_micrometres_whatever_the_pixel(device):
         SfrModel(coarse_lens, coarse_obs, ModelSettings(psf_n=64))
     sfra = coarse.predict(pl).sfra
     assert np.all(np.isfinite(sfra)) and np.all(sfra > 0)
+
+
+def test_measure_like_takes_the_mosaic_plane_of_a_raw_observation(make_observations):
+    from calibration.sfr.synthetic import render_slanted_edge
+
+    img = 0.2 + 0.6 * render_slanted_edge((96, 64), 5.0, 1.0)
+    raw = measure_like(make_observations(1, {"measure": "raw", "cfa": "GRBG"}), 0)(img)
+    assert raw.sfra == measure_sfr_bayer(img, "GRBG", channel="G").sfra
+    assert measure_like(make_observations(1, {"measure": "image"}), 0)(img).sfra == measure_sfr(img).sfra
+    assert raw.sfra != pytest.approx(measure_sfr(img).sfra, abs=1e-6)

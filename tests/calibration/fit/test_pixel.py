@@ -1,5 +1,6 @@
 """The pixel-MSE competitor of the proxy fit (calibration.fit.pixel) and
-the edge images of synthetic devices (proxy_synth, return_edges)."""
+the edge images of synthetic devices (proxy_synth, return_edges); kind:
+property."""
 
 from __future__ import annotations
 
@@ -9,27 +10,27 @@ import numpy as np
 import pytest
 
 from calibration.fit.pixel import _steps
-from tests.helpers import data_file
 
-E9 = ("lenses", "phone", "US-12210142-B2-e9.zmx")
+pytestmark = pytest.mark.property
 
 
 @pytest.fixture(scope="module")
-def device():
+def device(e9_lens):
     """e9 with focus and a decenter perturbed, measured on a 3 × 4 grid."""
-    from calibration.optics.io.lens_json import read_lens
     from calibration.fit.proxy import focus_name, parameter_space
     from calibration.fit.synthetic_devices import synthetic_observations
-    from calibration.optics.psf.map import psf_map
+    from calibration.optics.psf.map import PSFMapSettings, psf_map
+    from isp.runtime.executor import create_executor
 
-    lens = read_lens(data_file(*E9))
+    lens = e9_lens
     names = [focus_name(lens), "e1.decenter_x"]
     space = parameter_space(lens, names)
     truth = np.array([1.0, 0.8])
     with warnings.catch_warnings():     # the corner PSF is truncated by the small window: immaterial here
         warnings.simplefilter("ignore", UserWarning)
-        pm = psf_map(space.apply(truth * space.tolerance), grid=(3, 4), channels=("G",), n=32, pupil_samples=32,
-                     n_wavelengths=2, cache=False, progress=False, workers=1)
+        pm = psf_map(space.apply(truth * space.tolerance),
+                     PSFMapSettings(grid=(3, 4), channels=("G",), n=32, pupil_samples=32, n_wavelengths=2),
+                     cache=False, executor=create_executor("serial"))
     obs, edges = synthetic_observations(pm, noise=0.004, return_edges=True, rng=1)
     return lens, names, truth, pm, obs, edges
 

@@ -1,23 +1,33 @@
-"""The loop's lens base starts its fit where ``fit_proxy`` puts it (kind:
-property): on a device with two known perturbations, the start recovers
-them, and `close_loop` fits from that start."""
+"""The loop's base models (calibration.loop.base), kind: property.
+
+The lens base starts its fit where ``fit_proxy`` puts it: on a device with
+two known perturbations, the start recovers them, and ``close_loop`` fits
+from that start. The model re-measures its renders as the observations
+were measured: an edge measured on a raw mosaic's green plane has half the
+pixels of the full image, so its SFRA scatters about √2 more under the same
+pixel noise, and the re-rendered spread, which the loop takes as each
+observation's σ, shows that."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tests.helpers import e9_device
+from isp.runtime.executor import pool_executor
+
+from calibration.loop.base import _edge_bias
+
+pytestmark = pytest.mark.property
 
 NAMES = ["e1.decenter_x", "e2.tilt_yz"]
 U_TRUE = np.array([0.8, -0.6])
 
 
 @pytest.fixture(scope="module")
-def lens_base():
+def lens_base(make_e9_device):
     from calibration.loop.base import LensBase
 
-    lens, obs = e9_device(NAMES, U_TRUE, grid=(3, 4), noise=0.003, rng=4, n=96, pupil_samples=64, n_wavelengths=3)
+    lens, obs = make_e9_device(NAMES, U_TRUE, grid=(3, 4), noise=0.003, rng=4, n=96, pupil_samples=64, n_wavelengths=3)
     return LensBase(lens, obs, names=NAMES)
 
 
@@ -39,5 +49,17 @@ def test_close_loop_fits_from_the_start(lens_base, monkeypatch):
 
     monkeypatch.setattr(loop, "_fit", spy)
     monkeypatch.setattr(type(lens_base), "start", lambda self, progress=False: U_TRUE.copy())
-    loop.close_loop(lens_base, lens_base.obs, effects=[], progress=False)
+    loop.close_loop(lens_base, lens_base.obs, effects=[], executor=pool_executor(None))
     np.testing.assert_allclose(seen[0], U_TRUE)
+
+
+def test_a_raw_observation_re_rendered_scatters_as_a_mosaic_plane_does(make_observations):
+    """Spread of four noisy re-renders per observation, median over 60: on
+    the green plane it is 1.3–2.5× the full image's (√2 from half the pixels;
+    the plane's coarser ESF bins add some)."""
+    def otf(nu, normal):
+        return np.exp(-2 * np.pi ** 2 * 0.6 ** 2 * np.asarray(nu) ** 2)
+
+    sd_image = np.median(_edge_bias(make_observations(60, {"measure": "image"}), otf)[2])
+    sd_raw = np.median(_edge_bias(make_observations(60, {"measure": "raw", "cfa": "RGGB"}), otf)[2])
+    assert 1.3 < sd_raw / sd_image < 2.5, (sd_raw, sd_image)   # 1.81 measured

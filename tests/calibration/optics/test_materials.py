@@ -5,8 +5,9 @@ Published values, as printed on the data sheets (nd to 5 decimals, vd to 2):
 SCHOTT optical glass data sheets 2017-01-20; HIKARI (Nikon) glass data
 sheets 2017-04; CDGM optical glass data sheets 2022-06; the Zemax MISC
 catalogue after M. Bass (ed.), Handbook of Optics Vol. II (1995) for the
-plastics (nd to 6 decimals). The check is the formula of the catalogue entry
-evaluated at the F, d, C lines, so a mistyped coefficient shows up.
+plastics (nd to 6 decimals); the table is ``tests/data/reference/glass_nd_vd.csv``.
+The check is the formula of the catalogue entry evaluated at the F, d, C
+lines, so a mistyped coefficient shows up.
 """
 
 from __future__ import annotations
@@ -20,39 +21,13 @@ from calibration.optics.materials import (
     AIR, CATALOGUE, LAMBDA_C, LAMBDA_D, LAMBDA_F, Material, MaterialError, abbe_number,
     lookup, material, material_names, material_to_spec, model_material,
 )
+from tests.helpers import reference
 
-PUBLISHED = {  # key: (nd, vd) as printed by the maker
-    "SCHOTT:N-BK7": (1.51680, 64.17),
-    "SCHOTT:N-K5": (1.52249, 59.48),
-    "SCHOTT:N-FK5": (1.48749, 70.41),
-    "SCHOTT:N-BAK4": (1.56883, 55.98),
-    "SCHOTT:N-SK2": (1.60738, 56.65),
-    "SCHOTT:N-SK16": (1.62041, 60.32),
-    "SCHOTT:N-SSK2": (1.62229, 53.27),
-    "SCHOTT:N-SSK8": (1.61773, 49.83),
-    "SCHOTT:N-LAK9": (1.69100, 54.71),
-    "SCHOTT:N-LAK22": (1.65113, 55.89),
-    "SCHOTT:N-BAF10": (1.67003, 47.11),
-    "SCHOTT:F2": (1.62004, 36.37),
-    "SCHOTT:F5": (1.60342, 38.03),
-    "SCHOTT:N-F2": (1.62005, 36.43),
-    "SCHOTT:SF5": (1.67270, 32.21),
-    "SCHOTT:N-SF5": (1.67271, 32.25),
-    "SCHOTT:N-SF6": (1.80518, 25.36),
-    "SCHOTT:N-SF10": (1.72828, 28.53),
-    "SCHOTT:N-SF11": (1.78472, 25.68),
-    "SCHOTT:N-SF57": (1.84666, 23.78),
-    "SCHOTT:N-LASF9": (1.85025, 32.17),
-    "HIKARI:SK16": (1.62041, 60.28),
-    "CDGM:H-K9L": (1.51680, 64.20),
-    "CDGM:D-K59": (1.51760, 63.50),
-    "MISC:PMMA": (1.491756, 57.44),
-    "MISC:POLYCARB": (1.585470, 29.91),
-    "MISC:POLYSTYR": (1.590481, 30.87),
-    "MISC:COC": (1.533732, 56.23),
-}
+# key: (nd, vd) as printed by the maker
+PUBLISHED = {row["material"]: (row["nd"], row["vd"]) for row in reference("glass_nd_vd.csv")}
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("key", sorted(PUBLISHED))
 def test_formula_reproduces_published_nd_vd(key):
     """published: the dispersion formula gives the printed nd to 1e-5 and vd to 0.1."""
@@ -63,12 +38,14 @@ def test_formula_reproduces_published_nd_vd(key):
     assert abs(abbe_number(m) - vd) < 0.1
 
 
+@pytest.mark.property
 def test_every_formula_glass_has_a_published_check():
     """property: a catalogue entry with a formula is in the published table."""
     with_formula = {k for k, m in CATALOGUE.items() if m.formula in ("sellmeier", "schott")}
     assert with_formula == {k.upper() for k in PUBLISHED}
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("key", sorted(CATALOGUE))
 def test_catalogue_nd_vd_fields_match_formula(key):
     """property: an entry's nd/vd fields agree with its own index()."""
@@ -77,6 +54,7 @@ def test_catalogue_nd_vd_fields_match_formula(key):
     assert abs(abbe_number(m) - m.vd) < 0.1
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("spec, key", [
     ("N-SK16", "SCHOTT:N-SK16"), ("n-sk16", "SCHOTT:N-SK16"), ("SCHOTT:N-SK16", "SCHOTT:N-SK16"),
     ("schott n-sk16", "SCHOTT:N-SK16"), ("hikari SK16", "HIKARI:SK16"), ("HIKARI:sk16", "HIKARI:SK16"),
@@ -89,6 +67,7 @@ def test_lookup_is_case_insensitive_with_prefixes(spec, key):
     assert lookup(spec).key == key
 
 
+@pytest.mark.property
 def test_unknown_name_lists_near_matches():
     """property: the error names the input and suggests catalogue names."""
     with pytest.raises(MaterialError) as e:
@@ -99,6 +78,7 @@ def test_unknown_name_lists_near_matches():
         material("SCHOTT:SK16")
 
 
+@pytest.mark.property
 def test_material_accepts_material_dict_and_air():
     """property"""
     m = model_material(1.544, 55.9)
@@ -113,6 +93,7 @@ def test_material_accepts_material_dict_and_air():
         material(3)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("m", [model_material(1.544, 55.9), model_material(1.5), CATALOGUE["SCHOTT:N-BK7"],
                                Material("custom", 1.6, 40.0, "sellmeier", (1.0, 0.01, 0.2, 0.05), catalog="X"),
                                Material("n=1.7", 1.7, math.inf, "constant"), AIR])
@@ -121,6 +102,7 @@ def test_spec_round_trip(m):
     assert material(material_to_spec(m)) == m
 
 
+@pytest.mark.property
 def test_index_is_vectorised_and_model_exact():
     """property: arrays in, arrays out; the model glass reproduces nd and nF − nC."""
     m = model_material(1.639, 23.5)
@@ -135,6 +117,7 @@ def test_index_is_vectorised_and_model_exact():
     assert isinstance(CATALOGUE["SCHOTT:N-BK7"].index(550.0), float)
 
 
+@pytest.mark.property
 def test_material_names_lists_the_catalogue():
     """property"""
     names = material_names()

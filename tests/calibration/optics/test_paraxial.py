@@ -14,11 +14,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from calibration.optics.lens import Lens, LensError, Surface
-from calibration.optics.io.lens_json import read_lens
+from calibration.optics.io import read_lens
 from calibration.optics.materials import model_material
 from calibration.optics.paraxial import efl, entrance_pupil, field_angle, first_order, image_height
 
-from tests.helpers import data_file
+from tests.helpers import data_file, reference
 
 GLASS = model_material(1.5168, 64.17)
 D_NM = 587.5618
@@ -33,6 +33,7 @@ def singlet(c1, c2, t, n=1.5168, back=None, **kw):
 
 # -- closed forms -------------------------------------------------------------
 
+@pytest.mark.property
 @settings(max_examples=60, deadline=None)
 @given(c1=st.floats(-0.05, 0.05), c2=st.floats(-0.05, 0.05), n=st.floats(1.4, 2.0))
 def test_thin_lens_efl(c1, c2, n):
@@ -43,6 +44,7 @@ def test_thin_lens_efl(c1, c2, n):
     assert efl(lens, D_NM) == pytest.approx(1.0 / ((n - 1.0) * (c1 - c2)), rel=1e-12)
 
 
+@pytest.mark.property
 @settings(max_examples=60, deadline=None)
 @given(c1=st.floats(-0.1, 0.1), c2=st.floats(-0.1, 0.1), t=st.floats(0.5, 20.0), n=st.floats(1.4, 2.0))
 def test_thick_lens_lensmakers_formula(c1, c2, t, n):
@@ -57,6 +59,7 @@ def test_thick_lens_lensmakers_formula(c1, c2, t, n):
     assert fo.bfl == pytest.approx(f * (1.0 - (n - 1.0) * t * c1 / n), rel=1e-9, abs=1e-9)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("t, n", [(1.0, 1.5168), (5.0, 1.8), (0.21, 1.52)])
 def test_plate_shifts_focus_by_t_1_minus_1_over_n(t, n):
     """property: a plane-parallel plate behind a lens moves the focus back by t(1 − 1/n)."""
@@ -70,6 +73,7 @@ def test_plate_shifts_focus_by_t_1_minus_1_over_n(t, n):
     assert efl(plate, D_NM) == pytest.approx(efl(lens, D_NM), rel=1e-13)
 
 
+@pytest.mark.property
 def test_quadratic_asphere_term_adds_2_A2_to_curvature():
     """property: sag A2 ρ² has the paraxial power of curvature 2·A2; higher orders and conic none."""
     a = singlet(0.02, -0.01, 3.0)
@@ -79,6 +83,7 @@ def test_quadratic_asphere_term_adds_2_A2_to_curvature():
     assert efl(b, D_NM) == pytest.approx(efl(a, D_NM), rel=1e-13)
 
 
+@pytest.mark.property
 def test_entrance_pupil_of_a_stop_behind_a_thin_lens():
     """property: stop d behind a thin lens of power φ: z_EP = d/(1 − dφ), EPD = 2 sd/(1 − dφ)."""
     c, n, d, sd = 0.02, 1.5, 10.0, 2.0
@@ -93,6 +98,7 @@ def test_entrance_pupil_of_a_stop_behind_a_thin_lens():
     assert fo.f_number == pytest.approx((1 / phi) / dia, rel=1e-12)
 
 
+@pytest.mark.property
 def test_exit_pupil_of_a_stop_before_a_thin_lens():
     """property: stop d before a thin lens: XP at d/(dφ − 1) from the lens, XPD = 2 sd/|1 − dφ|."""
     c, n, d, sd = 0.02, 1.5, 10.0, 2.0
@@ -107,6 +113,7 @@ def test_exit_pupil_of_a_stop_before_a_thin_lens():
     assert fo.exit_pupil_to_image == pytest.approx(fo.exit_pupil_z - lens.total_track)
 
 
+@pytest.mark.property
 def test_finite_conjugates_working_f_number_and_magnification():
     """property: a thin lens at 2f–2f images at 2f with m = −1 and working F/# = 2·EFL/EPD."""
     c, n = 0.02, 1.5
@@ -120,6 +127,7 @@ def test_finite_conjugates_working_f_number_and_magnification():
     assert fo.f_number == pytest.approx(f / 5.0, rel=1e-12)
 
 
+@pytest.mark.property
 def test_image_height_and_field_angle_are_inverse():
     """property: h = f tan θ at focus; field_angle inverts image_height on either plane."""
     lens = singlet(0.02, -0.02, 3.0, back=95.0)
@@ -130,6 +138,7 @@ def test_image_height_and_field_angle_are_inverse():
         assert field_angle(lens, h, at=at) == pytest.approx(17.0, rel=1e-12)
 
 
+@pytest.mark.property
 def test_stop_size_aperture_and_afocal_f_number_error():
     """property: "float by stop size" images the stop; an F-number on an afocal lens is refused."""
     lens = singlet(0.02, -0.02, 3.0).with_surface(0, stop=True, semi_diameter=4.0).replace(epd=None)
@@ -143,17 +152,10 @@ def test_stop_size_aperture_and_afocal_f_number_error():
 
 # -- the shared lenses (published) --------------------------------------------
 
-LENSES = {  # file: (EFL mm, F/#, half-FOV deg, elements, stop surface, TTL mm) from lenses/README.md
-    ("phone", "US-12210142-B2-e9.zmx"): (4.6704, 1.95, 36.8, 8, 5, 6.712),
-    ("phone", "US-12210142-B2-e2.zmx"): (4.8828, 1.85, 38.7, 8, 1, 6.601),
-    ("phone", "US-11906710-B2-e1.zmx"): (4.1459, 2.20, 35.4, 7, 1, 5.196),
-    ("phone", "US-11933948-B2-e11.zmx"): (3.9630, 2.30, 41.3, 8, 5, 5.864),
-    ("phone", "rayoptics_cell_phone_camera_US7535658.roa"): (5.5551, 3.5, 31.76, 5, 1, None),
-    ("classic", "deeplens_cooke.json"): (49.875, 3.96, 20.05, 3, 5, None),
-    ("classic", "optiland_CookeTriplet.optiland.json"): (50.000, 5.0, 20.0, 3, 4, None),
-    ("classic", "optiland_DoubleGauss.optiland.json"): (100.004, 5.0, 14.0, 4, 6, None),
-    ("classic", "rayoptics_Sasian_Triplet.roa"): (50.001, 4.0, 20.0, 3, 3, None),
-}
+# (folder, file): (EFL mm, F/#, half-FOV deg, elements, stop surface, TTL mm), as printed
+LENSES = {(r["folder"], r["file"]): (r["efl_mm"], r["f_number"], r["half_fov_deg"], r["elements"], r["stop_surface"],
+                                     r["ttl_mm"]) for r in reference("lens_figures.json")["first_order"]}
+E9 = reference("lens_figures.json")["e9"]
 
 
 def _printed(value: float) -> float:
@@ -163,6 +165,7 @@ def _printed(value: float) -> float:
     return 0.5 * 10.0 ** -decimals
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("where", sorted(LENSES), ids=lambda w: w[1])
 def test_published_first_order_figures(where):
     """published: EFL and F/# within 0.1 % (or the printed precision, if coarser), half-FOV to the
@@ -180,9 +183,11 @@ def test_published_first_order_figures(where):
         assert fo.ttl == pytest.approx(ttl, abs=_printed(ttl))
 
 
-def test_e9_paraxial_efl_and_epd():
+@pytest.mark.published
+def test_e9_paraxial_efl_and_epd(e9_lens):
     """published: US-12210142-B2-e9 paraxial EFL 4.670371 (optiland) / 4.670368 (rayoptics) mm,
     EPD 2.395 mm."""
-    fo = first_order(read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")))
-    assert 4.670368 - 5e-6 <= fo.efl <= 4.670371 + 5e-6
-    assert fo.epd == pytest.approx(2.395, abs=5e-4)
+    fo = first_order(e9_lens)
+    efl = sorted(E9["paraxial_efl_mm"].values())
+    assert efl[0] - 5e-6 <= fo.efl <= efl[-1] + 5e-6
+    assert fo.epd == pytest.approx(E9["epd_mm"], abs=5e-4)

@@ -1,7 +1,7 @@
 """Tests of calibration/optics/perturb.py: named perturbations, poses, the
 parameter space, and their effect on traces.
 
-Kinds, as labelled on each test:
+Kind: property, of two sorts (named on each test):
 
 * analytic — poses and indices against the formulas of the module
   docstring (paper eqs. 9–10, the Cauchy material model);
@@ -37,6 +37,8 @@ from calibration.optics.perturb import (
     parse_name,
     perturb_material,
 )
+
+pytestmark = pytest.mark.property
 
 LAM = 587.5618
 

@@ -1,5 +1,5 @@
 """LSF asymmetry (the odd transfer SFR drops) against rendered-and-measured
-edges, Monte-Carlo noise and the lens model."""
+edges, Monte-Carlo noise and the lens model (kind: property)."""
 
 from types import SimpleNamespace
 
@@ -9,7 +9,8 @@ import pytest
 from calibration.simulate.capture import render_slanted_edge
 from calibration.sfr.esfr import measure_sfr
 from calibration.sfr.asymmetry import esf_bin_noise, lsf_direction, model_odd_bands, odd_bands, odd_bands_std
-from tests.helpers import data_file
+
+pytestmark = pytest.mark.property
 
 PITCH_UM, PIXEL_UM = 0.6, 1.2
 PITCH_PX = PITCH_UM / PIXEL_UM
@@ -95,18 +96,18 @@ def test_lsf_direction():
 
 
 @pytest.fixture(scope="module")
-def e9_device():
+def e9_device(e9_lens):
     from calibration.optics.psf import map as M
-    from calibration.optics.io.lens_json import read_lens
+    from isp.runtime.executor import pool_executor
     from calibration.optics.perturb import apply
     from calibration.fit.synthetic_devices import synthetic_observations
     from calibration.fit.forward_model import ModelSettings, SfrModel
 
-    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    lens = e9_lens
     true = {"e1.decenter_x": 0.002, "e2.tilt_yz": 0.02}
     pl = apply(lens, true)
-    pm = M.psf_map(pl, grid=(3, 4), channels=("G",), n=96, pupil_samples=64, n_wavelengths=3, cache=False,
-                   progress=False)
+    pm = M.psf_map(pl, M.PSFMapSettings(grid=(3, 4), channels=("G",), n=96, pupil_samples=64, n_wavelengths=3),
+                   cache=False, executor=pool_executor(None))
     obs = synthetic_observations(pm, noise=0.0)
     return lens, true, pl, obs, SfrModel(lens, obs, ModelSettings())
 
@@ -147,16 +148,18 @@ def test_asymmetry_residuals_resolve_the_mirror_ambiguity(e9_device):
     SFRA alone settles in the mirror's basin (the tilt keeps the wrong sign:
     SFRA cannot see which way coma points); with the asymmetry residuals the
     same fit reaches the truth within 0.15 tolerances."""
-    from calibration.fit.proxy import fit_proxy, parameter_space
+    from calibration.fit.proxy import ProxyFitSettings, fit_proxy, parameter_space
+    from isp.runtime.executor import create_executor
 
     lens, true, _, obs, _ = e9_device
     names = list(true)
     u_true = np.array([true[n] for n in names]) / parameter_space(lens, names).tolerance
-    odd = fit_proxy(lens, obs, names=names, residuals="odd", x0=-u_true, workers=1, max_iter=8, progress=False,
-                    restarts=0)
+    serial = create_executor("serial")
+    odd = fit_proxy(lens, obs, ProxyFitSettings(residuals="odd", max_iter=8, restarts=0), names=names, x0=-u_true,
+                    executor=serial)
     np.testing.assert_allclose(odd.u, u_true, atol=0.15)
-    sfra = fit_proxy(lens, obs, names=names, residuals="sfra", x0=-u_true, workers=1, max_iter=8, progress=False,
-                     restarts=0)
+    sfra = fit_proxy(lens, obs, ProxyFitSettings(residuals="sfra", max_iter=8, restarts=0), names=names, x0=-u_true,
+                     executor=serial)
     assert np.max(np.abs(sfra.u - u_true)) > 0.5
     assert odd.errors()["after"]["sfra_rms"] < 0.5 * sfra.errors()["after"]["sfra_rms"]
 

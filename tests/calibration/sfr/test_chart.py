@@ -1,5 +1,6 @@
 """Chart analysis: edge detection, field positions, sagittal/tangential
-orientation, field maps (kinds: property / analytic / reference)."""
+orientation, field maps (kind: property), and the real charts of the
+shared data (kind: published)."""
 
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ def _chart(h=600, w=800, rows=4, cols=5, angle=5.0, sigma=1.0, ss=8, dark=0.2, l
     return img.astype(np.float64), centres
 
 
+@pytest.mark.property
 def test_finds_every_side_of_every_square_and_measures_it():
     img, centres = _chart()
     res = measure_chart(img)
@@ -43,6 +45,7 @@ def test_finds_every_side_of_every_square_and_measures_it():
     assert all(3.0 < abs(r.angle_deg) < 7.0 for _, r in res.edges)
 
 
+@pytest.mark.property
 def test_field_position_and_orientation():
     img, _ = _chart()
     rois = find_edges(img)
@@ -57,6 +60,7 @@ def test_field_position_and_orientation():
             assert e.orientation == ("tangential" if e.direction == "vertical" else "sagittal")
 
 
+@pytest.mark.property
 def test_orientation_convention():
     # an edge perpendicular to the radius (normal along it): tangential
     assert classify_orientation(0.0, 1.0, 0.6, 0.0) == "tangential"
@@ -65,6 +69,7 @@ def test_orientation_convention():
     assert classify_orientation(0.0, 1.0, 0.01, 0.0) == "axial"
 
 
+@pytest.mark.property
 def test_field_maps_on_the_15_by_20_grid():
     img, centres = _chart()
     res = measure_chart(img)
@@ -80,6 +85,7 @@ def test_field_maps_on_the_15_by_20_grid():
     assert {"freq", "sfr", "mtf50", "sfra", "angle_deg", "roi", "field", "orientation", "warnings"} <= set(d["edges"][0])
 
 
+@pytest.mark.published
 def test_real_charts():
     import cv2
 
@@ -94,6 +100,7 @@ def test_real_charts():
     assert all(0.2 < r.mtf50 < 0.5 for _, r in res.edges)   # a sharp digital file
 
 
+@pytest.mark.property
 def test_bad_chart_input():
     with pytest.raises(SfrError, match="uniform"):
         find_edges(np.full((100, 100), 0.5))

@@ -1,6 +1,7 @@
 """Tests of :mod:`calibration.sfr.esfr` — ISO 12233 e-SFR, sfrmat5 algorithm.
 
-Each test says which kind it is:
+Each test is marked with its kind, ``property`` (the analytic and the
+property tests below) or ``published`` (the reference tests):
 
 * **analytic** — slanted edges rendered exactly (:mod:`calibration.sfr.synthetic`:
   Gaussian PSF ⊗ square pixel aperture, to ~1e-12) against the closed-form
@@ -10,7 +11,7 @@ Each test says which kind it is:
   (skipped without the shared data);
 * **property** — invariances, uncertainty, round trips, bad input.
 
-Targets (from the SFR issue): median MTF50 error ≤ 0.3 %, worst ≤ 2 % at
+Targets: median MTF50 error ≤ 0.3 %, worst ≤ 2 % at
 SNR ≥ 50, |SFR error| ≤ 0.01 up to Nyquist (SNR = step/σ_noise; the edges
 here step 0.6 of the 0..1 range, so 1 % noise is SNR 60). Two methods:
 
@@ -71,6 +72,7 @@ def edge(sigma=1.0, angle=5.0, shape=ROI, **kw) -> np.ndarray:
 # ------------------------------------------------------------------------------------ analytic
 
 
+@pytest.mark.property
 def test_renderer_is_exact():
     """analytic: the closed-form pixel integral equals ×64 supersampling (< 1e-4)."""
     from scipy.special import ndtr
@@ -86,6 +88,7 @@ def test_renderer_is_exact():
     assert np.abs(img - ref).max() < 1e-4
 
 
+@pytest.mark.published
 def test_reference_truth_includes_the_pixel_aperture():
     """analytic: the README's "true MTF50 0.18007 cy/px" of a 5°, σ = 1 px edge
     is the Gaussian × pixel-sinc MTF (0.17996–0.18002 here, depending on
@@ -112,6 +115,7 @@ def _clean_sweep(bits_list):
     return np.abs(errs), np.array(sfr_errs)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("bits", [None, 16, 8], ids=["float", "16bit", "8bit"])
 def test_analytic_noise_free_meets_targets(bits):
     """analytic: σ ∈ {0.5, 1, 2} px × angles 2–12°: median MTF50 error ≤ 0.3 %,
@@ -132,6 +136,7 @@ def _noisy_case(s, a, snr, bits, rng, boot=30):
     return r, r.mtf50 / mtf50_of(s, a) - 1, measure_sfr(clean).mtf50 / mtf50_of(s, a) - 1
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("snr", [50, 100])
 def test_analytic_noisy_errors_are_within_the_bootstrap_uncertainty(snr):
     """analytic: at SNR 50 and 100 (step/σ, 8-bit) every MTF50 error is within
@@ -145,6 +150,7 @@ def test_analytic_noisy_errors_are_within_the_bootstrap_uncertainty(snr):
             assert sfr_error(r, s, a) < 0.1
 
 
+@pytest.mark.property
 @pytest.mark.slow
 def test_analytic_full_sweep_report():
     """analytic: the whole sweep — σ {0.5, 1, 2} × angles 2–12° × noise
@@ -182,6 +188,7 @@ def _accurate_noise_free(bits):
     return np.abs(errs), np.array(sfr_errs), raw
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("bits", [None, 16], ids=["float", "16bit"])
 def test_analytic_binning_correction_removes_the_noise_free_bias(bits):
     """analytic: noise-free, σ ∈ {0.5, 1, 2} px × angles 2–12°, 100×128 px:
@@ -204,6 +211,7 @@ def test_analytic_binning_correction_removes_the_noise_free_bias(bits):
     np.testing.assert_allclose(on.sfr[m] / off.sfr[m], 1 / np.sinc(on.freq[m] * delta), rtol=3e-4)
 
 
+@pytest.mark.property
 def test_binning_transfer_is_the_mean_phasor_of_the_offsets():
     """analytic: uniform offsets → sinc(fΔ); m equally spaced offsets → the
     Dirichlet kernel sin(πfΔ)/(m·sin(πfΔ/m)); one offset → 1 (a pure shift)."""
@@ -221,6 +229,7 @@ def test_binning_transfer_is_the_mean_phasor_of_the_offsets():
     assert sfr_edge.binning_correction(u, uc, os_, 201).max() <= sfr_edge.MAX_DERIVATIVE_CORRECTION
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("radius, amount", [(1.0, 1.0), (2.0, 0.8), (3.0, 0.6)])
 def test_analytic_sharpened_edge_keeps_its_halo(radius, amount):
     """analytic: an unsharp-masked edge, ``I + k·(I − G_r ⊛ I)`` (σ = 1 px,
@@ -263,6 +272,7 @@ def _noisy_sweep(rows, sigmas, angles, noise, nreal, seed, method="accurate"):
     return np.array(errs), np.array(sfr_errs)
 
 
+@pytest.mark.property
 def test_analytic_accurate_meets_the_targets_at_snr_60_on_300_rows():
     """analytic: the issue's MTF50 targets at SNR 60 (1 % noise on a 0.6
     step), ``method="accurate"``, **300×128 px ROIs** — the smallest that
@@ -277,6 +287,7 @@ def test_analytic_accurate_meets_the_targets_at_snr_60_on_300_rows():
     assert sfr_err.max() <= 0.05
 
 
+@pytest.mark.property
 @pytest.mark.slow
 def test_analytic_accurate_full_sweep_on_300_rows(capsys):
     """analytic: the issue's sweep at 300×128 px, ``method="accurate"``:
@@ -323,6 +334,7 @@ def _curve_diff(r: SfrResult, tool: dict) -> tuple[float, float]:
 SFRMAT5_ORDER = {"sfrmat3_v_edge_mono": 1, "sfrmat3_h_edge_mono": 5}
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("name", sorted(SFRMAT5_ORDER))
 def test_reference_sfrmat5_reproduced_exactly(name):
     """reference: sfrmat5's stored SFR and MTF50 reproduced to 1e-9 (whole
@@ -338,6 +350,7 @@ def test_reference_sfrmat5_reproduced_exactly(name):
     assert r.sfra == pytest.approx(t["sfra_to_nyquist"], abs=1e-6)
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("name", sorted(SFRMAT5_ORDER))
 def test_reference_tools_order5(name, capsys):
     """reference: with the order-5 fit of the README, MTF50 within 2 % of
@@ -359,6 +372,7 @@ def test_reference_tools_order5(name, capsys):
         print("\n" + "\n".join(lines))
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("name", sorted(SFRMAT5_ORDER))
 def test_reference_accurate_method_stays_near_the_tools(name):
     """reference: ``method="accurate"`` on the real edges (sfrmat5's fit
@@ -387,6 +401,7 @@ def _same(a: SfrResult, b: SfrResult, tol: float):
     assert a.mtf50 == pytest.approx(b.mtf50, rel=max(tol, 1e-9))
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("method", ["iso", "accurate"])
 def test_polarity_inversion_is_exact(method):
     """property: 1 − image (bright→dark) gives the identical SFR."""
@@ -396,6 +411,7 @@ def test_polarity_inversion_is_exact(method):
     _same(a, b, 1e-12)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("method, tol", [("iso", 0.003), ("accurate", 1e-4)])
 def test_mirrored_edge_gives_the_same_sfr(method, tol):
     """property: a left–right mirrored edge (other polarity and slope sign):
@@ -406,6 +422,7 @@ def test_mirrored_edge_gives_the_same_sfr(method, tol):
     _same(measure_sfr(img, method=method), measure_sfr(img[:, ::-1], method=method), tol)
 
 
+@pytest.mark.property
 def test_horizontal_edge_is_rotated_back_exactly():
     """property: the edge turned 90° is measured as the original (sfrmat's
     rot90), and its transpose (a mirror image) within 0.003."""
@@ -419,6 +436,7 @@ def test_horizontal_edge_is_rotated_back_exactly():
     assert b.angle_deg == pytest.approx(a.angle_deg)
 
 
+@pytest.mark.property
 def test_scale_and_offset_do_not_change_the_sfr():
     """property: a·image + b (a > 0): identical SFR; contrast follows."""
     img = edge(1.5, 4.0)
@@ -428,6 +446,7 @@ def test_scale_and_offset_do_not_change_the_sfr():
     assert b.contrast == pytest.approx((3.7 * 0.6) / (3.7 + 24.0), abs=1e-3)
 
 
+@pytest.mark.property
 def test_dtypes_agree():
     """property: float32/float64/uint16 of the same values give the same SFR."""
     codes = quantise(edge(1.0, 5.0), 16)
@@ -437,6 +456,7 @@ def test_dtypes_agree():
     assert r16.esf.dtype == np.float64
 
 
+@pytest.mark.property
 def test_angle_and_edge_fit_are_recovered():
     """property: angle and edge line of the rendering (centre (63.5, 49.5))."""
     r = measure_sfr(edge(1.0, 7.0))
@@ -446,6 +466,7 @@ def test_angle_and_edge_fit_are_recovered():
     assert r.edge_fit.size == 2 and measure_sfr(edge(1.0, 7.0), edge_fit_order=3).edge_fit.size == 4
 
 
+@pytest.mark.property
 def test_box_measures_the_roi_in_image_coordinates():
     """property: ``box`` = cropping, with the edge fit in image coordinates."""
     img = np.full((300, 400), 0.2)
@@ -456,6 +477,7 @@ def test_box_measures_the_roi_in_image_coordinates():
     assert r.edge_fit[0] + r.edge_fit[1] * 149.5 == pytest.approx(150 + 63.5, abs=0.05)
 
 
+@pytest.mark.property
 def test_srgb_encoding_is_linearised():
     """property: sRGB-encoded 16-bit codes measured with encoding="srgb"
     agree with the linear edge; read as linear, the tone curve biases MTF50
@@ -469,6 +491,7 @@ def test_srgb_encoding_is_linearised():
     assert abs(measure_sfr(codes).mtf50 / ref.mtf50 - 1) > 0.01
 
 
+@pytest.mark.property
 def test_three_channels_need_a_channel():
     """property: RGB input: channel index or luminance; grey edge → same SFR."""
     g = edge(1.0, 5.0)
@@ -478,6 +501,7 @@ def test_three_channels_need_a_channel():
     _same(measure_sfr(rgb, channel=2), measure_sfr(g), 1e-12)
 
 
+@pytest.mark.property
 def test_metrics_units_and_serialisation():
     """property: mtf_at, Nyquist values, SFRA normalisation, lp/mm, to_dict."""
     r = measure_sfr(edge(1.0, 5.0), pixel_pitch_um=1.4)
@@ -495,6 +519,7 @@ def test_metrics_units_and_serialisation():
         measure_sfr(edge()).lp_per_mm()
 
 
+@pytest.mark.property
 def test_esf_step_and_noise_estimate():
     """property: ESF bins ¼ px along the rows (cos θ / 4 along the normal);
     noise = the added σ; contrast of the plateaus."""
@@ -506,6 +531,7 @@ def test_esf_step_and_noise_estimate():
     assert r.contrast == pytest.approx(0.6, abs=0.01)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("method", ["iso", "accurate"])
 def test_bootstrap_std_matches_the_spread_over_noise_realisations(method):
     """property: on noisy edges (σ = 1 px, SNR 60) the bootstrap std of MTF50
@@ -534,6 +560,7 @@ def test_bootstrap_std_matches_the_spread_over_noise_realisations(method):
     assert boot[0].bootstrap == 60 and measure_sfr(clean).mtf50_std is None
 
 
+@pytest.mark.property
 def test_bootstrap_is_reproducible_with_a_seed():
     """property: the same rng seed gives the same bootstrap std."""
     img = edge(1.0, 5.0) + np.random.default_rng(0).normal(0, 0.01, ROI)
@@ -542,6 +569,7 @@ def test_bootstrap_is_reproducible_with_a_seed():
     assert a.mtf50_std == b.mtf50_std and a.sfra_std == b.sfra_std
 
 
+@pytest.mark.property
 def test_method_presets_and_overrides():
     """property: the default is ISO 12233 (sfrmat5); ``method="accurate"``
     turns on the four departures; an option passed explicitly overrides the
@@ -567,6 +595,7 @@ def _mosaic_edge(sigma, horizontal=False):
     return render_slanted_edge(shape, 5.0, sigma, low=LOW, high=HIGH, horizontal=horizontal)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("method", ["iso", "accurate"])
 @pytest.mark.parametrize("horizontal", [False, True], ids=["vertical", "horizontal"])
 @pytest.mark.parametrize("sigma", [0.5, 1.0, 2.0])
@@ -591,6 +620,7 @@ def test_bayer_planes_agree_with_full_resolution(sigma, horizontal, method):
         assert r.settings["freq_unit"] == "cycles/sensor pixel"
 
 
+@pytest.mark.property
 def test_bayer_green_plane_mean_and_options():
     """property: plane-mode "G" = mean of Gr and Gb; CFA as string or enum;
     box shifts the CFA phase; unknown names list the valid ones."""
@@ -620,11 +650,13 @@ def test_bayer_green_plane_mean_and_options():
 # ------------------------------------------------------------------------------------ bad input
 
 
+@pytest.mark.property
 def test_sfr_error_is_an_isp_error_and_a_value_error():
     """property: one exception root."""
     assert issubclass(SfrError, IspError) and issubclass(SfrError, ValueError)
 
 
+@pytest.mark.property
 def test_edge_too_short():
     """property: < 8 rows along the edge: error; < 20: warning."""
     with pytest.raises(SfrError, match="edge too short"):
@@ -633,6 +665,7 @@ def test_edge_too_short():
     assert any("short edge" in w for w in r.warnings)
 
 
+@pytest.mark.property
 def test_angle_checks():
     """property: no whole phase cycle (≈ 0°) and ≈ 45° or 26.57° (too few
     phases): errors; below 2°, above 40°, near 14°/26.6°: warnings."""
@@ -650,6 +683,7 @@ def test_angle_checks():
         assert any(msg in w for w in r.warnings), (angle, r.warnings)
 
 
+@pytest.mark.property
 def test_low_contrast_warns():
     """property: contrast below 20 %: warning."""
     r = measure_sfr(edge(1.0, 5.0, low=0.5, high=0.6))
@@ -657,6 +691,7 @@ def test_low_contrast_warns():
     assert any("low contrast" in w for w in r.warnings)
 
 
+@pytest.mark.property
 def test_clipped_plateau_warns():
     """property: a plateau at the maximum code (8-bit 255, or ``saturation``
     for float data): warning."""
@@ -667,6 +702,7 @@ def test_clipped_plateau_warns():
     assert any("clipped" in w for w in measure_sfr(flt, saturation=1.0).warnings)
 
 
+@pytest.mark.property
 def test_uniform_and_edgeless_images_raise():
     """property: a uniform ROI, or noise without an edge: errors."""
     with pytest.raises(SfrError, match="uniform ROI"):
@@ -675,6 +711,7 @@ def test_uniform_and_edgeless_images_raise():
         measure_sfr(0.5 + np.random.default_rng(0).normal(0, 0.01, (50, 50)))
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_non_finite_pixels_raise(bad):
     """property: NaN/inf pixels: error naming the first one (rows are not
@@ -685,6 +722,7 @@ def test_non_finite_pixels_raise(bad):
         measure_sfr(img)
 
 
+@pytest.mark.property
 def test_box_outside_the_image_raises():
     """property: a box reaching outside the image: error with the box."""
     with pytest.raises(SfrError, match=r"box \(x=50, y=50, w=60, h=40\) lies outside the 100×100"):
@@ -693,12 +731,14 @@ def test_box_outside_the_image_raises():
         measure_sfr(edge(), box=(1, 2))
 
 
+@pytest.mark.property
 def test_edge_near_the_border_warns():
     """property: an edge too close to the ROI border: warning."""
     r = measure_sfr(edge(1.0, 5.0, center=(5.0, 50.0)))
     assert any("ROI border" in w for w in r.warnings)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize(
     "kwargs, match",
     [
@@ -721,6 +761,7 @@ def test_bad_options_raise(kwargs, match):
         measure_sfr(edge(), **kwargs)
 
 
+@pytest.mark.property
 def test_bad_arrays_raise():
     """property: wrong shapes and dtypes."""
     with pytest.raises(SfrError, match="3-channel roi"):

@@ -1,11 +1,11 @@
 """Simulated captures (paper eq. 14): edge and chart rendering, Bayer
 sampling, relative illumination, Poisson–Gaussian noise, quantisation, DNG
-output (calibration.simulate.capture, imaging_optics, imaging_chart, sensor,
-illumination).
+output (calibration.simulate.capture, optical_image, chart, sensor, and
+calibration.optics.illumination).
 
-Labels:
+Kinds, as marked on each test:
 
-* analytic — against a closed form (the exact Gaussian slanted edge of
+* property (analytic) — against a closed form (the exact Gaussian slanted edge of
   calibration.sfr.synthetic, the separable Gaussian rectangle, the cos⁴ law of a
   thin lens with its stop at the lens), at the tolerance of the method;
 * published — against a cited figure (../shared/data/lenses/README.md);
@@ -23,7 +23,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from tests.helpers import data_file
 
 from calibration.optics.illumination import (
     RelativeIllumination,
@@ -67,13 +66,16 @@ from calibration.sfr.esfr import measure_sfr
 from calibration.sfr.synthetic import _int_phi, mtf50_of
 from calibration.sfr.synthetic import render_slanted_edge as exact_edge
 from isp.frame import CFA
+from tests.helpers import reference
+
+E9 = reference("lens_figures.json")["e9"]
 
 # -- fixtures -----------------------------------------------------------------------
 
 def gaussian(sigma_um: float, pitch_um: float, n: int = 65, *, sigma_y_um: float | None = None,
              theta_deg: float = 0.0, shift_um=(0.0, 0.0)) -> np.ndarray:
     """(n, n) samples of a (rotated, elliptical, shifted) Gaussian, summing
-    to 1, in the calibration.optics.psf.core grid convention (centre n//2)."""
+    to 1, in the calibration.optics.psf.result grid convention (centre n//2)."""
     o = (np.arange(n) - n // 2) * pitch_um
     x, y = np.meshgrid(o - shift_um[0], o - shift_um[1])
     t = math.radians(theta_deg)
@@ -124,6 +126,7 @@ def thin_singlet(f_mm: float = 20.0, f_number: float = 10.0, sensor: Sensor | No
 
 # -- analytic: edges --------------------------------------------------------------------
 
+@pytest.mark.property
 @pytest.mark.parametrize("angle", [0.0, 5.0, 10.0, 26.565, 45.0])
 @pytest.mark.parametrize("horizontal", [False, True])
 @pytest.mark.parametrize("sigma_px,q", [(0.6, 0.25), (1.0, 0.25), (1.0, 0.5), (2.0, 0.5)])
@@ -145,6 +148,7 @@ def test_analytic_edge_matches_exact_gaussian(angle, horizontal, sigma_px, q):
         assert np.abs(r.optical[:, :, c] - ref).max() < 2e-5
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("angle", [5.0, 10.0])
 def test_analytic_edge_mtf50(angle):
     """analytic: measure_sfr on the rendered edge gives the analytic MTF50
@@ -156,6 +160,7 @@ def test_analytic_edge_mtf50(angle):
     assert abs(res.mtf50 / mtf50_of(1.0, angle) - 1.0) < 0.005
 
 
+@pytest.mark.property
 def test_analytic_fill_factor_edge():
     """analytic: a fill factor of 0.64 is a centred aperture of 0.8 px:
     the axis-aligned edge is Φ averaged over 0.8 px."""
@@ -167,6 +172,7 @@ def test_analytic_fill_factor_edge():
 
 # -- analytic: polygons and corners ---------------------------------------------------------
 
+@pytest.mark.property
 def test_analytic_rectangle_with_corners():
     """analytic: an axis-aligned rectangle through an isotropic Gaussian
     (σ = 1 px) and the pixel box is separable,
@@ -187,6 +193,7 @@ def test_analytic_rectangle_with_corners():
     assert err[40:50, :].max() < 2e-5 and err[:, 50:60].max() < 2e-5      # mid-edges: exact
 
 
+@pytest.mark.property
 def test_property_chart_matches_supersampled_bruteforce():
     """property: a 5° square through an anisotropic, off-centre PSF (a
     rotated elliptical Gaussian plus a displaced weak lobe: coma-like)
@@ -208,6 +215,7 @@ def test_property_chart_matches_supersampled_bruteforce():
     assert np.abs(r.optical[:, :, 1] - brute).max() < 1e-3
 
 
+@pytest.mark.property
 def test_property_polygon_coverage_is_exact_area():
     """property: sub-cell coverage sums to the polygon's area (shoelace) and
     stays in [0, 1]."""
@@ -220,6 +228,7 @@ def test_property_polygon_coverage_is_exact_area():
 
 # -- raster scenes: tiles and seams -------------------------------------------------------
 
+@pytest.mark.property
 def test_property_tiled_blur_equals_whole_frame_convolution(rng):
     """property: per-region-tile convolution with identical PSFs in every
     region equals one whole-frame convolution (tiling adds no seam: the
@@ -233,6 +242,7 @@ def test_property_tiled_blur_equals_whole_frame_convolution(rng):
         assert np.abs(out[:, :, 1] - whole).max() < 1e-12
 
 
+@pytest.mark.property
 def test_property_blend_of_distinct_psfs(rng):
     """property: with different PSFs per region, "nearest" is each region's
     own convolution and "bilinear" the tent-weighted sum of the regions'
@@ -260,6 +270,7 @@ def test_property_blend_of_distinct_psfs(rng):
     assert seam_bilinear < 0.05 * seam_nearest         # the weights move by 1/40 per pixel
 
 
+@pytest.mark.property
 def test_property_supersampled_raster_matches_vector_chart():
     """property: a chart rasterised at 8× (exact sub-cell coverage) and blurred
     by blur_image(supersample=8) agrees with the vector renderer within
@@ -274,6 +285,7 @@ def test_property_supersampled_raster_matches_vector_chart():
 
 # -- Bayer sampling -------------------------------------------------------------------------
 
+@pytest.mark.property
 @pytest.mark.parametrize("cfa", list(CFA))
 def test_property_bayer_sites_take_their_channel(cfa):
     """property: with a different PSF (σ = 0.7, 1.0, 1.5 px) and level per
@@ -295,6 +307,7 @@ def test_property_bayer_sites_take_their_channel(cfa):
             assert np.abs(r.signal[i::2, j::2] - ref[i::2, j::2]).max() < 2e-5
 
 
+@pytest.mark.property
 def test_property_mosaic_and_levels():
     """property: mosaic() puts R, G, B at the CFA sites of each pattern."""
     rgb = np.stack([np.full((4, 6), v) for v in (1.0, 2.0, 3.0)], axis=-1)
@@ -305,6 +318,7 @@ def test_property_mosaic_and_levels():
 
 # -- noise and quantisation -----------------------------------------------------------------
 
+@pytest.mark.property
 @pytest.mark.parametrize("level", [0.0, 0.005, 0.05, 0.3, 0.7, 0.95])
 def test_property_noise_variance_matches_profile(level):
     """property: on a flat field (4e5 samples) the variance of the stored
@@ -320,6 +334,7 @@ def test_property_noise_variance_matches_profile(level):
     assert abs(y.mean() - level) < 5 * math.sqrt(var / n)
 
 
+@pytest.mark.property
 def test_property_noise_on_a_simulated_flat_capture():
     """property: the whole path (PSF map, chart-free raster scene, CFA,
     noise, quantisation) keeps the NoiseProfile: per CFA channel, the
@@ -338,6 +353,7 @@ def test_property_noise_on_a_simulated_flat_capture():
         assert abs(v.var() / (4e-4 * levels[c] + 1e-5) - 1.0) < 0.03
 
 
+@pytest.mark.property
 def test_property_quantisation_and_clipping():
     """property: noise-free values are stored as round(B + x·(W − B));
     overexposure clips at white, negative signals at 0 DN; uint16."""
@@ -351,6 +367,7 @@ def test_property_quantisation_and_clipping():
     assert np.array_equal(quantise(x, sm), dn)
 
 
+@pytest.mark.property
 def test_property_poisson_part_is_discrete():
     """property: without read noise, the signal is S times an integer
     (photo-electrons), mean x/S."""
@@ -358,6 +375,7 @@ def test_property_poisson_part_is_discrete():
     assert np.allclose(y, np.round(y)) and abs(y.mean() - 10.0) < 0.05
 
 
+@pytest.mark.property
 def test_property_from_electrons():
     """property: NoiseProfile from the photo-electron scale."""
     sm = SensorModel.from_electrons(8000, 3.0, gain=2.0, width_px=4, height_px=4)
@@ -367,6 +385,7 @@ def test_property_from_electrons():
 
 # -- relative illumination -----------------------------------------------------------------
 
+@pytest.mark.property
 def test_analytic_ri_cos4_thin_lens():
     """analytic: a thin F/10 singlet with its stop at the lens is free of
     distortion (third order) and pupil aberration, so flux conservation
@@ -381,6 +400,7 @@ def test_analytic_ri_cos4_thin_lens():
     assert ri.transmitted.min() == 1.0
 
 
+@pytest.mark.property
 def test_property_ri_image_space_assumes_a_focused_image():
     """property: Rimmer's image-space solid angle assumes the sensor is the
     bundles' focus; on the field-curved singlet the off-axis bundles focus
@@ -393,6 +413,7 @@ def test_property_ri_image_space_assumes_a_focused_image():
     assert img.value[-1] > 1.0 > flux.value[-1]
 
 
+@pytest.mark.property
 def test_property_ri_on_sensor():
     """property: the per-pixel map is 1 at the centre, falls toward the
     corners and is symmetric; beyond the last sample the last value holds."""
@@ -406,15 +427,8 @@ def test_property_ri_on_sensor():
     assert float(ri(10.0)) == pytest.approx(float(ri.value[-1]))
 
 
-@pytest.fixture(scope="module")
-def e9():
-    path = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
-    from calibration.optics.io.formats import read_zmx
-
-    return read_zmx(path)
-
-
-def test_published_e9_relative_illumination(e9):
+@pytest.mark.published
+def test_published_e9_relative_illumination(e9_lens):
     """published + property: US-12210142-B2-e9 (F/1.95, 36.8° half field;
     ../shared/data/lenses/README.md: "about 77 % of the stop-filling rays
     pass at 0.7 field and 46 % at full field"). The transmitted fractions
@@ -423,14 +437,16 @@ def test_published_e9_relative_illumination(e9):
     corner, lies in a plausible phone range (0.1–0.4; we get ≈ 0.18, with
     a vignetting cliff over the last 20 µm). Flux conservation and Rimmer's
     image-space method agree within 1 % of the axial value."""
-    flux = relative_illumination(e9, samples=9, pupil_samples=32)
-    img = relative_illumination(e9, samples=9, pupil_samples=32, method="image_space")
+    flux = relative_illumination(e9_lens, samples=9, pupil_samples=32)
+    img = relative_illumination(e9_lens, samples=9, pupil_samples=32, method="image_space")
     assert flux.value[0] == 1.0
     assert np.all(np.diff(flux.value) <= 1e-3)
-    corner = float(flux(e9.sensor.half_diagonal_mm))
+    corner = float(flux(e9_lens.sensor.half_diagonal_mm))
     assert 0.1 < corner < 0.4
-    at = relative_illumination(e9, fields_deg=[0.7 * e9.half_fov_deg, e9.half_fov_deg], pupil_samples=64)
-    assert abs(at.transmitted[1] - 0.77) < 0.02 and abs(at.transmitted[2] - 0.46) < 0.02
+    at = relative_illumination(e9_lens, fields_deg=[0.7 * e9_lens.half_fov_deg, e9_lens.half_fov_deg], pupil_samples=64)
+    (f07, t07), (f10, t10) = ((v["field"], v["fraction"]) for v in E9["vignetting_pass_fraction"])
+    assert (f07, f10) == (0.7, 1.0)
+    assert abs(at.transmitted[1] - t07) < 0.02 and abs(at.transmitted[2] - t10) < 0.02
     common = np.intersect1d(np.round(flux.height_mm, 9), np.round(img.height_mm, 9))
     a = flux(common)
     b = img(common)
@@ -453,6 +469,7 @@ def flat_capture(tmp_path_factory):
     return SimpleNamespace(path=path, raw=raw, meta=meta, sensor=sm)
 
 
+@pytest.mark.property
 def test_property_dng_round_trip(flat_capture):
     """property: read_raw gives back the mosaic and the metadata written:
     CFA, black and white levels, NoiseProfile, colour matrix, neutral and
@@ -476,6 +493,7 @@ def test_property_dng_round_trip(flat_capture):
                (want.area.top, want.area.left, 2, 2)
 
 
+@pytest.mark.property
 def test_property_black_level_and_lens_shading_flatten_the_capture(flat_capture):
     """property: the ISP's own black_level + lens_shading stages undo the
     simulated relative illumination: 10 × 10-pixel block means of each CFA
@@ -491,6 +509,7 @@ def test_property_black_level_and_lens_shading_flatten_the_capture(flat_capture)
         assert (b.max() - b.min()) / b.mean() < 0.01
 
 
+@pytest.mark.property
 def test_property_capture_goes_through_the_default_pipeline(flat_capture):
     """property: the simulated DNG runs through `isp process`'s default
     pipeline to display RGB like a real capture."""
@@ -503,6 +522,7 @@ def test_property_capture_goes_through_the_default_pipeline(flat_capture):
     assert Domain.DISPLAY_RGB in seen or Domain.ENCODED in seen
 
 
+@pytest.mark.property
 def test_property_gain_map_weights_match_the_reader():
     """property: the LSQ fit's interpolation weights are the DNG SDK's
     (isp.opcodes.GainMap.evaluate)."""
@@ -518,6 +538,7 @@ def test_property_gain_map_weights_match_the_reader():
 
 # -- charts through the whole path -----------------------------------------------------------
 
+@pytest.mark.property
 def test_property_chart_roi_matches_its_region():
     """property: a chart on a 3 × 4 PSF map (σ by column: 1.0, 1.25, 1.5,
     1.75 px) renders each square with its own region's PSF: an edge ROI
@@ -540,6 +561,7 @@ def test_property_chart_roi_matches_its_region():
     assert abs(res.mtf50 / mtf50_of(1.5, roi.angle_deg) - 1.0) < 0.015
 
 
+@pytest.mark.property
 def test_property_reproducible_with_a_seed():
     """property: the same seed gives the same mosaic; another seed another."""
     sensor = Sensor(1.0, 200, 150)
@@ -554,6 +576,7 @@ def test_property_reproducible_with_a_seed():
     assert a.dtype == np.uint16 and a.shape == (150, 200)
 
 
+@pytest.mark.property
 def test_property_colorchecker_chart():
     """property: the ColorChecker chart puts 24 patches in the central 4 × 6
     cells; a rendered patch centre has its camera RGB (no blur reaches it)."""
@@ -570,6 +593,7 @@ def test_property_colorchecker_chart():
 
 # -- bad input -------------------------------------------------------------------------------------
 
+@pytest.mark.property
 def test_bad_input_is_refused_with_the_reason():
     """property: errors at the public boundary name the problem."""
     sensor = Sensor(1.0, 40, 30)
@@ -597,6 +621,7 @@ def test_bad_input_is_refused_with_the_reason():
         simulate_capture(None, psfmap=pm, sensor=sm, lens_shading="baked")
 
 
+@pytest.mark.property
 def test_property_kernel_keeps_its_moments():
     """property: a PSF array becomes a sensor kernel without a flip (the
     calibration.optics.psf.map convention: rows along +y = down the sensor), its
@@ -612,6 +637,7 @@ def test_property_kernel_keeps_its_moments():
 
 # -- speed (slow) --------------------------------------------------------------------------------
 
+@pytest.mark.property
 @pytest.mark.slow
 def test_property_12mp_chart_in_under_a_minute():
     """property (slow): a 4000 × 3000 chart (15 × 20 slanted squares and a

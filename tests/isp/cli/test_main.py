@@ -9,21 +9,17 @@ import shutil
 import numpy as np
 import pytest
 
-from isp.cli.main import main, make_parser
+from isp.cli.main import make_parser
 from isp.pipeline import DEFAULT_STAGES
 
-
-def _run(capsys, *argv):
-    code = main(list(argv))
-    out = capsys.readouterr()
-    return code, out.out, out.err
+pytestmark = pytest.mark.property
 
 
-def test_process_save_stages(capsys, tmp_path, raw_file):
+def test_process_save_stages(cli, tmp_path, raw_file):
     stages = tmp_path / "stages"
     out = tmp_path / "o.jpg"
-    code, stdout, stderr = _run(capsys, "process", str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng")),
-                                "-o", str(out), "--save-stages", str(stages), "-v")
+    code, stdout, stderr = cli("process", str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng")),
+                               "-o", str(out), "--save-stages", str(stages), "-v")
     assert code == 0, stderr
     names = sorted(p.name for p in stages.iterdir())
     assert "00_input.npy" in names and "00_input.png" in names
@@ -36,28 +32,28 @@ def test_process_save_stages(capsys, tmp_path, raw_file):
     assert "lens_shading" in stdout and "GainMap" in stdout
 
 
-def test_process_set_overrides_and_png_output(capsys, tmp_path, raw_file):
+def test_process_set_overrides_and_png_output(cli, tmp_path, raw_file):
     cfg = tmp_path / "p.toml"
     cfg.write_text('[[stage]]\nname = "black_level"\n[[stage]]\nname = "white_balance"\n'
                    '[[stage]]\nname = "demosaic"\n[[stage]]\nname = "ccm"\n[[stage]]\nname = "gamma"\n')
     out = tmp_path / "o.png"
-    code, stdout, stderr = _run(capsys, "process", str(raw_file("tinydng_colorchart.dng")), "-o", str(out),
-                                "--config", str(cfg), "--set", "white_balance.mode=grey_world",
-                                "--set", "demosaic.method=bilinear", "-v")
+    code, stdout, stderr = cli("process", str(raw_file("tinydng_colorchart.dng")), "-o", str(out),
+                               "--config", str(cfg), "--set", "white_balance.mode=grey_world",
+                               "--set", "demosaic.method=bilinear", "-v")
     assert code == 0, stderr
     assert "grey world" in stdout and "bilinear" in stdout
     import cv2
 
     img = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
     assert img.dtype == np.uint16 and img.shape == (1156, 1734, 3)
-    code, _, stderr = _run(capsys, "process", str(raw_file("tinydng_colorchart.dng")), "-o", str(out),
-                           "--set", "sharpen.amount=1")
+    code, _, stderr = cli("process", str(raw_file("tinydng_colorchart.dng")), "-o", str(out),
+                          "--set", "sharpen.amount=1")
     assert code == 2 and "no stage 'sharpen'" in stderr
 
 
-def test_info_json(capsys, raw_file, tmp_path):
-    code, stdout, _ = _run(capsys, "info", str(raw_file("imageio_Blackmagic.dng")),
-                           "--json", str(tmp_path / "i.json"))
+def test_info_json(cli, raw_file, tmp_path):
+    code, stdout, _ = cli("info", str(raw_file("imageio_Blackmagic.dng")),
+                          "--json", str(tmp_path / "i.json"))
     assert code == 0
     info = json.loads(stdout)
     assert info == json.loads((tmp_path / "i.json").read_text())
@@ -67,35 +63,35 @@ def test_info_json(capsys, raw_file, tmp_path):
     assert info["calibration_illuminant_2_name"] == "D65"
     assert info["default_crop"] == [16, 8, 4096, 2160]
     assert info["applied_by_decoder"] == ["LinearizationTable"]
-    code, stdout, _ = _run(capsys, "info", str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng")))
+    code, stdout, _ = cli("info", str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng")))
     info = json.loads(stdout)
     assert [p["action"] for p in info["opcode_plan"]] == ["lens_shading"] * 4
     assert info["opcodes"]["OpcodeList2"][0]["name"] == "GainMap"
 
 
-def test_stages_lists_and_describes(capsys):
-    code, stdout, _ = _run(capsys, "stages")
+def test_stages_lists_and_describes(cli):
+    code, stdout, _ = cli("stages")
     assert code == 0
     for name in DEFAULT_STAGES:
         assert name in stdout
-    code, stdout, _ = _run(capsys, "stages", "demosaic")
+    code, stdout, _ = cli("stages", "demosaic")
     assert code == 0 and "method" in stdout and "malvar2004" in stdout
-    code, _, stderr = _run(capsys, "stages", "nope")
+    code, _, stderr = cli("stages", "nope")
     assert code == 2 and "unknown stage 'nope'" in stderr
 
 
-def test_batch_two_workers(capsys, tmp_path, raw_file):
+def test_batch_two_workers(cli, tmp_path, raw_file):
     src = tmp_path / "in"
     src.mkdir()
     for n in ("a", "b", "c"):
         shutil.copy(raw_file("SYNTHETIC_phone_S6meta_512x384.dng"), src / f"{n}.dng")
-    code, stdout, _ = _run(capsys, "batch", str(src), "-o", str(tmp_path / "out"), "--workers", "2")
+    code, stdout, _ = cli("batch", str(src), "-o", str(tmp_path / "out"), "--workers", "2")
     assert code == 0 and "processed 3 of 3" in stdout
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.jpg", "b.jpg", "c.jpg"]
 
 
-def test_demo_small(capsys, tmp_path):
-    code, stdout, stderr = _run(capsys, "demo", "-o", str(tmp_path), "--width", "400", "--height", "300")
+def test_demo_small(cli, tmp_path):
+    code, stdout, stderr = cli("demo", "-o", str(tmp_path), "--width", "400", "--height", "300")
     assert code == 0, stderr
     for name in ("demo.dng", "demo.jpg", "demo_no_correction.jpg", "demo_before_after.png"):
         assert (tmp_path / name).exists(), name
@@ -114,7 +110,7 @@ def test_demo_small(capsys, tmp_path):
 
 @pytest.mark.parametrize("command", ["process", "info", "stages", "batch", "demo"])
 def test_help_teaches_with_an_example(command):
-    parser = make_parser()
+    parser = make_parser(command)
     sub = parser._subparsers._group_actions[0].choices[command]
     text = sub.format_help()
     assert "example" in text and len(text) > 300
@@ -133,7 +129,7 @@ def test_process_never_imports_torch(tmp_path, raw_file):
     assert out.stdout.strip().splitlines()[-1] == "False"
 
 
-# -- the shipped correction model (export issue, deliverable 5) ---------------
+# -- the shipped correction model ---------------------------------------------
 
 def test_shipped_model_is_packaged_int8_and_small():
     """The default pipeline's correction stage runs the packaged model of the
@@ -160,8 +156,8 @@ def test_shipped_model_is_packaged_int8_and_small():
 @pytest.mark.parametrize("level", [0.005, 0.05, 0.4, 0.9])
 def test_shipped_model_keeps_flat_fields(level):
     """Physics: optical blur moves no light further than the PSF reaches, so
-    its correction leaves a flat field's level alone. The model packaged
-    until 2026-11-26 had learnt a tone curve: it darkened a flat 0.01 by
+    its correction leaves a flat field's level alone. A network without the
+    residual high-pass learns a tone curve: one darkened a flat 0.01 by
     7.6 % and brightened 0.7 by 6.3 % (``benchmarks/flat_fields.py``; the
     demo's ColorChecker moved 0.85 ΔE00). Grey and a saturated colour,
     centre of a 384 × 512 frame, each channel's mean within 1 %, or 0.0006
@@ -183,9 +179,9 @@ def test_shipped_model_keeps_flat_fields(level):
 
 
 def test_shipped_model_keeps_the_means_of_noise_and_texture():
-    """Physics: the means an optical correction keeps are linear. The model
-    packaged until 2026-11-26 filtered its residual in the √x domain, whose
-    encoding clips negatives: a noisy black (mean 0, σ 0.002) came out 0.40 σ
+    """Physics: the means an optical correction keeps are linear. A model
+    that filters its residual in the √x domain, whose encoding clips
+    negatives, does not: a noisy black (mean 0, σ 0.002) came out 0.40 σ
     bright, and a fine texture around grey 0.3 0.46 % bright
     (``benchmarks/flat_fields.py``). Within 0.1 σ and 0.2 %."""
     from benchmarks.flat_fields import noisy_field_changes, texture_mean_change
@@ -196,15 +192,15 @@ def test_shipped_model_keeps_the_means_of_noise_and_texture():
     assert texture["worst_percent"] < 0.2, texture
 
 
-def test_process_corrects_by_default_and_no_correction_turns_it_off(capsys, tmp_path, raw_file):
+def test_process_corrects_by_default_and_no_correction_turns_it_off(cli, tmp_path, raw_file):
     dng = str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng"))
     a, b = tmp_path / "a.png", tmp_path / "b.png"
     cfg = tmp_path / "to_display.toml"  # stop before JPEG so the outputs compare exactly
     cfg.write_text("".join(f'[[stage]]\nname = "{n}"\n' for n in DEFAULT_STAGES[:-1]))
-    code, out_on, err = _run(capsys, "process", dng, "-o", str(a), "--config", str(cfg), "-v")
+    code, out_on, err = cli("process", dng, "-o", str(a), "--config", str(cfg), "-v")
     assert code == 0, err
-    code, out_off, err = _run(capsys, "process", dng, "-o", str(b), "--config", str(cfg), "-v",
-                              "--no-correction")
+    code, out_off, err = cli("process", dng, "-o", str(b), "--config", str(cfg), "-v",
+                             "--no-correction")
     assert code == 0, err
     assert "e9_default.int8.onnx" in out_on and "identity (no model)" in out_off
     import cv2
@@ -217,12 +213,12 @@ def test_process_corrects_by_default_and_no_correction_turns_it_off(capsys, tmp_
     assert np.all(np.abs(on.astype(float).mean((0, 1)) - off.astype(float).mean((0, 1))) < 3.0)
 
 
-def test_info_names_the_correction_model(capsys, raw_file):
+def test_info_names_the_correction_model(cli, raw_file):
     dng = str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng"))
-    code, stdout, err = _run(capsys, "info", dng)
+    code, stdout, err = cli("info", dng)
     assert code == 0, err
     c = json.loads(stdout)["correction"]
     assert c["model"] == "e9_default.int8.onnx" and c["source"] == "packaged default"
     assert c["lens"] == "US-12210142-B2-e9" and c["size_kb"] <= 5 * 1024
-    code, stdout, err = _run(capsys, "info", dng, "--no-correction")
+    code, stdout, err = cli("info", dng, "--no-correction")
     assert json.loads(stdout)["correction"]["model"] is None

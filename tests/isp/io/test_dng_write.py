@@ -1,5 +1,6 @@
 """The DNG writer: files open in rawpy (LibRaw, an independent reader) and
-round-trip through our reader (kind: property / oracle)."""
+round-trip through our reader (kinds: published — LibRaw reads the file
+as we wrote it; property — round trips and refusals)."""
 
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ def _full_meta(h, w, cfa=CFA.GBRG):
     )
 
 
+@pytest.mark.published
 def test_bayer_round_trip_through_rawpy_and_reader(tmp_path, rng):
     h, w = 96, 128
     data = rng.integers(60, 4096, (h, w)).astype(np.uint16)
@@ -76,6 +78,7 @@ def test_bayer_round_trip_through_rawpy_and_reader(tmp_path, rng):
     assert m.notes == ()
 
 
+@pytest.mark.property
 def test_active_area_crop_and_linearisation_round_trip(tmp_path, rng):
     h, w = 70, 100
     data = rng.integers(0, 1024, (h, w)).astype(np.uint16)
@@ -93,6 +96,7 @@ def test_active_area_crop_and_linearisation_round_trip(tmp_path, rng):
     assert np.array_equal(f.data, expect)
 
 
+@pytest.mark.property
 def test_linear_dng_round_trip(tmp_path, rng):
     data = rng.integers(0, 65535, (40, 60, 3)).astype(np.uint16)
     meta = CameraMeta(cfa=None, white_level=(65535.0,), color_matrix_1=np.eye(3),
@@ -102,6 +106,7 @@ def test_linear_dng_round_trip(tmp_path, rng):
     assert np.array_equal(f.data, data.astype(np.float32))
 
 
+@pytest.mark.property
 def test_writer_refuses_bad_input_and_leaves_no_file(tmp_path):
     meta = CameraMeta(cfa=CFA.RGGB)
     with pytest.raises(IspError, match="uint16"):

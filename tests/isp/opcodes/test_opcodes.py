@@ -1,8 +1,8 @@
 """Tests of isp.opcodes: DNG opcode lists (DNG 1.7.1.0, chapter 7).
 
-Each test is labelled:
+Each test is marked with its kind:
 
-* published/reference: facts published with the sample blobs (the data
+* published: facts published with the sample blobs (the data
   README) or taken from the Adobe DNG SDK's code (re-implemented here as an
   independent scalar oracle);
 * golden: facts of the project's own synthetic DNG (made by the project's
@@ -83,6 +83,7 @@ def _gain_map_params(gains, sv, sh, ov, oh, area=None) -> bytes:
 # ---------------------------------------------------------------------------
 # published: the real sample blobs (facts from shared/data/README.md)
 
+@pytest.mark.published
 def test_published_gain_map_blob():
     """published: DngOpcodesEditor GainMap, 32x32x3, gains 0.994-2.81, for
     a 4056x3040 sensor."""
@@ -99,6 +100,7 @@ def test_published_gain_map_blob():
     assert serialize_opcode_list([op]) == blob
 
 
+@pytest.mark.published
 def test_published_vignette_blob():
     """published: DngOpcodesEditor FixVignetteRadial (k0 = 1, centred)."""
     blob = _blob("DngOpcodesEditor_FixVignetteRadial.bin")
@@ -114,6 +116,7 @@ def test_published_vignette_blob():
     assert g.min() == pytest.approx(1.0, abs=1e-4) and g.max() == pytest.approx(2.0, abs=1e-2)
 
 
+@pytest.mark.published
 def test_published_warp_blob():
     """published: DngOpcodesEditor WarpRectilinear, one plane."""
     blob = _blob("DngOpcodesEditor_WarpRectilinear.bin")
@@ -124,6 +127,7 @@ def test_published_warp_blob():
     assert serialize_opcode_list([op]) == blob
 
 
+@pytest.mark.published
 def test_published_skia_map_polynomials():
     """published: the LG G4 lossy linear DNG's OpcodeList2 holds 3
     MapPolynomial (degree 3) on planes 0, 1, 2."""
@@ -138,6 +142,7 @@ def test_published_skia_map_polynomials():
         assert np.all(np.diff(y) > 0)
 
 
+@pytest.mark.golden
 def test_golden_synthetic_s6_gain_maps():
     """golden: the synthetic S6 DNG's OpcodeList2 (written by the project):
     4 GainMaps, one per CFA phase, 32x32, pitch 2."""
@@ -264,6 +269,7 @@ def _random_map(rng, pv, ph, planes, height, width):
     return GainMap(area, gains, sv, sh, ov, oh)
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("seed, pv, ph, planes", [
     (0, 7, 11, 1), (1, 13, 5, 3), (2, 2, 2, 1), (3, 1, 9, 2), (4, 17, 1, 1), (5, 32, 32, 4)])
 def test_reference_gain_map_matches_sdk_interpolator(seed, pv, ph, planes):
@@ -284,6 +290,7 @@ def test_reference_gain_map_matches_sdk_interpolator(seed, pv, ph, planes):
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("pitch, col0", [(1, 0), (2, 1)])
 def test_reference_gain_map_matches_sdk_incremental_walk(pitch, col0):
     """reference: the SDK applies the map stepping the column interpolation
@@ -300,6 +307,7 @@ def test_reference_gain_map_matches_sdk_incremental_walk(pitch, col0):
         np.testing.assert_allclose(got, want, rtol=0, atol=2e-6)
 
 
+@pytest.mark.published
 def test_reference_gain_map_linear_field_is_exact():
     """reference (analytic): gains linear in the map position are
     reproduced exactly by bilinear interpolation inside the map."""
@@ -325,6 +333,7 @@ def test_reference_gain_map_linear_field_is_exact():
     np.testing.assert_allclose(top, a + b * pos_v[0] + c * h[inside_h], atol=1e-6)
 
 
+@pytest.mark.property
 def test_gain_map_evaluate_full_frame_phase():
     """A 32x32 map evaluated for one CFA phase of a 16 MP frame: float32 of
     the phase's shape, equal to the map evaluated point by point. (Its speed
@@ -340,6 +349,7 @@ def test_gain_map_evaluate_full_frame_phase():
         assert one[0, 0] == pytest.approx(float(g[r, c]), abs=1e-6)
 
 
+@pytest.mark.published
 def test_gain_map_pixels_and_planes():
     """reference: area lattice clipped to the image; an empty area is the
     whole image (SDK dng_area_spec::Overlap); plane p uses map plane
@@ -358,6 +368,7 @@ def test_gain_map_pixels_and_planes():
     assert [a.size for a in outside.pixels(10, 10)] == [0, 0]
 
 
+@pytest.mark.published
 def test_gain_map_one_point_axis_forces_spacing():
     """reference: with MapPointsV == 1 the SDK forces spacing 1 and origin
     0 on that axis, so a stored spacing of 0 is accepted and kept."""
@@ -374,6 +385,7 @@ def test_gain_map_one_point_axis_forces_spacing():
 # reference: vignette, polynomial, table
 
 
+@pytest.mark.published
 def test_reference_vignette_formula():
     """reference: FixVignetteRadial.evaluate against the SDK's Prepare
     (centre Lerp over the image, radius to the farthest corner, pixel
@@ -391,6 +403,7 @@ def test_reference_vignette_formula():
         assert got[i, j] == pytest.approx(want, abs=2e-6)
 
 
+@pytest.mark.published
 def test_reference_map_polynomial_and_table():
     """reference: MapPolynomial is sum c_i x^i (np.polynomial); MapTable
     looks up the nearest 16-bit code and repeats its last entry."""
@@ -411,6 +424,7 @@ def test_reference_map_polynomial_and_table():
 # errors: clear one-line messages naming the opcode
 
 
+@pytest.mark.property
 def test_error_names_opcode_and_byte_counts():
     """property: a parameter byte count that disagrees with the content is
     an error naming index, opcode and both counts."""
@@ -426,6 +440,7 @@ def test_error_names_opcode_and_byte_counts():
     assert isinstance(info.value, ValueError) and isinstance(info.value, IspError)
 
 
+@pytest.mark.published
 @pytest.mark.parametrize("gains, sv, points, match", [
     (np.array([[[1.0], [np.nan]]]), 0.5, None, "non-finite gain"),
     (np.ones((2, 2, 1)), 0.0, None, "spacing V is 0.0, must be > 0"),
@@ -443,6 +458,7 @@ def test_invalid_gain_maps_rejected(gains, sv, points, match):
         parse_opcode_list(_list(_header(9, params)))
 
 
+@pytest.mark.property
 def test_list_level_errors():
     """property: truncated, oversized and trailing lists; huge counts fail
     fast, before any allocation."""
@@ -464,6 +480,7 @@ def test_list_level_errors():
     assert parse_opcode_list(np.frombuffer(bytes(4), np.uint8)) == ()
 
 
+@pytest.mark.property
 def test_unknown_opcodes_are_listed_and_round_trip():
     """property: vendor/unknown IDs are kept with their bytes, never dropped."""
     blob = _list(_header(0x8000_0001, b"vendor data", flags=1),
@@ -476,6 +493,7 @@ def test_unknown_opcodes_are_listed_and_round_trip():
     assert ops[0].describe()["parameter_bytes"] == 11
 
 
+@pytest.mark.property
 def test_construction_validates():
     """property: invalid opcodes cannot be built either (same messages)."""
     with pytest.raises(OpcodeError, match=r"^GainMap: 1 non-finite gain\(s\)"):
@@ -494,6 +512,7 @@ def test_construction_validates():
         TrimBounds(5, 0, 5, 10)
 
 
+@pytest.mark.property
 def test_describe_is_short_and_json_ready():
     """property: describe() summarises (gain range, never the array)."""
     g = np.linspace(0.5, 2.5, 64 * 64).reshape(64, 64, 1)
@@ -597,6 +616,7 @@ def opcode_lists(draw):
     return items, _list(*parts)
 
 
+@pytest.mark.property
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(opcode_lists())
 def test_property_round_trip_every_opcode_type(case):
@@ -641,6 +661,7 @@ def _parse_only_opcode_error(data: bytes) -> None:
         op.to_bytes()
 
 
+@pytest.mark.property
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.one_of(
     st.binary(max_size=200),
@@ -693,6 +714,7 @@ def _mutate(rng: random.Random, data: bytes) -> bytes:
     return bytes(d)
 
 
+@pytest.mark.property
 @pytest.mark.slow
 def test_slow_fuzz_10000_mutations():
     """property: 10,000 mutations of the real blobs (bit flips, truncations,

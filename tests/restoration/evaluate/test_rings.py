@@ -21,10 +21,13 @@ import pytest
 from tests.helpers import data_file, kernel_psf_map
 
 from calibration.optics.psf.map import PSFMap
+from isp.runtime.executor import create_executor
+
+pytestmark = pytest.mark.property
 
 S6 = ("raw", "SYNTHETIC_phone_S6meta_512x384.dng")
-E9 = ("lenses", "phone", "US-12210142-B2-e9.zmx")
 FRAME = (384, 512)
+QUIET = create_executor("serial")          # the crops in this process, no progress bar
 KEYS = ("psnr_uncorrected", "psnr_corrected", "ssim_uncorrected", "ssim_corrected")
 
 
@@ -135,16 +138,16 @@ def test_field_radius_and_ring_placement():
             assert lo <= rr[160, 160] <= hi and lo <= rr.min() and rr.max() <= hi
 
 
-def test_unseen_lenses_are_not_the_training_draws():
+def test_unseen_lenses_are_not_the_training_draws(e9_zmx):
     """The evaluation's lenses come from another random stream than the
     training's (spawn key 2 vs 0), so none equals a training lens for the
     same seed, and the proxy is left out unless asked for."""
     from restoration.evaluate.rings import eval_lenses
-    from restoration.synth.pairs import _rng
+    from restoration.synth.pairs import seeded_rng
     from restoration.synth.optics import draw_lenses, load_lens
 
-    lens = load_lens(data_file(*E9))
-    train = draw_lenses(lens, 4, _rng(0, 0))
+    lens = load_lens(e9_zmx)
+    train = draw_lenses(lens, 4, seeded_rng(0, 0))
     test = eval_lenses(lens, 3, 0)
     assert len(test) == 3
     key = lambda pl: tuple(sorted(pl.perturbation.as_dict().items()))
@@ -160,7 +163,7 @@ def test_identity_model_scores_as_uncorrected(make):
     from restoration.evaluate.rings import evaluate_plan
 
     plan, es = make([psf_map()])
-    res = evaluate_plan(plan, identity, es, progress=False)
+    res = evaluate_plan(plan, identity, es, executor=QUIET)
     assert set(res["rings"]) == {"0.1", "0.5", "0.9"}
     for ring in res["rings"].values():
         assert ring["crops"] == 2
@@ -184,8 +187,8 @@ def test_exact_inverse_scores_as_an_ideal_lens(make):
     kw = {"noise": False, "quantise": False, "baseline": "none"}
     shifted, es = make([psf_map("delta", shift=(0, 4))], **kw)
     ideal, _ = make([None], **kw)
-    got = evaluate_plan(shifted, unshift, es, progress=False)
-    ref = evaluate_plan(ideal, identity, es, progress=False)
+    got = evaluate_plan(shifted, unshift, es, executor=QUIET)
+    ref = evaluate_plan(ideal, identity, es, executor=QUIET)
     for k in ("0.1", "0.5", "0.9"):
         g, r = got["rings"][k], ref["rings"][k]
         assert g["psnr_corrected"] == pytest.approx(r["psnr_uncorrected"], abs=0.01)
@@ -202,7 +205,7 @@ def test_deconvolution_with_the_true_psf_helps_where_the_blur_is(make, method):
     from restoration.evaluate.rings import evaluate_plan
 
     plan, es = make([psf_map()], baseline=method, noise_scale=(0.02, 0.02))
-    r = evaluate_plan(plan, identity, es, progress=False)["rings"]["0.9"]
+    r = evaluate_plan(plan, identity, es, executor=QUIET)["rings"]["0.9"]
     assert r["psnr_baseline"] > r["psnr_uncorrected"] + 1.0
     assert r["ssim_baseline"] > r["ssim_uncorrected"]
 
@@ -236,7 +239,7 @@ def test_onnx_identity_through_the_correction_stage(make, tmp_path):
     runner = load_runner(onnx_select_rgb(tmp_path / "sel.onnx"))
     assert isinstance(runner, OnnxRunner) and runner.meta["fov_encoding"] == "xy"
     plan, es = make([psf_map()], baseline="none")
-    res = evaluate_plan(plan, runner, es, progress=False)
+    res = evaluate_plan(plan, runner, es, executor=QUIET)
     for ring in res["rings"].values():
         assert ring["psnr_corrected"] == pytest.approx(ring["psnr_uncorrected"], abs=1e-6)
 
@@ -253,7 +256,7 @@ def test_identity_at_the_other_placements_scores_as_uncorrected(make, tmp_path, 
 
     runner = load_runner(onnx_select_rgb(tmp_path / "sel.onnx", {"domain": domain}))
     plan, es = make([psf_map()], baseline="none")
-    res = evaluate_plan(plan, runner, es, progress=False)
+    res = evaluate_plan(plan, runner, es, executor=QUIET)
     for ring in res["rings"].values():
         assert ring["psnr_corrected"] == pytest.approx(ring["psnr_uncorrected"], abs=1e-4)
 
@@ -299,8 +302,8 @@ def test_checkpoint_and_onnx_score_alike(make, tmp_path):
     t_run, o_run = load_runner(ckpt), load_runner(path)
     assert isinstance(t_run, TorchRunner) and t_run.margin == 24 and t_run.meta["lens"] == "toy"
     plan, es = make([psf_map()], baseline="none")
-    a = evaluate_plan(plan, t_run, es, progress=False)
-    b = evaluate_plan(plan, o_run, es, progress=False)
+    a = evaluate_plan(plan, t_run, es, executor=QUIET)
+    b = evaluate_plan(plan, o_run, es, executor=QUIET)
     for k in ("0.1", "0.5", "0.9"):
         ra, rb = a["rings"][k], b["rings"][k]
         assert ra["psnr_corrected"] == pytest.approx(rb["psnr_corrected"], abs=0.01)
@@ -330,7 +333,7 @@ def test_a_checkpoint_whose_reach_exceeds_the_tile_runs_on_larger_tiles():
 
 def test_isp_eval_writes_the_report(make, latent_dir, tmp_path, monkeypatch, capsys):
     """`isp eval MODEL --images DIR --lens LENS --json OUT`: the JSON has the
-    deliverable's keys per ring, plus overall, per-image, per-lens, timing
+    report's keys per ring, plus overall, per-image, per-lens, timing
     (the PSF maps are replaced by the synthetic one: no optics here)."""
     import restoration.evaluate.rings as ev
     from isp.cli.main import main
@@ -355,7 +358,7 @@ def test_isp_eval_writes_the_report(make, latent_dir, tmp_path, monkeypatch, cap
     for ring in rep["rings"].values():
         assert all(isinstance(ring[k], float) for k in KEYS + ("psnr_baseline", "ssim_baseline"))
         assert ring["crops"] == 4                                # 2 images × 2 lenses, one place each
-    assert rep["settings"]["seed"] == 3 and seen["samples"] == 2 and seen["seed"] == 3
+    assert rep["settings"]["seed"] == 3 and seen["settings"].samples == 2 and seen["settings"].seed == 3
     assert rep["model"]["kind"] == "onnx" and len(rep["per_lens"]) == 2 and len(rep["per_image"]) == 2
     assert rep["overall"]["crops"] == 12 and len(rep["crops"]) == 12
     assert rep["timing"]["model"] > 0 and rep["timing"]["per_crop"] > 0
@@ -410,8 +413,8 @@ def test_a_model_trained_at_another_pixel_pitch_is_flagged(make, latent_dir, tmp
     plan.info["psf_map"] = {"sensor": {"pixel_pitch_um": 1.0, "width_px": 128, "height_px": 96}}
     monkeypatch.setattr(ev, "eval_plan", lambda lens, images_dir, **kw: plan)
     runner = load_runner(onnx_select_rgb(tmp_path / "sel.onnx"))
-    kw = dict(images_dir=latent_dir, lens="lens.json", samples=1, size=32, border=8, baseline="none",
-              progress=False)
+    kw = dict(images_dir=latent_dir, lens="lens.json",
+              settings=ev.EvalSettings(samples=1, size=32, border=8, baseline="none"), executor=QUIET)
     for pitch, flagged in ((2.807, True), (1.0, False)):
         runner.info = {"metadata": {"training_sets": [{"psf_map": {"sensor": {"pixel_pitch_um": pitch}}}]}}
         with warnings.catch_warnings(record=True) as seen:

@@ -14,6 +14,8 @@ import io
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.property
+
 torch = pytest.importorskip("torch")
 F = torch.nn.functional
 

@@ -21,6 +21,9 @@ from tests.helpers import data_file, kernel_psf_map
 from calibration.optics.psf.map import PSFMap
 from isp.cli.main import main
 from isp.frame import CFA, Domain, Frame
+from isp.runtime.executor import create_executor
+
+pytestmark = pytest.mark.property
 
 S6 = ("raw", "SYNTHETIC_phone_S6meta_512x384.dng")
 LG = ("raw", "skia_sample_1mp.dng")
@@ -275,9 +278,10 @@ def test_shards_are_deterministic_and_traceable(tmp_path, cameras):
 
     m = gaussian_map()
     plan = make_plan(tmp_path, cameras, [m, gaussian_map(sigmas=np.full((3, 4, 3), 1.2))], seed=5)
-    a = generate(plan, tmp_path / "a", 6, shard_size=4, workers=1, progress=False)
-    b = generate(plan, tmp_path / "b", 6, shard_size=4, workers=2, progress=False)
-    c = generate(dataclasses.replace(plan, seed=6), tmp_path / "c", 6, shard_size=4, workers=1, progress=False)
+    serial = create_executor("serial")
+    a = generate(plan, tmp_path / "a", 6, shard_size=4, executor=serial)
+    b = generate(plan, tmp_path / "b", 6, shard_size=4, executor=create_executor("processes", 2))
+    c = generate(dataclasses.replace(plan, seed=6), tmp_path / "c", 6, shard_size=4, executor=serial)
     assert [s["sha256"] for s in a["shards"]] == [s["sha256"] for s in b["shards"]]   # workers don't matter
     assert a["data_sha256"] == b["data_sha256"] != c["data_sha256"]                   # the seed does
     assert (tmp_path / "a" / "manifest.json").read_bytes() == (tmp_path / "b" / "manifest.json").read_bytes()
@@ -311,14 +315,14 @@ def test_shards_are_deterministic_and_traceable(tmp_path, cameras):
     shard.write_bytes(bytes(raw))
     assert len(verify(tmp_path / "a")) == 1
     with pytest.raises(Exception, match="previous set"):
-        generate(plan, tmp_path / "a", 2, progress=False)
+        generate(plan, tmp_path / "a", 2, executor=create_executor("serial"))
 
 
-def test_drawn_lenses_keep_the_proxy_first():
+def test_drawn_lenses_keep_the_proxy_first(e9_zmx):
     from calibration.optics.perturb import apply
     from restoration.synth.optics import draw_lenses, load_lens
 
-    lens = load_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    lens = load_lens(e9_zmx)
     proxy = apply(lens.nominal, {"e1.decenter_x": 0.001})
     a = draw_lenses(proxy, 3, np.random.default_rng(1))
     b = draw_lenses(proxy, 3, np.random.default_rng(1))
@@ -331,7 +335,7 @@ def test_drawn_lenses_keep_the_proxy_first():
 
 # -- command line ------------------------------------------------------------------------------
 
-def test_synth_help_and_errors(capsys, tmp_path):
+def test_synth_help_and_errors(capsys, tmp_path, e9_zmx):
     with pytest.raises(SystemExit) as e:
         main(["synth", "--help"])
     assert e.value.code == 0
@@ -339,7 +343,7 @@ def test_synth_help_and_errors(capsys, tmp_path):
     assert main(["synth", "--lens", str(tmp_path / "no.zmx"), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "no.zmx" in err and len(err.strip().splitlines()) == 1
-    zmx = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
+    zmx = e9_zmx
     assert main(["synth", "--lens", str(zmx), "-o", str(tmp_path / "o"), "--latent", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err
     assert "latent" in err and len(err.strip().splitlines()) == 1
@@ -371,7 +375,7 @@ def test_process_runs_on_torch_like_numpy(cameras):
     assert torch.isfinite(t.grad).all()
 
 
-def test_plan_pixel_um_samples_the_lens_sensor_at_that_pitch(tmp_path, cameras):
+def test_plan_pixel_um_samples_the_lens_sensor_at_that_pitch(tmp_path, cameras, e9_zmx):
     """property: ``pixel_um`` keeps the lens file's sensor area and sets the
     pairs' pitch: e9 (5614 × 4211 px of 1 µm) at 2 µm is 2807 × 2106 px, and
     the PSF map is sampled at half that pitch (1 µm), so a lens's blur
@@ -381,8 +385,8 @@ def test_plan_pixel_um_samples_the_lens_sensor_at_that_pitch(tmp_path, cameras):
     scored on."""
     from restoration.synth.pairs import SynthSettings, plan
 
-    lens = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
-    kw = dict(latent_dir=latent_png(tmp_path, size=160), cameras=[data_file(*S6)], progress=False, workers=1,
+    lens = e9_zmx
+    kw = dict(latent_dir=latent_png(tmp_path, size=160), cameras=[data_file(*S6)], executor=create_executor("serial"),
               settings=SynthSettings(size=64),
               cache_dir=tmp_path / "psf")
     psf = {"grid": (1, 2), "channels": ("G",), "n_wavelengths": 1, "pupil_samples": 32}

@@ -21,11 +21,14 @@ import numpy as np
 import pytest
 from tests.helpers import ROOT, data_file, kernel_psf_map
 
+pytestmark = pytest.mark.property
+
 torch = pytest.importorskip("torch")
 
 from calibration.optics.psf.map import PSFMap
 from isp.cli.main import main
 from isp.errors import ConfigError
+from isp.runtime.executor import create_executor
 
 S6 = ("raw", "SYNTHETIC_phone_S6meta_512x384.dng")
 LG = ("raw", "skia_sample_1mp.dng")
@@ -69,7 +72,7 @@ def pairs(tmp_path_factory):
     lat = tuple(str(p) for p in find_latents(latent_pngs(tmp / "latent")))
     plan = SynthPlan((gaussian_map(),), cams, colour_table(list(cams), st.cct_k, st.cct_steps), lat, (96, 128),
                      0, st, (4e-4, 1e-6))
-    generate(plan, tmp / "pairs", 24, shard_size=10, workers=1, progress=False)
+    generate(plan, tmp / "pairs", 24, shard_size=10, executor=create_executor("serial"))
     return tmp / "pairs"
 
 
@@ -252,7 +255,7 @@ def test_patching_the_gamma_function_changes_the_loss(pairs, run_a, tmp_path, mo
     base = json.loads((out / "train_log.json").read_text())["history"]["loss"][0]
     monkeypatch.setattr(sc, "srgb_oetf", lambda v: v.clamp(0.0, 1.0))
     cfg = TrainConfig.from_dict(config_dict(pairs, tmp_path, steps=1)).replace("data", val_pairs=0)
-    patched = train(cfg, progress=False, log=lambda *_: None)["history"]["loss"][0]
+    patched = train(cfg, executor=create_executor("serial"), log=lambda *_: None)["history"]["loss"][0]
     assert abs(patched - base) > 1e-3 * base
 
 
@@ -445,7 +448,7 @@ def test_a_set_blurred_through_another_psf_window_is_refused(tmp_path):
                 "psf_map": {"n": 32, "pitch_um": 0.5, "grid": [15, 20]}, "shards": []}
     (tmp_path / "set" / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(ConfigError, match="psf_n 32 ≠ 64"):
-        ensure_data(cfg, progress=False, log=lambda *a: None)
+        ensure_data(cfg, executor=create_executor("serial"), log=lambda *a: None)
 
 
 def test_split_seed_is_fixed_or_follows_the_run_seed(pairs, tmp_path):

@@ -14,9 +14,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calibration.optics.io.formats import read_deeplens, read_optiland, read_rayoptics, read_zmx
+from calibration.optics.io.deeplens import read_deeplens
+from calibration.optics.io.lens_json import lens_from_dict, lens_to_dict, load_lens, save_lens
+from calibration.optics.io.optiland import read_optiland
+from calibration.optics.io.rayoptics import read_rayoptics
+from calibration.optics.io.read import read_lens
+from calibration.optics.io.zmx import read_zmx
 from calibration.optics.lens import Lens, LensError, Sensor, Surface
-from calibration.optics.io.lens_json import lens_from_dict, lens_to_dict, load_lens, read_lens, save_lens
 from calibration.optics.materials import AIR, lookup, model_material
 from calibration.optics.paraxial import efl, first_order, image_height
 
@@ -97,6 +101,7 @@ def minimal(**over) -> dict:
 
 # -- lens/v1 ---------------------------------------------------------------------
 
+@pytest.mark.property
 @pytest.mark.parametrize("where", SHARED, ids=lambda w: w[1])
 def test_round_trip_is_exact_for_every_imported_lens(where, tmp_path):
     """property: save_lens then load_lens gives an equal Lens (and the same metadata); a
@@ -138,6 +143,7 @@ def lenses(draw):
                 name=draw(st.text(max_size=12)))
 
 
+@pytest.mark.property
 @settings(max_examples=60, deadline=None)
 @given(lens=lenses())
 def test_round_trip_property(lens):
@@ -146,6 +152,7 @@ def test_round_trip_property(lens):
     assert lens_from_dict(json.loads(text)) == lens
 
 
+@pytest.mark.property
 def test_lens_v1_semantics():
     """property: radius/curvature, aspheric dict and list forms, defaults."""
     d = minimal()
@@ -163,6 +170,7 @@ def test_lens_v1_semantics():
     assert lens_from_dict(minimal(wavelengths_nm=[450.0, 550.0, 650.0])).primary_nm == 550.0
 
 
+@pytest.mark.property
 def test_stop_size_aperture_and_image_height_field():
     """property: aperture.stop_semi_diameter sets the stop; field.image_height converts to an angle."""
     d = minimal(aperture={"stop_semi_diameter": 5.0})
@@ -173,12 +181,14 @@ def test_stop_size_aperture_and_image_height_field():
     assert lens2.half_fov_deg == pytest.approx(12.0, abs=1e-12)
 
 
+@pytest.mark.property
 def test_stop_size_lens_without_marked_stop_is_not_written():
     """property: a file must name the stop that sets its aperture."""
     lens = Lens((Surface(thickness=5.0, semi_diameter=2.0),), epd=None)
     assert "no surface is marked as the stop" in one_line_error(lens_to_dict, lens)
 
 
+@pytest.mark.property
 def test_save_is_atomic_and_leaves_no_partial_file(tmp_path, monkeypatch):
     """property: a failing write leaves the old file untouched and no temporary behind."""
     lens = lens_from_dict(minimal())
@@ -196,6 +206,7 @@ def test_save_is_atomic_and_leaves_no_partial_file(tmp_path, monkeypatch):
 
 # -- bad files ------------------------------------------------------------------
 
+@pytest.mark.property
 def test_non_numeric_value_names_file_and_surface(tmp_path):
     """property: the example of the issue, verbatim after the file name."""
     d = minimal()
@@ -205,6 +216,7 @@ def test_non_numeric_value_names_file_and_surface(tmp_path):
     assert msg == f"{p}: surface 4: conic must be a number, got 'x'"
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("change, expect", [
     (lambda d: d["surfaces"][1].update(radious=3.0),
      "surface 2: unknown key 'radious' in the surface (valid: name, radius,"),
@@ -232,6 +244,7 @@ def test_bad_lens_v1_files(tmp_path, change, expect):
     assert msg.startswith(f"{p}: ") and expect in msg, msg
 
 
+@pytest.mark.property
 def test_truncated_json(tmp_path):
     """property"""
     text = json.dumps(minimal())
@@ -240,6 +253,7 @@ def test_truncated_json(tmp_path):
     assert msg.startswith(f"{p}: not valid JSON")
 
 
+@pytest.mark.property
 def test_unsupported_files(tmp_path):
     """property: unknown extension and unrecognised JSON name the file."""
     assert "unsupported lens file type '.txt'" in one_line_error(read_lens, write(tmp_path, "a.txt", "x"))
@@ -247,6 +261,7 @@ def test_unsupported_files(tmp_path):
     assert "cannot read" in one_line_error(read_lens, tmp_path / "missing.zmx")
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("old, new, expect", [
     ("  TYPE EVENASPH", "  TYPE TOROIDAL",
      "surface 2: surface type 'TOROIDAL' is not supported (supported: STANDARD,"),
@@ -270,6 +285,7 @@ def test_bad_zmx_files(tmp_path, old, new, expect):
     assert msg.startswith(f"{p}: ") and expect in msg, msg
 
 
+@pytest.mark.property
 def test_bad_other_formats(tmp_path):
     """property: unsupported geometry / profile / surface type name the surface."""
     opt = {"surface_group": {"surfaces": [
@@ -288,6 +304,7 @@ def test_bad_other_formats(tmp_path):
     assert "surface 1: unknown material 'unobtainium'" in one_line_error(read_lens, p)
 
 
+@pytest.mark.property
 def test_bad_rayoptics_profile(tmp_path):
     """property: an unsupported rayoptics profile names the surface."""
     d = json.loads(data_file("lenses", "classic", "rayoptics_Sasian_Triplet.roa").read_text())
@@ -300,6 +317,7 @@ def test_bad_rayoptics_profile(tmp_path):
 
 # -- Zemax ------------------------------------------------------------------------
 
+@pytest.mark.property
 def test_zmx_singlet(tmp_path):
     """property: the prescription as written: numbering, PARM 2 = ρ⁴, GLAS, DIAM, STOP, field, wavelengths."""
     lens = read_lens(write(tmp_path, "s.zmx", SINGLET_ZMX))
@@ -313,6 +331,7 @@ def test_zmx_singlet(tmp_path):
     assert lens.primary_nm == pytest.approx(587.5618)
 
 
+@pytest.mark.property
 @pytest.mark.parametrize("encoding", ["utf-16", "utf-16-le", "utf-16-be", "utf-8-sig", "latin-1"])
 def test_zmx_encodings(tmp_path, encoding):
     """property: UTF-16 with BOM (OpticStudio), without BOM, UTF-8 with BOM, Latin-1 all read alike."""
@@ -320,6 +339,7 @@ def test_zmx_encodings(tmp_path, encoding):
     assert read_zmx(write(tmp_path, "b.zmx", SINGLET_ZMX, encoding)) == ref
 
 
+@pytest.mark.property
 def test_zmx_extended_asphere_normalization(tmp_path):
     """property: XASPHERE A_i on (ρ/R_n)^(2i) equals the EVENASPH coefficient A_i/R_n^(2i); terms to ρ^20."""
     rn = 2.0
@@ -334,6 +354,7 @@ def test_zmx_extended_asphere_normalization(tmp_path):
     assert s.coefficient(20) == pytest.approx(3e-14, rel=1e-15)
 
 
+@pytest.mark.property
 def test_zmx_odd_aspheres(tmp_path):
     """property: ODDASPH PARM i is the ρ^i term; XOSPHERE XDAT 2+i is A_i/R_n^i on ρ^i."""
     odd = (SINGLET_ZMX.replace("  TYPE EVENASPH", "  TYPE ODDASPH")
@@ -345,6 +366,7 @@ def test_zmx_odd_aspheres(tmp_path):
     assert read_lens(write(tmp_path, "x.zmx", xo)).surfaces[1].asphere == ((3, 0.1),)
 
 
+@pytest.mark.property
 def test_zmx_units_and_a2_term(tmp_path):
     """property: UNIT CM scales lengths, curvatures and coefficients; EVENASPH PARM 1 (ρ²) adds 2·α₁
     to the paraxial curvature."""
@@ -364,6 +386,7 @@ def test_zmx_units_and_a2_term(tmp_path):
     assert efl(a2) == pytest.approx(efl(mm), rel=1e-13)
 
 
+@pytest.mark.property
 def test_zmx_glass_catalogues_and_model_fallback(tmp_path):
     """property: GCAT orders the catalogues; unknown_glass='model' falls back to the line's nd/vd."""
     text = SINGLET_ZMX.replace("GLAS N-BK7 1 0 1.5168 64.17", "GLAS SK16 1 0 1.62041 60.3")
@@ -375,6 +398,7 @@ def test_zmx_glass_catalogues_and_model_fallback(tmp_path):
     assert read_zmx(write(tmp_path, "c.zmx", blank)).surfaces[1].material == model_material(1.544, 55.9)
 
 
+@pytest.mark.property
 def test_zmx_image_height_field(tmp_path):
     """property: FTYP 2 (paraxial image height) becomes the angle of that chief-ray height on the image plane."""
     text = SINGLET_ZMX.replace("FTYP 0 0 2", "FTYP 2 0 2").replace("YFLN 0 10", "YFLN 0 8")
@@ -383,11 +407,12 @@ def test_zmx_image_height_field(tmp_path):
     assert "field_conversion" in lens.metadata
 
 
-def test_zmx_phone_lens_e9():
+@pytest.mark.published
+def test_zmx_phone_lens_e9(e9_lens):
     """published: US-12210142-B2-e9 as converted — 7 plastic aspheres + IR filter, stop on the
     dummy surface 5, model glasses 1.544/55.9, 1.639/23.5, 1.53/55.8 and 1.517/64.2, half-FOV 36.8°,
     F/1.95, and the file's DIAM semi-diameters."""
-    lens = read_lens(data_file("lenses", "phone", "US-12210142-B2-e9.zmx"))
+    lens = e9_lens
     assert len(lens.surfaces) == 17 and lens.half_fov_deg == 36.8 and lens.f_number == 1.95
     stop = lens.surfaces[4]
     assert stop.stop and stop.material == AIR and stop.curvature == 0 and stop.semi_diameter == 1.11377933203941
@@ -407,6 +432,7 @@ def test_zmx_phone_lens_e9():
 
 # -- the other importers ------------------------------------------------------------
 
+@pytest.mark.published
 def test_optiland_cooke_materials_and_geometry():
     """published: optiland's Cooke triplet: SK16 from the HIKARI catalogue, F2 from SCHOTT, stop on
     surface 4, EPD 10, fields to 20°, primary 0.55 µm."""
@@ -417,6 +443,7 @@ def test_optiland_cooke_materials_and_geometry():
     assert lens.surfaces[0].curvature == 1 / 22.01359 and lens.surfaces[-1].thickness == 42.20778
 
 
+@pytest.mark.published
 def test_deeplens_absolute_positions_and_stop():
     """published: DeepLens "d" is the absolute vertex z: thicknesses are its differences, the last
     one to d_sensor; the Stop's r sets the aperture; the sensor is sensor_size."""
@@ -433,6 +460,7 @@ def test_deeplens_absolute_positions_and_stop():
     assert lens.half_fov_deg == pytest.approx(math.degrees(math.atan(d["r_sensor"] / d["foclen"])))
 
 
+@pytest.mark.published
 def test_rayoptics_radial_polynomial_and_conic():
     """published: the cell-phone lens's RadialPolynomial surfaces keep their odd terms (coefs[i] on
     ρ^(i+1)); ec = conic + 1; the stop is the dummy surface 1; F/3.5; field 3.5 mm image height."""
@@ -447,6 +475,7 @@ def test_rayoptics_radial_polynomial_and_conic():
     assert sasian.stop_index == 2 and sasian.epd == 12.5 and sasian.half_fov_deg == 20.0
 
 
+@pytest.mark.property
 def test_rayoptics_glass_outside_the_catalogue_uses_the_file_sellmeier(tmp_path):
     """property: a SCHOTT glass name the catalogue lacks is built from the file's coefficients."""
     d = json.loads(data_file("lenses", "classic", "rayoptics_Sasian_Triplet.roa").read_text())
@@ -458,10 +487,11 @@ def test_rayoptics_glass_outside_the_catalogue_uses_the_file_sellmeier(tmp_path)
     assert m.nd == pytest.approx(ref.nd, abs=1e-5) and m.vd == pytest.approx(ref.vd, abs=0.01)
 
 
-def test_default_sensor_and_override():
+@pytest.mark.property
+def test_default_sensor_and_override(e9_zmx):
     """property: files without a sensor get 4:3 at 1 µm whose half-diagonal is the image height at full
     field; read_lens can replace it or change the pitch."""
-    p = data_file("lenses", "phone", "US-12210142-B2-e9.zmx")
+    p = e9_zmx
     lens = read_lens(p)
     w, h = lens.sensor.width_px, lens.sensor.height_px
     assert lens.sensor.pixel_pitch_um == 1.0 and abs(w / h - 4 / 3) < 1e-3

@@ -1,0 +1,65 @@
+"""``isp calib simulate``: a simulated slanted-square chart capture, written as a DNG."""
+
+from __future__ import annotations
+
+import argparse
+
+from isp.cli.arguments import numbers
+
+from calibration.cli.arguments import add_device_arguments
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``isp calib simulate``."""
+    p.description = ("Render a slanted-square chart (one square per PSF region) through the "
+                     "lens's PSF map, with relative illumination, Bayer sampling, "
+                     "Poisson-Gaussian noise and GainMap lens-shading opcodes, and write "
+                     "it as a DNG that `isp process` and `isp calib sfr` read like a real "
+                     "capture.")
+    p.epilog = ("examples:\n  isp calib simulate e9.json -o nominal.dng --size 2000,1500\n"
+                "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3\n"
+                "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3 --save-lens dev3.json")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.add_argument("lens")
+    p.add_argument("-o", "--output", required=True, help="output .dng")
+    p.add_argument("--size", metavar="W,H", help="sensor size in pixels (keeps the sensor's width in mm)")
+    p.add_argument("--pixel-pitch", type=float, metavar="UM", help="pixel pitch in µm")
+    p.add_argument("--exposure", type=float, default=0.8, help="white level reached by the chart's white")
+    p.add_argument("--colorchecker", action="store_true", help="add ColorChecker patches in the middle")
+    p.add_argument("--save-lens", metavar="FILE.json",
+                   help="also write the device's true lens (the prescription with the device's perturbation, "
+                        "a proxy lens file), to score a correction or a fit against")
+    add_device_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Simulate the capture through the lens or a device and write the DNG."""
+    from calibration.simulate.capture import simulate_capture, write_capture
+    from calibration.optics.io import read_lens
+    from calibration.simulate.chart import slanted_square_chart
+    from calibration.simulate.device import device_lens
+
+    lens = given = read_lens(args.lens)
+    if args.pixel_pitch or args.size:
+        from calibration.optics.lens import Sensor
+
+        w, h = (numbers(args.size, 2) if args.size else (lens.sensor.width_px, lens.sensor.height_px))
+        pitch = args.pixel_pitch or lens.sensor.pixel_pitch_um * lens.sensor.width_px / w
+        lens = lens.replace(sensor=Sensor(pixel_pitch_um=pitch, width_px=int(w), height_px=int(h)))
+    model, what = device_lens(lens, args.perturb, args.seed)
+    sensor = lens.sensor
+    chart = slanted_square_chart(sensor.height_px, sensor.width_px, colorchecker=args.colorchecker)
+    capture = simulate_capture(model, chart, exposure=args.exposure, rng=args.seed,
+                               psf_map_options={"cache_dir": args.cache} if args.cache else None)
+    out = write_capture(args.output, capture=capture)
+    print(f"wrote {out}: {sensor.width_px}x{sensor.height_px} at {sensor.pixel_pitch_um:.3f} µm, {what}; "
+          f"process it with `isp process {out} -o capture.jpg`, measure it with "
+          f"`isp calib sfr {out} --roi ...`")
+    if args.save_lens:
+        from calibration.fit.proxy import save_proxy
+
+        # the prescription's own sensor: --size and --pixel-pitch set the capture, not the lens
+        path = save_proxy(args.save_lens, given, getattr(model, "perturbation", None))
+        print(f"wrote {path}: the device's true lens (a proxy lens file: `isp eval --lens {path} "
+              f"--samples 0 --with-proxy` scores a correction on this device)")
+    return 0

@@ -1,0 +1,65 @@
+"""``isp info``: what the reader found in a raw file, as JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from isp.cli.arguments import add_headerless_arguments, headerless, pipeline_from_args
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``isp info``."""
+    p.description = ("Print what the reader found in a raw file as JSON: geometry, CFA, levels, colour "
+                     "matrices and illuminants, opcodes and what the pipeline will apply or skip (and "
+                     "why), and the reader's notes.")
+    p.epilog = "example:\n  isp info photo.dng | less"
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.add_argument("input")
+    p.add_argument("--json", metavar="OUT", help="also write the JSON to a file")
+    p.add_argument("--config", help="pipeline TOML file whose correction model to report")
+    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE",
+                   help="override a stage parameter, e.g. correction.model=my.onnx")
+    p.add_argument("--no-correction", action="store_true", help="report the pipeline without a model")
+    add_headerless_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the file's metadata, opcode plan and correction model as JSON."""
+    from isp.io.opcode_plan import opcode_plan
+    from isp.io.read import read_raw
+    from isp.runtime.threads import tune_allocator
+
+    tune_allocator()
+    frame = read_raw(args.input, headerless=headerless(args))
+    meta = frame.meta
+    plan = opcode_plan(meta)
+    info = {
+        "file": str(args.input),
+        "data": {"shape": list(frame.shape), "kind": "linear RGB" if meta.linear_raw else "Bayer mosaic"},
+        **meta.summary(),
+        "opcode_plan": [p.as_dict() for p in plan],
+        "skipped": [f"OpcodeList{p.list_no}[{p.index}] {p.name}: {p.reason}"
+                    for p in plan if p.action == "skipped"],
+    }
+    info.pop("path", None)
+    info["correction"] = _correction(args)
+    text = json.dumps(info, indent=2, default=str)
+    if args.json:
+        from isp.io.files import write_bytes_atomic
+
+        write_bytes_atomic(args.json, text.encode())
+    print(text)
+    return 0
+
+
+def _correction(args) -> list[dict] | dict:
+    """The correction model(s) the pipeline of ``--config``/``--set``/
+    ``--no-correction`` would run (the default pipeline's packaged model
+    when none is given)."""
+    _, pipeline = pipeline_from_args(args)
+    stages = [s for s in pipeline.stages if s.name == "correction"]
+    if not stages:
+        return {"model": None, "note": "the pipeline has no correction stage"}
+    out = [s.summary() if hasattr(s, "summary") else {"model": "?"} for s in stages]
+    return out[0] if len(out) == 1 else out

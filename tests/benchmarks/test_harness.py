@@ -1,0 +1,80 @@
+"""benchmarks/_harness.py: pinning, the one timing statistic, the
+environment record and the results file (kind: property)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from benchmarks import _harness
+from isp.errors import ConfigError
+
+pytestmark = pytest.mark.property
+
+
+def test_spread_is_the_median_with_the_range_and_maps_to_rates():
+    s = _harness.spread([0.4, 0.2, 0.3, 1.0])
+    assert (s.median, s.min, s.max) == (0.35, 0.2, 1.0)
+    rate = s.map(lambda t: 100 / t)
+    assert (rate.min, rate.max) == (100.0, 500.0)
+    assert rate.as_dict(1) == {"median": 291.7, "min": 100.0, "max": 500.0, "n": 4}
+    with pytest.raises(ConfigError):
+        _harness.spread([])
+
+
+def test_measure_warms_up_then_times_each_run():
+    calls = []
+    ticks = iter(range(100))
+    s = _harness.measure(lambda: calls.append(1), runs=3, warmup=2, clock=lambda: next(ticks))
+    assert len(calls) == 5 and s.runs == (1, 1, 1)
+    with pytest.raises(ConfigError):
+        _harness.measure(lambda: None, runs=0)
+
+
+def test_interleaved_runs_take_turns():
+    order = []
+    out = _harness.interleaved({"a": lambda: order.append("a"), "b": lambda: order.append("b")},
+                               runs=2, warmup=1, log=False)
+    assert order == ["a", "b"] * 3 and set(out) == {"a", "b"} and len(out["a"].runs) == 2
+
+
+def test_publish_writes_the_record_atomically_and_prints_it_last(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv(_harness.RESULTS_ENV, str(tmp_path))
+    print("a table for people")
+    out = _harness.publish("raytrace", {"rays_per_s": 5, "t": _harness.spread([1.0, 2.0, 3.0])},
+                           argv=["--rays", "10", "--results", "elsewhere"])
+    assert out["rays_per_s"] == 5
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "a table for people"
+    printed = json.loads(lines[-1])
+    assert json.loads((tmp_path / "raytrace.json").read_text()) == printed
+    assert printed["argv"] == ["--rays", "10"] and printed["command"] == "python -m benchmarks.raytrace --rays 10"
+    assert printed["results"]["t"] == {"median": 2.0, "min": 1.0, "max": 3.0, "n": 3}
+    env = printed["env"]
+    assert env["cores"] == os.cpu_count() and env["python"].count(".") == 2 and env["cpu"]
+    assert "numpy" not in env["packages"] or env["packages"]["numpy"]
+    assert set(env) >= {"commit", "dirty", "threads", "blas_threads", "load_average_start", "load_average_end"}
+    assert not list(tmp_path.glob(".*tmp"))
+
+
+def test_the_results_option_names_the_folder(tmp_path):
+    ap = _harness.parser(__doc__)
+    args = ap.parse_args(["--results", str(tmp_path / "r")])
+    assert _harness.results_dir(args) == tmp_path / "r"
+
+
+def test_pinning_reaches_blas_and_child_processes():
+    """In a fresh process: the variables are set before numpy loads, and
+    threadpoolctl reports the pinned count for the BLAS numpy loaded."""
+    code = ("from benchmarks import _harness; _harness.pin_threads(2, blas=1); import numpy; "
+            "from threadpoolctl import threadpool_info; import os, json; "
+            "print(json.dumps([os.environ['OMP_NUM_THREADS'], os.environ['OPENBLAS_NUM_THREADS'], "
+            "sorted({p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'}), "
+            "_harness.environment()['blas_threads']]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=_harness.ROOT, env={k: v for k, v in os.environ.items() if not k.endswith("_THREADS")})
+    env_omp, env_blas, blas, recorded = json.loads(out.stdout.splitlines()[-1])
+    assert (env_omp, env_blas, recorded) == ("1", "1", 1)
+    assert blas in ([1], [])   # [] where numpy's BLAS is not one threadpoolctl knows

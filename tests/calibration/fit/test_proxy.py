@@ -1,0 +1,153 @@
+"""The proxy fit (calibration.fit.proxy), kind: property.
+
+Multistart of a fit that ends far above the noise floor (``restart``): a
+Latin-hypercube of probes, the best continued and kept only if it ends
+lower. Coarse-to-fine fits: the sub-grid keeps rows and columns spread
+edge to edge, corners in; a fit on a sub-grid refined on all regions
+recovers a known device as well as the fit on all regions from the start.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from isp.runtime.executor import create_executor
+
+from calibration.fit.dls import DLSSettings, DlsResult, damped_least_squares
+from calibration.fit.proxy import PROBE_ITER, restart
+
+pytestmark = pytest.mark.property
+
+
+def _two_basins(x):
+    """Residuals with a local minimum near x = 0.02 (merit ≈ 0.47) and the
+    global one near π/4 (merit ≈ 0.007): ``(x − 0.7, 3 sin 4x)``."""
+    return np.array([x[0] - 0.7, 3.0 * np.sin(4.0 * x[0])])
+
+
+def _local(start, iters):
+    return damped_least_squares(_two_basins, np.atleast_1d(start), lower=np.array([-2.0]), upper=np.array([2.0]),
+                                settings=DLSSettings(h=1e-4, max_iter=iters))
+
+
+def test_restart_leaves_a_local_minimum_for_the_global_one():
+    first = _local(np.zeros(1), 20)
+    assert first.x[0] == pytest.approx(0.02, abs=0.02) and first.merit > 0.4     # stuck next to the start
+    best, tried = restart(_local, first, 4, 20, seed=3)
+    # the global minimum of (x − 0.7)² + 9 sin²(4x), by a dense grid: the oracle
+    grid = np.linspace(-2, 2, 400001)
+    g = grid[np.argmin((grid - 0.7) ** 2 + 9 * np.sin(4 * grid) ** 2)]
+    assert best.x[0] == pytest.approx(g, abs=1e-4)
+    assert best.merit < 0.01
+    assert len(tried) == 4 and [t.get("kept") for t in tried].count(True) == 1
+    assert best.evaluations > first.evaluations            # every run counted
+    assert len(best.history) > len(first.history)          # the path that won, after the first
+    again, tried_again = restart(_local, first, 4, 20, seed=3)
+    assert tried_again == tried and again.x[0] == best.x[0]   # seeded
+
+
+def _fake(merit: float, evaluations: int = 10) -> DlsResult:
+    r = np.array([np.sqrt(merit)])
+    return DlsResult(np.zeros(2), r, np.zeros((1, 2)), np.eye(2), [{"merit": merit}], evaluations, "fake")
+
+
+def test_restart_keeps_the_first_fit_when_no_start_does_better():
+    """Probes all worse than the first fit: nothing is continued, the first
+    fit is returned with the probes' evaluations added; the starts lie in
+    the ±1-tolerance box, one per stratum in each parameter."""
+    seen = []
+
+    def local(start, iters):
+        seen.append((np.array(start), iters))
+        return _fake(5.0)
+
+    first = _fake(1.0, evaluations=7)
+    best, tried = restart(local, first, 4, 15, seed=0)
+    assert best.merit == first.merit and best.evaluations == 7 + 4 * 10
+    assert [it for _, it in seen] == [PROBE_ITER] * 4                       # probes only
+    assert all("final_merit" not in t for t in tried)
+    starts = np.array([s for s, _ in seen])
+    assert np.all(np.abs(starts) <= 1.0)
+    for j in range(2):   # a Latin hypercube: each quarter of [-1, 1] holds one start
+        assert sorted(np.floor((starts[:, j] + 1.0) * 2).astype(int).tolist()) == [0, 1, 2, 3]
+
+
+def test_restart_drops_a_continued_probe_that_ends_worse():
+    """The best probe is continued for the rest of the budget, but kept only
+    if it ends below the first fit."""
+    merits = iter([3.0, 0.5, 4.0, 6.0, 2.0])     # four probes, then the continuation of probe 1
+
+    def local(start, iters):
+        return _fake(next(merits))
+
+    best, tried = restart(local, _fake(1.0), 4, 15)
+    assert best.merit == 1.0 and tried[1]["final_merit"] == 2.0 and tried[1]["kept"] is False
+
+
+def test_a_probe_near_the_first_fit_is_continued():
+    """After five iterations a probe is still falling: one within
+    CONTINUE_WITHIN of the first fit's merit is continued, and kept when it
+    ends lower; one beyond it is not continued at all."""
+    from calibration.fit.proxy import CONTINUE_WITHIN
+
+    merits = iter([1.2, 3.0, 4.0, 6.0, 0.8])
+    best, tried = restart(lambda start, iters: _fake(next(merits)), _fake(1.0), 4, 15)
+    assert 1.2 < CONTINUE_WITHIN
+    assert best.merit == pytest.approx(0.8) and tried[0]["kept"] is True
+    far = iter([CONTINUE_WITHIN * 1.01, 3.0, 4.0, 6.0])
+    best, tried = restart(lambda start, iters: _fake(next(far)), _fake(1.0), 4, 15)
+    assert best.merit == 1.0 and all("final_merit" not in t for t in tried)
+
+
+# Coarse-to-fine fits
+
+NAMES = ["e1.decenter_x", "s17.thickness"]
+U_TRUE = np.array([0.8, 0.6])
+
+
+@pytest.fixture(scope="module")
+def grid_device(make_e9_device):
+    return make_e9_device(NAMES, U_TRUE, grid=(4, 6), noise=0.003, rng=3)
+
+
+def one_per_region(obs, grid):
+    """``obs``'s first observation moved to the centre of every region of ``grid``."""
+    rows, cols = grid
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    first = obs.subset(np.zeros(rows * cols, int))
+    return first.with_fields(x_px=(c + 0.5) / cols * obs.sensor.width_px, y_px=(r + 0.5) / rows * obs.sensor.height_px,
+                             grid=(rows, cols))
+
+
+def test_the_sub_grid_spans_the_field_corners_included(grid_device):
+    from calibration.fit.proxy import coarse_subset
+
+    _, obs = grid_device
+    full = one_per_region(obs, (15, 20))
+    mask = coarse_subset(full, (5, 7))
+    kept = full.region[mask]
+    assert sorted(set(kept[:, 0])) == [0, 4, 7, 10, 14]
+    assert sorted(set(kept[:, 1])) == [0, 3, 6, 10, 13, 16, 19]
+    assert mask.sum() == 35
+    # nothing to gain on a grid no larger than twice the sub-grid, or below the least count
+    assert coarse_subset(one_per_region(obs, (5, 7)), (5, 7)) is None
+    assert coarse_subset(full, (5, 7), min_obs=36) is None
+
+
+def test_coarse_to_fine_recovers_the_device_as_the_full_fit_does(grid_device):
+    from calibration.fit.proxy import ProxyFitSettings, fit_proxy
+
+    lens, obs = grid_device
+    kw = dict(residuals="sfra", max_iter=6, restarts=0)
+    serial = create_executor("serial")
+    full = fit_proxy(lens, obs, ProxyFitSettings(coarse=None, **kw), names=NAMES, executor=serial)
+    staged = fit_proxy(lens, obs, ProxyFitSettings(coarse=(2, 3), **kw), names=NAMES, executor=serial)
+    # rows 0 and 3, columns 0, 2 and 5 of 4 × 6: 6 of 24 regions, two edges each
+    assert staged.coarse["observations"] == 12 and not full.coarse
+    assert len(staged.observations) == len(obs) == 48
+    assert staged.evaluations > staged.coarse["evaluations"] > 0
+    err_full = np.abs(full.u - U_TRUE).max()
+    err_staged = np.abs(staged.u - U_TRUE).max()
+    assert err_full < 0.1 and err_staged < max(0.1, 1.5 * err_full)
+    assert staged.result.merit <= 1.1 * full.result.merit
