@@ -178,7 +178,7 @@ def _train(args) -> dict:
 def _train_one(args) -> dict:
     name, config_path, out, steps, seed = args
     _harness.pin_threads(1)   # entries train side by side, one core each
-    from restoration.train.trainer import train
+    from restoration.train.trainer import synth_executor, train
     from restoration.train.config import load_config
 
     variant, kwargs, placement = entry_model(name)
@@ -187,7 +187,7 @@ def _train_one(args) -> dict:
     cfg = cfg.replace("model", variant=variant, kwargs=kwargs, placement=placement)
     cfg = cfg.replace("run", steps=steps, out=str(out / name), checkpoint_every=steps, threads=1, seed=seed)
     t0 = time.perf_counter()
-    info = train(cfg, progress=False, log=lambda m: None)
+    info = train(cfg, executor=synth_executor(cfg, progress=False), log=lambda m: None)
     return {"name": name, "seconds": time.perf_counter() - t0,
             "val_psnr_db": (info["val"][-1]["psnr_db"] if info.get("val") else None),
             "val_input_psnr_db": (info["val"][-1]["input_psnr_db"] if info.get("val") else None),
@@ -261,7 +261,7 @@ def main(argv=None) -> dict:
         from restoration.train.trainer import ensure_data
         from restoration.train.config import load_config
 
-        ensure_data(load_config(args.config), progress=True, log=lambda m: print(m, flush=True))
+        ensure_data(load_config(args.config), log=lambda m: print(m, flush=True))
     trained = {}
     if todo and args.minutes:
         args.steps = _steps_for(args.minutes, todo, args, out)
@@ -292,7 +292,8 @@ def main(argv=None) -> dict:
         return {"steps": args.steps, "entries": trained}
     import tempfile
 
-    from restoration.evaluate.rings import evaluate
+    from isp.runtime.executor import pool_executor
+    from restoration.evaluate.rings import EvalSettings, evaluate
 
     # the same images for every entry: the latent images training held out
     # (never trained on, by any entry: one split, one seed), linked into one place
@@ -305,8 +306,9 @@ def main(argv=None) -> dict:
             os.symlink(p.resolve(), Path(tmp) / f"{p.parent.name}_{p.name}")
         for n in names:
             t0 = time.perf_counter()
-            rep = evaluate(out / n / "model.pt", tmp, args.lens, samples=args.samples, seed=args.seed,
-                           baseline="none", progress=False, threads=2, workers=args.psf_workers)
+            rep = evaluate(out / n / "model.pt", tmp, args.lens,
+                           EvalSettings(samples=args.samples, seed=args.seed, baseline="none"), threads=2,
+                           executor=pool_executor(args.psf_workers))
             rings = {r: {k: rep["rings"][r][k] for k in ("psnr_uncorrected", "psnr_corrected",
                                                          "ssim_uncorrected", "ssim_corrected")}
                      for r in RINGS}

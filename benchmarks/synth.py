@@ -202,7 +202,9 @@ def main(argv=None) -> dict:
     out = {"lens": LENS.name}
     t = time.perf_counter()
     pl = load_lens(LENS)
-    p = plan(pl, latent_dir=DATA / "latent", cameras=CAMERAS, progress=False, workers=args.workers)
+    from isp.runtime.executor import pool_executor
+
+    p = plan(pl, latent_dir=DATA / "latent", cameras=CAMERAS, executor=pool_executor(args.workers))
     out["plan_s"] = round(time.perf_counter() - t, 1)
     say(f"plan (PSF map from cache or computed): {out['plan_s']} s")
     psfmap = p.maps[0]
@@ -212,7 +214,7 @@ def main(argv=None) -> dict:
     if not args.skip_speed:
         tmp = Path(tempfile.mkdtemp(prefix="synth-bench-"))
         try:
-            m = generate(p, tmp / "pairs", args.pairs, workers=args.workers, progress=True)
+            m = generate(p, tmp / "pairs", args.pairs, executor=pool_executor(args.workers, progress=True))
             s = m["_seconds"]
             out["speed"] = {"pairs": args.pairs, "size": 256, "workers": args.workers, "seconds": round(s, 1),
                             "pairs_per_s": round(args.pairs / s, 2),
@@ -223,7 +225,6 @@ def main(argv=None) -> dict:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     if not args.skip_error:
-        from isp.runtime.executor import pool_executor
         from restoration.synth.optics import psf_maps
 
         dense = {}

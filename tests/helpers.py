@@ -178,3 +178,36 @@ def dng_colour_meta(name: str):
                 else:
                     kw[field] = int(tag.value)
     return CameraMeta(path=str(path), **kw)
+
+
+def one_surface(c=0.0, k=0.0, asphere=(), n=1.5, t=10.0, sd=None, epd=2.0):
+    """A single refracting surface (the stop) of curvature ``c`` (1/mm),
+    conic ``k`` and aspheric terms ``asphere``, into glass of constant index
+    ``n``, ``t`` mm before the image; semi-diameter ``sd`` mm, entrance
+    pupil ``epd`` mm."""
+    import math
+
+    from calibration.optics.lens import Lens, Surface
+    from calibration.optics.materials import Material
+
+    m = Material(f"{n}", n, math.inf, "constant")
+    return Lens((Surface(c, k, tuple(asphere), t, m, sd, stop=True),), epd=epd)
+
+
+def small_lens(last=None):
+    """A two-singlet aspheric lens with a front stop (EPD 1 mm, 20° half
+    field), focused paraxially, or with the last thickness ``last`` mm."""
+    from calibration.optics import paraxial
+    from calibration.optics.lens import Lens, Surface
+    from calibration.optics.materials import Material
+
+    g1 = Material("1.544/55.9", 1.544, 55.9)
+    g2 = Material("1.639/23.5", 1.639, 23.5)
+    s = (Surface(0.0, thickness=0.1, semi_diameter=0.6, stop=True),
+         Surface(0.5, -1.0, ((4, -0.01),), 0.8, g1, 1.0),
+         Surface(-0.2, 0.0, (), 0.4, semi_diameter=1.1),
+         Surface(0.3, 0.0, ((4, -0.02), (6, 0.003)), 0.5, g2, 1.2),
+         Surface(0.25, 0.0, (), 2.0, semi_diameter=1.3))
+    lens = Lens(s, epd=1.0, half_fov_deg=20.0)
+    bfl = paraxial.first_order(lens).bfl if last is None else last
+    return lens.with_surface(4, thickness=bfl)

@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from calibration.fit.measurements import load_measured, match_sensor
     from calibration.optics.io import read_lens
     from calibration.report import check_output_folder, staged_folder
-    from isp.runtime.executor import pool_executor
+    from isp.runtime.executor import create_executor, pool_executor
 
     from calibration.fit.proxy import ProxyFitSettings, fit_proxy
     from calibration.optics.psf.map import WINDOW_ENERGY_WARN
@@ -64,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder(out)
     nominal = read_lens(args.lens)              # a bad lens file fails before any measurement
     obs, notes = load_measured(args.measured, channel=args.channel, encoding=args.encoding,
-                               pixel_um=args.pixel_um, progress=True, bootstrap=args.bootstrap)
+                               pixel_um=args.pixel_um, bootstrap=args.bootstrap,
+                               executor=create_executor("serial", progress=True))
     for n in notes:
         print(f"note: {n}")
     nominal, obs = match_sensor(nominal, obs, pixel_um=args.pixel_um)

@@ -20,6 +20,7 @@ import argparse
 from pathlib import Path
 
 from isp.errors import ConfigError
+from isp.runtime.executor import create_executor
 
 EPILOG = """\
 examples:
@@ -94,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
 
         read_lens(args.lens)                    # a bad lens file fails before any measurement
     obs, notes = load_measured(args.measured, channel=args.channel, encoding=args.encoding,
-                               pixel_um=args.pixel_um, method=args.method, min_edge=args.min_edge, progress=True)
+                               pixel_um=args.pixel_um, method=args.method, min_edge=args.min_edge,
+                               executor=create_executor("serial", progress=True))
     regions = len({tuple(r) for r in obs.region})
     if args.lens == "parametric" and not (args.pixel_um or (obs.meta or {}).get("pixel_pitch_um")):
         notes.append(f"pixel pitch unknown: {obs.sensor.pixel_pitch_um:g} µm assumed (--pixel-um); only "

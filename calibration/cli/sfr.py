@@ -9,6 +9,7 @@ import numpy as np
 
 from isp.cli.arguments import numbers
 from isp.errors import ConfigError, InputError
+from isp.runtime.executor import create_executor
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -63,11 +64,11 @@ def run(args: argparse.Namespace) -> int:
                     raise ConfigError("--chart on raw data measures one colour at a time: --channel R, G, B, Gr or Gb")
                 res = measure_chart_bayer(img, meta.cfa, channel=channel, mode=args.bayer_mode,
                                           edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
-                                          method=args.method, progress=True)
+                                          method=args.method, executor=create_executor("serial", progress=True))
             else:
                 res = measure_chart(img, channel=_channel(args, img), encoding=args.encoding,
                                     edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
-                                    method=args.method, progress=True)
+                                    method=args.method, executor=create_executor("serial", progress=True))
             out = res.to_dict()
             fig = plot_chart(res, img if kind == "image" else None) if args.plot else None
             summary = f"{len(res.edges)} edges measured, {len(res.skipped)} skipped"

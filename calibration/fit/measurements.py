@@ -178,15 +178,18 @@ def _edge_item(roi, r, w: int, h: int) -> tuple:
     return (*_edge_place(r.orientation, r.edge_fit_linear, (roi.x, roi.y, roi.w, roi.h), w, h), r)
 
 
-def _measure_rois(rois, measure, progress: bool) -> tuple[list, list]:
+def _measure_rois(rois, measure, executor) -> tuple[list, list]:
+    from isp.runtime.executor import create_executor
+
     from calibration.sfr.chart import measure_rois
 
-    return measure_rois(rois, measure, progress=progress and len(rois) > 8)
+    few = executor is None or len(rois) <= 8          # no bar for a handful of edges
+    return measure_rois(rois, measure, executor=create_executor("serial") if few else executor)
 
 
 def observations_from_capture(img, kind: str, meta=None, *, path: str = "", channel: str | None = None,
                               encoding: str = "linear", pixel_um: float | None = None, method: str = "iso",
-                              min_edge: float = 40.0, progress: bool = False, bootstrap: int = 0):
+                              min_edge: float = 40.0, bootstrap: int = 0, executor=None):
     """Observations measured on a capture, and notes on how.
 
     Parameters
@@ -212,6 +215,9 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
         each observation's ``sfra_std`` is its own measured spread instead
         of the 0.002 cycles/pixel default, so an edge whose measurement is
         unstable weighs what it is worth in a fit. 0: the default σ.
+    executor : isp.runtime.executor.Executor, optional
+        Measures the edges ("serial" or "threads"; default "serial"); its
+        progress bar counts them where there are more than 8.
 
     Returns
     -------
@@ -247,7 +253,7 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
     if kind == "image" and img.dtype == np.uint8 and encoding == "linear":
         notes.append("8-bit image measured as linear codes; pass --encoding srgb if it is sRGB-encoded")
     first = measurer(chans[0])
-    found, _ = _measure_rois(rois, first, progress)
+    found, _ = _measure_rois(rois, first, executor)
     edges = [roi for roi, _ in found]
     if not edges:
         whole = _whole_frame_roi(first, w, h)
@@ -275,7 +281,7 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
         edges = split
     parts = []
     for c in chans:
-        ok, skipped = _measure_rois(edges, measurer(c), progress)
+        ok, skipped = _measure_rois(edges, measurer(c), executor)
         if skipped:
             notes.append(f"{c}: {len(skipped)} ROI(s) skipped (e.g. {skipped[0][1]})")
         if not ok:
@@ -366,10 +372,11 @@ def observations_from_sfr_json(doc: dict, path: str, pixel_um: float | None = No
 
 
 def load_measured(path: str, *, channel=None, encoding="linear", pixel_um=None, method="iso", min_edge=40.0,
-                  progress=False, bootstrap: int = 0):
+                  bootstrap: int = 0, executor=None):
     """(Observations, notes) from a capture, an SFR JSON or an observations
     JSON (module docstring); bad input raises
-    :class:`~isp.errors.InputError` naming ``path``."""
+    :class:`~isp.errors.InputError` naming ``path``. A capture's edges are
+    measured on ``executor`` (:func:`observations_from_capture`)."""
     from calibration.fit.observations import Observations
 
     p = Path(path)
@@ -408,7 +415,7 @@ def load_measured(path: str, *, channel=None, encoding="linear", pixel_um=None, 
     try:
         return observations_from_capture(img, kind, meta, path=str(path), channel=channel, encoding=encoding,
                                          pixel_um=pixel_um, method=method, min_edge=min_edge,
-                                         progress=progress, bootstrap=bootstrap)
+                                         bootstrap=bootstrap, executor=executor)
     except SfrError as e:
         raise InputError(path, str(e)) from None
 

@@ -109,8 +109,8 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
                            noise_growth: float = 1.0, channels: Sequence[str] = ("G",),
                            image_ops: Sequence[Callable[[np.ndarray, float, float], np.ndarray]] = (),
                            psf_ops: Sequence[Callable] = (), low: float = 0.2, high: float = 0.8,
-                           angle_deg: float = EDGE_ANGLE_DEG, rng=0, progress: bool = False,
-                           return_edges: bool = False):
+                           angle_deg: float = EDGE_ANGLE_DEG, rng=0, return_edges: bool = False,
+                           executor=None):
     """Observations of the lens whose PSF map is ``psfmap``: one vertical
     and one horizontal edge at every region centre of the map's grid.
 
@@ -134,6 +134,9 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
     rng : int or Generator
     return_edges : bool
         Also return the measured ROIs.
+    executor : isp.runtime.executor.Executor, optional
+        Where its progress bar counts the regions (the edges are rendered
+        here, in order: they draw from one ``rng``).
 
     Returns
     -------
@@ -153,13 +156,11 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
     cx, cy = (sensor.width_px - 1) / 2.0, (sensor.height_px - 1) / 2.0
     items, chans, rois, edges = [], [], [], []
     sites = edge_sites(sensor, grid)
-    it = sites
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(sites, unit="region", desc="synthetic edges")
+    bar = None if executor is None else executor.bar(total=len(sites), unit="region", desc="synthetic edges")
     short, long_ = roi
-    for r, k, x, y in it:
+    for r, k, x, y in sites:
+        if bar is not None:
+            bar.update()
         rad = math.hypot(x - cx, y - cy) / half
         sigma = noise * (1.0 + noise_growth * rad * rad)
         for ch in channels:
@@ -192,6 +193,8 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
                     edges.append(SyntheticEdge(img, clean, (x, y), size, float(angle_deg), horizontal, float(low),
                                                float(high), float(sensor.pixel_pitch_um), tuple(ren.box), float(sigma),
                                                str(ch)))
+    if bar is not None:
+        bar.close()
     obs = Observations.from_sfr_results(items, sensor, grid=grid, source="synthetic")
     obs = obs.with_fields(channel=np.array(chans), roi=np.array(rois), meta={"measure": "image"})
     return (obs, edges) if return_edges else obs

@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from isp.runtime.executor import Executor, create_executor
+
 from calibration.sfr.esfr import SfrError, measure_sfr
 
 GRID = (15, 20)
@@ -327,12 +329,13 @@ def esf_step(r) -> float:
 
 def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None, min_length: float = 40.0,
                   edge_fit_order: int = 1, pixel_pitch_um: float | None = None, method: str = "iso",
-                  grid: tuple[int, int] = GRID, progress: bool = False) -> ChartResult:
+                  grid: tuple[int, int] = GRID, executor: Executor | None = None) -> ChartResult:
     """Find every slanted edge of a chart and measure its SFR.
 
     Parameters are those of :func:`find_edges` and
-    :func:`calibration.sfr.esfr.measure_sfr`. Edges the measurement refuses are
-    listed in ``skipped`` with the reason, not dropped.
+    :func:`calibration.sfr.esfr.measure_sfr`; ``executor`` measures the edges
+    (:func:`measure_rois`). Edges the measurement refuses are listed in
+    ``skipped`` with the reason, not dropped.
     """
     a = np.asarray(image)
     g = _gray(a, channel, encoding)
@@ -341,26 +344,30 @@ def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None,
     res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid)
     res.edges, res.skipped = measure_rois(
         rois, lambda box: measure_sfr(g, box=box, edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um,
-                                      method=method), progress=progress)
+                                      method=method), executor=executor)
     return res
 
 
-def measure_rois(rois, measure, *, progress: bool = False) -> tuple[list, list]:
+def measure_rois(rois, measure, *, executor: Executor | None = None) -> tuple[list, list]:
     """``measure(box)`` (an SfrResult for ``box = (x, y, w, h)``) on every
     ROI: ``(edges, skipped)``, edges as (roi, result) and skipped as (roi,
     reason) — refused measurements and results that are not a clean edge
-    are listed with the reason, never dropped."""
-    it = rois
-    if progress:
-        from tqdm import tqdm
+    are listed with the reason, never dropped. ``executor`` runs the
+    measurements ("serial" or "threads": ``measure`` may be a closure;
+    default "serial"); its progress bar counts edges."""
+    rois = list(rois)
+    ex = create_executor("serial") if executor is None else executor
 
-        it = tqdm(rois, unit="edge", desc="SFR")
-    edges, skipped = [], []
-    for roi in it:
+    def one(roi):
         try:
-            r = measure((roi.x, roi.y, roi.w, roi.h))
+            return measure((roi.x, roi.y, roi.w, roi.h)), None
         except SfrError as e:
-            skipped.append((roi, str(e)))
+            return None, str(e)
+
+    edges, skipped = [], []
+    for roi, (r, err) in zip(rois, ex.map(one, rois, desc="SFR", unit="edge")):
+        if err is not None:
+            skipped.append((roi, err))
             continue
         why = _not_a_clean_edge(r)
         if why:
@@ -389,7 +396,8 @@ def _not_a_clean_edge(r) -> str:
 
 def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane", centre=None,
                         min_length: float = 40.0, edge_fit_order: int = 1, pixel_pitch_um: float | None = None,
-                        method: str = "iso", grid: tuple[int, int] = GRID, progress: bool = False) -> ChartResult:
+                        method: str = "iso", grid: tuple[int, int] = GRID,
+                        executor: Executor | None = None) -> ChartResult:
     """:func:`measure_chart` on a raw Bayer mosaic (linear, black removed):
     edges are found on the 2×2-block average (half resolution, all colours)
     and measured on the mosaic itself per colour with
@@ -409,7 +417,7 @@ def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane",
                     r.orientation, r.shape) for r in rois]
     res.edges, res.skipped = measure_rois(
         full, lambda box: measure_sfr_bayer(m, cfa, channel=channel, mode=mode, box=box, edge_fit_order=edge_fit_order,
-                                            pixel_pitch_um=pixel_pitch_um, method=method), progress=progress)
+                                            pixel_pitch_um=pixel_pitch_um, method=method), executor=executor)
     return res
 
 

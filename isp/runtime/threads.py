@@ -42,8 +42,9 @@ def tune_allocator(threshold: int = 1 << 30) -> bool:
 
 
 def one_blas_thread() -> None:
-    """Hold this process's BLAS (OpenBLAS, MKL) to one thread: the
-    initializer of every worker pool, where the pool already uses the cores.
+    """Hold this process's BLAS (OpenBLAS, MKL) to one thread: run as every
+    worker process starts (:mod:`isp.runtime.executor`), where the pool
+    already uses the cores.
 
     A forked worker inherits the parent's BLAS thread pool; setting
     ``OMP_NUM_THREADS`` after numpy was imported changes nothing, so the

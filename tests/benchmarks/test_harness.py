@@ -78,3 +78,18 @@ def test_pinning_reaches_blas_and_child_processes():
     env_omp, env_blas, blas, recorded = json.loads(out.stdout.splitlines()[-1])
     assert (env_omp, env_blas, recorded) == ("1", "1", 1)
     assert blas in ([1], [])   # [] where numpy's BLAS is not one threadpoolctl knows
+
+
+def test_every_script_runs_through_the_harness():
+    """Each benchmark script publishes its results with the harness, parses
+    its options with the harness's parser, and neither edits ``sys.path``
+    nor sets thread variables of its own (it runs as ``python -m benchmarks.NAME``)."""
+    scripts = sorted(p for p in (_harness.ROOT / "benchmarks").glob("*.py")
+                     if p.stem not in ("__init__", "_harness", "report"))
+    assert len(scripts) >= 24
+    for path in scripts:
+        text = path.read_text()
+        assert f'_harness.publish("{path.stem}"' in text, f"{path.name}: publishes no {path.stem}.json"
+        assert "_harness.parser(" in text, f"{path.name}: its own argument parser"
+        assert "sys.path" not in text, f"{path.name}: edits sys.path"
+        assert "_NUM_THREADS" not in text, f"{path.name}: pins threads itself"

@@ -48,7 +48,7 @@ def test_close_loop_fits_from_the_start(lens_base, monkeypatch):
         return fit(prob, p0, *a, **k)
 
     monkeypatch.setattr(loop, "_fit", spy)
-    monkeypatch.setattr(type(lens_base), "start", lambda self, progress=False: U_TRUE.copy())
+    monkeypatch.setattr(type(lens_base), "start", lambda self, executor=None: U_TRUE.copy())
     loop.close_loop(lens_base, lens_base.obs, effects=[], executor=pool_executor(None))
     np.testing.assert_allclose(seen[0], U_TRUE)
 

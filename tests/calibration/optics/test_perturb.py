@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from tests.calibration.optics.test_trace import small_lens
+from tests.helpers import small_lens
 
 from calibration.optics import trace as tr
 from calibration.optics.materials import LAMBDA_C, LAMBDA_D, LAMBDA_F, Material

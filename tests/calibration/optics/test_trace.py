@@ -1,4 +1,4 @@
-"""Tests of calibration/optics/trace.py (the real-ray tracer) and calibration/optics/spot.py.
+"""Tests of calibration/optics/trace.py, the real-ray tracer.
 
 Kinds, as marked on each test:
 
@@ -7,11 +7,10 @@ Kinds, as marked on each test:
   root finder (scipy's brentq) at 1e-12 mm;
 * property — invariants (no NaN out, flags and reasons, symmetry, round
   trips between trace targets, aiming conventions);
-* published — the figures of ``../shared/data/lenses/README.md`` for the
-  e9 phone lens (optiland 0.6.3 / rayoptics 0.9.8): on-axis RMS spot
-  0.795 / 0.799 µm, 77 % / 46 % of the stop-filling rays passing at 0.7 /
-  1.0 field. They need the shared data and the .zmx importer and skip
-  with the reason otherwise.
+* published — the vignetting of the e9 phone lens measured with optiland
+  0.6.3 / rayoptics 0.9.8 (``tests/data/reference/lens_figures.json``):
+  77 % / 46 % of the stop-filling rays pass at 0.7 / 1.0 field. It needs
+  the shared data and skips with the reason otherwise.
 """
 
 from __future__ import annotations
@@ -24,13 +23,12 @@ from scipy.optimize import brentq
 
 from isp.runtime.executor import create_executor, shared_threads
 
-from calibration.optics import paraxial
 from calibration.optics import trace as tr
 from calibration.optics.lens import Lens, Surface
 from calibration.optics.materials import Material
-from calibration.optics.perturb import ParameterSpace, apply
-from calibration.optics.spot import best_focus, refocus, rms_radius, spot, spot_diagram
-from tests.helpers import reference
+from calibration.optics.perturb import ParameterSpace
+from calibration.optics.spot import best_focus, refocus, rms_radius, spot
+from tests.helpers import one_surface, reference, small_lens
 
 E9 = reference("lens_figures.json")["e9"]
 
@@ -38,31 +36,11 @@ GLASS = Material("1.5/60", 1.5, 60.0)
 LAM = 587.5618
 
 
-def one_surface(c=0.0, k=0.0, asphere=(), n=1.5, t=10.0, sd=None, epd=2.0):
-    """A single refracting surface (the stop) into glass of index ``n``."""
-    m = Material(f"{n}", n, math.inf, "constant")
-    return Lens((Surface(c, k, tuple(asphere), t, m, sd, stop=True),), epd=epd)
-
-
 def collimated(heights_xy, z0=-1.0, direction=(0.0, 0.0, 1.0)):
     h = np.asarray(heights_xy, dtype=np.float64).reshape(-1, 2)
     o = np.column_stack([h, np.full(len(h), z0)])
     d = np.broadcast_to(np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction), o.shape)
     return tr.Rays(o, d.copy(), LAM)
-
-
-def small_lens(last=None):
-    """A two-singlet aspheric lens with a front stop, focused paraxially."""
-    g1 = Material("1.544/55.9", 1.544, 55.9)
-    g2 = Material("1.639/23.5", 1.639, 23.5)
-    s = (Surface(0.0, thickness=0.1, semi_diameter=0.6, stop=True),
-         Surface(0.5, -1.0, ((4, -0.01),), 0.8, g1, 1.0),
-         Surface(-0.2, 0.0, (), 0.4, semi_diameter=1.1),
-         Surface(0.3, 0.0, ((4, -0.02), (6, 0.003)), 0.5, g2, 1.2),
-         Surface(0.25, 0.0, (), 2.0, semi_diameter=1.3))
-    lens = Lens(s, epd=1.0, half_fov_deg=20.0)
-    bfl = paraxial.first_order(lens).bfl if last is None else last
-    return lens.with_surface(4, thickness=bfl)
 
 
 # -- analytic ----------------------------------------------------------------
@@ -389,73 +367,6 @@ def test_property_nominal_spots_mirror_in_y():
     np.testing.assert_allclose(a.position[a.valid] * [1, -1, 1], b.position[b.valid], atol=1e-12)
 
 
-# -- spot ------------------------------------------------------------------------
-
-@pytest.mark.property
-def test_property_spot_rms_and_references():
-    """property: rms_radius about the centroid is the smallest over
-    references; the chief-ray reference includes the centroid offset
-    (r_chief² = r_centroid² + |centroid − chief|²)."""
-    lens = small_lens()
-    sp = spot(lens, (0, 15), 4000, rng=np.random.default_rng(0))
-    rc, rh = sp.rms_radius("centroid"), sp.rms_radius("chief")
-    off = np.sum((sp.centroid - sp.chief) ** 2)
-    assert rh >= rc
-    assert math.isclose(rh ** 2, rc ** 2 + off, rel_tol=1e-9)
-    assert 0 < sp.fraction_valid <= 1
-    with pytest.raises(tr.TraceError, match="valid: 'centroid'"):
-        sp.rms_radius("best")
-
-
-@pytest.mark.property
-def test_property_spot_diagram_plot(tmp_path):
-    """property: the spot diagram plots one panel per field and saves."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    lens = small_lens()
-    spots = spot_diagram(lens, [(0, 0), (0, 10), (0, 20)], 500, (486.13, 587.56, 656.27))
-    fig = tr_plot(spots)
-    assert len(fig.axes) == 3
-    fig.savefig(tmp_path / "spots.png")
-
-
-def tr_plot(spots):
-    from calibration.optics.spot import plot_spot_diagram
-
-    return plot_spot_diagram(spots)
-
-
-@pytest.mark.property
-def test_analytic_best_focus_of_a_defocused_perfect_lens():
-    """analytic: the Cartesian ellipsoid with its image plane moved by +δ has
-    its best focus at −δ (the quadratic minimum is exact, 1e-9 mm)."""
-    n, c, delta = 1.5, 0.2, 0.05
-    lens = one_surface(c=c, k=-1 / n ** 2, n=n, t=n / ((n - 1) * c) + delta, epd=4.0)
-    assert abs(best_focus(lens, n=2000) + delta) < 1e-9
-
-
-@pytest.mark.property
-def test_property_refocus_compensates_a_thickness_error():
-    """property: refocus adds the last thickness as a compensator: the
-    paraxial method shifts it by the change of the back focal length; the
-    rms method brings the on-axis spot back near the nominal one."""
-    lens = small_lens()
-    lens = lens.with_surface(4, thickness=lens.surfaces[4].thickness + best_focus(lens))
-    pl = apply(lens, {"s3.thickness": 0.02})
-    rp = refocus(pl, "paraxial")
-    name = f"s{len(lens.surfaces)}.thickness"
-    shift = paraxial.first_order(pl.lens).bfl - paraxial.first_order(lens).bfl
-    assert math.isclose(rp.perturbation.as_dict()[name], shift, rel_tol=1e-12)
-    assert rp.perturbation.as_dict()["s3.thickness"] == 0.02
-    r0 = spot(lens, (0, 0), 3000).rms_radius()
-    r1 = spot(pl, (0, 0), 3000).rms_radius()
-    r2 = spot(refocus(pl), (0, 0), 3000).rms_radius()
-    assert r1 > 2 * r0 and r2 < 1.1 * r0
-    with pytest.raises(tr.TraceError, match="valid: 'rms'"):
-        refocus(pl, "magic")
-
-
 @pytest.mark.property
 def test_property_finite_object():
     """property: a finite object sends every ray from one point (chief ray
@@ -474,19 +385,7 @@ def test_property_finite_object():
     assert best_focus(lens) > best_focus(small_lens()) + 1e-3
 
 
-# -- published: the e9 phone lens ---------------------------------------------------
-
-@pytest.mark.published
-def test_published_e9_on_axis_rms_spot(e9_lens):
-    """published: ../shared/data/lenses/README.md, on-axis RMS spot radius of
-    US-12210142-B2-e9 at 587.6 nm, centroid-referenced, ≥1e5 uniformly
-    random pupil rays: 0.795 µm (optiland) / 0.799 µm (rayoptics). Within
-    2 % of their mean 0.797 µm (Monte Carlo scatter with 2e5 rays ≈ 0.2 %)."""
-    sp = spot(e9_lens, (0, 0), 200_000, 587.6, rng=np.random.default_rng(7))
-    assert sp.fraction_valid == 1.0
-    mean = np.mean([E9["on_axis_rms_spot_um"][tool] for tool in ("optiland", "rayoptics")])
-    assert abs(sp.rms_radius() * 1e3 - mean) < 0.02 * mean
-
+# -- the e9 phone lens -----------------------------------------------------------------
 
 @pytest.mark.property
 @pytest.mark.slow
