@@ -5,7 +5,8 @@ rawpy and the pipeline (what ``isp batch`` holds when it starts its
 workers); it times, from creating the executor to the result of a first
 task on each worker, a task that imports what a batch task imports
 (``isp.io.read``, ``isp.pipeline``). Median of ``--runs`` fresh
-interpreters per method (fork, forkserver, spawn), with the fastest and
+interpreters per method (fork, forkserver, forkserver with the batch
+task's modules imported once by the server, spawn), with the fastest and
 slowest.
 
 Prints one JSON object as its last line. Usage:
@@ -26,7 +27,9 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
-METHODS = ("fork", "forkserver", "spawn")
+#: start methods; "forkserver_preload": forkserver whose server imports the batch task's modules
+#: once (``imports=isp.runtime.batch.TASK_IMPORTS``), as ``isp batch`` starts its workers
+METHODS = ("fork", "forkserver", "forkserver_preload", "spawn")
 
 
 def _task(_) -> int:
@@ -47,9 +50,13 @@ def _one(method: str) -> float:
 
     from isp.runtime.executor import Executor
 
-    barrier = mp.get_context(method).Barrier(2)
+    from isp.runtime.batch import TASK_IMPORTS
+
+    start = "forkserver" if method == "forkserver_preload" else method
+    imports = TASK_IMPORTS if method == "forkserver_preload" else ()
+    barrier = mp.get_context(start).Barrier(2)
     t = time.perf_counter()
-    with Executor("processes", 2, start_method=method, payload=barrier) as ex:
+    with Executor("processes", 2, start_method=start, imports=imports, payload=barrier) as ex:
         pids = ex.map(_task, [0, 1], chunksize=1)
         seconds = time.perf_counter() - t
     if len(set(pids)) != 2:
@@ -69,7 +76,7 @@ def main(argv=None) -> dict:
 
     out = {"workers": 2, "runs": args.runs, "seconds": {}}
     for method in METHODS:
-        if method not in mp.get_all_start_methods():
+        if method.split("_")[0] not in mp.get_all_start_methods():
             continue
         times = []
         for _ in range(args.runs):

@@ -72,7 +72,7 @@ def main(argv=None) -> dict:
                     help="NAME:PLACEMENT, the first the reference (default: ours, then sRGB → sRGB)")
     ap.add_argument("--step", type=int, default=4, help="every STEP-th pair (default 4)")
     args = ap.parse_args(argv)
-    import torch
+    import torch  # noqa: F401  (loaded first, so that the pinning reaches its pool)
 
     from restoration.nn.checkpoint import load_model
 

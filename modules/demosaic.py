@@ -13,7 +13,7 @@ name            function                                         CPSNR    16 MP
 ==============  ===============================================  =======  ======
 
 CPSNR: kodim19 (500 × 500 centre crop, sRGB-encoded values, RGGB, 8-px
-border excluded), see ``tests/test_demosaic.py``. Time: best of 7 on one
+border excluded), see ``tests/modules/test_demosaic.py``. Time: best of 7 on one
 3000 × 5328 float32 mosaic, 2 CPU cores (Menon also peaks at 3.2 GB of
 memory). Indications, not promises.
 

@@ -58,7 +58,7 @@ default every trial is at least as damped as the last step (ε, 4ε, … at
 radii Δ, Δ/2, …), so whenever the damper trial wins λ rises, however well
 the linear model held. ``bracket=True`` tries both sides instead (two
 trials: ε/4 at 2Δ and ε at Δ); on a linear problem it needs half the
-iterations (``tests/test_dls.py``), but on the 12 synthetic devices of
+iterations (``tests/calibration/fit/test_dls.py``), but on the 12 synthetic devices of
 ``benchmarks/proxy.py`` (shape residuals, 15 iterations) it ended at a
 lower merit on 7 and a higher one on 5 (e9's third device: 6,114 against
 4,142), and its SFR error at FoV 0.9 trailed scipy TRF's by 7 % (5 %
@@ -70,7 +70,7 @@ points outward is held fixed for the step (projected Gauss–Newton).
 (a bounded-variable least-squares solve on the Cholesky factor of
 ``AᵀA + D``): a clipped step leaves the other parameters where the clipped
 one's motion had sent them. On six random bounded linear problems it needs
-41 iterations in all against 54 (``tests/test_dls.py``). On the 12
+41 iterations in all against 54 (``tests/calibration/fit/test_dls.py``). On the 12
 synthetic devices of ``benchmarks/proxy.py`` (devices 3–5 of each phone
 lens, method ``ours_box``) it ended at a lower merit than scipy's TRF on 7
 (the clipped steps: 4) but tied with the clipped steps in SFR error

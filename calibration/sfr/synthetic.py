@@ -15,7 +15,7 @@ centres at integer coordinates). The integral over ``u`` is closed-form
 (:math:`\\int \\Phi = t\\Phi(t) + \\varphi(t)`); the one over ``v`` is a
 16-node Gauss–Legendre rule on an integrand that is smooth on the scale
 ``σ / sin θ`` — together exact to ~1e-12 of the step (checked against ×64
-supersampling in ``tests/test_sfr.py``).
+supersampling in ``tests/calibration/sfr/test_esfr.py``).
 
 The modulation transfer along the edge normal is that of the 2-D PSF
 (Gaussian ⊗ pixel box) on the line of direction ``θ``:

@@ -20,13 +20,12 @@ kind            runs the tasks
 Another backend (a cluster engine such as Ray, for work one machine cannot
 hold) registers with :func:`register_backend` under a new kind: a class
 with ``map``, ``as_completed`` and ``close`` (:class:`Backend`), built from
-the executor's settings. Tasks written for
-``processes`` (picklable, no shared state beyond the payload) run on it
-unchanged.
+the executor's settings. Tasks written for ``processes`` (picklable, no
+shared state beyond the payload) run on it unchanged.
 
-Process workers start under one policy (:func:`_start_worker`): BLAS on one
-thread (:func:`isp.runtime.threads.one_blas_thread`: the pool already uses
-the cores), the allocator settings (:func:`isp.runtime.threads.tune_allocator`),
+Process workers start under one policy: BLAS on one thread
+(:func:`isp.runtime.threads.one_blas_thread`: the pool already uses the
+cores), the allocator settings (:func:`isp.runtime.threads.tune_allocator`),
 and an optional read-only ``payload`` (a PSF map, a lens and its
 observations) sent to each worker once, not with every task; a ``setup``
 function may turn it into what the tasks read (:func:`worker_payload`),
@@ -36,12 +35,15 @@ The start method follows what the workers will hold (:func:`default_start_method
 ``fork`` (cheapest) where neither the parent nor the tasks load a library
 whose threads do not survive a fork (:data:`FORK_UNSAFE`: rawpy/LibRaw's
 OpenMP, torch, ONNX Runtime), else ``forkserver`` (``spawn`` where there is
-no forkserver). Start-up of a 2-worker pool, from creating it to the first
-result of each worker, with numpy, rawpy and the pipeline imported in the
-parent (``python -m benchmarks.executor_startup``, 2-core Linux VM, median
-of 5): fork 0.021 s, forkserver 0.46 s, spawn 0.93 s. Forkserver's cost is
-each worker importing the task's modules; it is paid once per pool, which
-is why pools persist for an executor's lifetime.
+no forkserver). Start-up of a 2-worker pool, from creating it to a first
+result from each worker, with numpy, rawpy and the pipeline imported in the
+parent and the task importing what a batch task imports
+(``python -m benchmarks.executor_startup``, median of 5 fresh interpreters
+on a 2-core VM with other work running): fork 0.16 s, forkserver 0.71 s
+(0.69 s with the server importing the task's modules, ``imports``), spawn
+0.77 s. Forkserver's cost is its server starting and each worker importing
+the task's modules; it is paid once per pool, which is why pools persist
+for an executor's lifetime and jobs bind a payload to one pool.
 
 Progress is shown here and only here: an executor made with
 ``progress=True`` draws one tqdm bar on stderr for each ``map`` or
@@ -278,7 +280,7 @@ class _Threads(_Pool):
 
 @register_backend("processes")
 class _Processes(_Pool):
-    """Worker processes started under the module's policy (:func:`_start_worker`)."""
+    """Worker processes started under the module's policy (``_start_worker``)."""
 
     def __init__(self, workers: int, payload, setup, start_method: str, imports: tuple):
         super().__init__()
@@ -354,6 +356,11 @@ class Executor:
 
     Notes
     -----
+    Workers started by forkserver or spawn import the parent's main module
+    as ``__mp_main__``: a script that makes a "processes" executor keeps
+    its work under ``if __name__ == "__main__":`` (the ``isp`` command
+    does).
+
     Pools start on first use and persist until :meth:`close` (or the end of
     a ``with`` block): a thread pool costs ~0.1 ms to start, a process pool
     tens to hundreds of milliseconds, both worth paying once per executor,

@@ -17,7 +17,7 @@ outputs with a smooth window (raised cosine, linear ramps):
 * with ``m < r`` blending only smears the error of the two tiles over the
   ramp (the seam becomes a band), it does not remove it; the remedy is a
   larger margin, and the error measurable by comparing against a
-  whole-frame run (``tests/test_tiling.py`` shows it growing as ``m``
+  whole-frame run (``tests/modules/common/test_tiling.py`` shows it growing as ``m``
   drops below ``r``).
 
 Frame borders are padded by reflection (numpy's ``"reflect"`` mode, the

@@ -432,7 +432,7 @@ def test_published_e9_relative_illumination(e9_lens):
     """published + property: US-12210142-B2-e9 (F/1.95, 36.8° half field;
     ../shared/data/lenses/README.md: "about 77 % of the stop-filling rays
     pass at 0.7 field and 46 % at full field"). The transmitted fractions
-    of the RI bundles match within ±2 points (as tests/test_trace.py's
+    of the RI bundles match within ±2 points (as tests/calibration/optics/test_trace.py's
     vignetting test; 2-digit figure, grid of 64 across); RI falls monotonically from 1 and, at the sensor
     corner, lies in a plausible phone range (0.1–0.4; we get ≈ 0.18, with
     a vignetting cliff over the last 20 µm). Flux conservation and Rimmer's
