@@ -51,9 +51,10 @@ from __future__ import annotations
 
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+
+from isp.runtime.executor import shared_threads
 
 from calibration.optics.lens import Lens
 from calibration.optics.perturb import PerturbedLens
@@ -130,10 +131,9 @@ def huygens_intensity(sp: ReferenceSphere, ox: np.ndarray, oy: np.ndarray, *, ze
         out[a:b] = c.sum(axis=0) + 1j * ph.sum(axis=0)
 
     starts = range(0, len(d), block)
-    nw = workers if workers is not None else min(os.cpu_count() or 1, 8)
-    if nw > 1 and len(starts) > 1:
-        with ThreadPoolExecutor(max_workers=nw) as ex:
-            list(ex.map(one, starts))
+    ex = shared_threads(workers if workers is not None else min(os.cpu_count() or 1, 8))
+    if ex.parallel and len(starts) > 1:
+        ex.map(one, starts)
     else:
         for a in starts:
             one(a)
