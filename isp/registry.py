@@ -1,4 +1,15 @@
-"""The stage registry: one dict of stage classes by name.
+"""Registries: named entries from code and from an entry-point group, and
+the stage registry built on one.
+
+:class:`Registry` is the one implementation behind every plug-in point of
+the project: stages (``isp.stages``, here), commands (``isp.commands``,
+:mod:`isp.cli.commands`) and the loop's physical effects (``calib.effects``,
+:mod:`calibration.loop.effects`). Entries arrive two ways: registered in
+code (a decorator, a notebook, a test), or from the entry-point group of any
+installed distribution, loaded lazily the first time a name is looked up or
+the list is asked for. A plug-in that fails to load is recorded with the
+reason and never breaks the others; looking it up names the reason, and an
+unknown name lists the valid ones.
 
 Stages arrive two ways:
 
@@ -12,25 +23,147 @@ Stages arrive two ways:
   The built-in stages of :mod:`modules` are registered exactly this way, which
   is how :mod:`isp` uses them without importing them.
 
-Entry points are loaded lazily, the first time a name is looked up or the
-list is asked for. ``create_stage(name, **params)`` builds any of them (the
+``create_stage(name, **params)`` builds any of them (the
 ``timm.create_model`` pattern).
 """
 
 from __future__ import annotations
 
 from importlib import metadata
-from typing import Any
+from typing import Any, Callable
 
 from isp.errors import ConfigError
 from isp.stage import Stage, build_stage
 
+class Registry:
+    """Named entries from code and from one entry-point group.
+
+    Parameters
+    ----------
+    kind : str
+        What an entry is, for messages ("stage", "command", "effect").
+    group : str
+        The entry-point group plug-ins register in.
+    check : callable, optional
+        ``check(name, obj) -> obj``, applied to what an entry point loads:
+        returns the entry to keep, or raises (the plug-in is then recorded
+        as broken, with the reason).
+    first : tuple of str
+        Names listed first, in this order; the others follow sorted.
+
+    Examples
+    --------
+    >>> shapes = Registry("shape", "example.shapes")
+    >>> shapes.add("square", 4)
+    4
+    >>> shapes.get("square"), shapes.origin("square")
+    (4, 'code')
+    >>> shapes.get("circle")
+    Traceback (most recent call last):
+    ...
+    isp.errors.ConfigError: unknown shape 'circle'; valid: square
+    """
+
+    def __init__(self, kind: str, group: str, *, check: Callable[[str, Any], Any] | None = None,
+                 first: tuple[str, ...] = ()):
+        self.kind, self.group, self._check, self._first = kind, group, check, tuple(first)
+        self._entries: dict[str, Any] = {}
+        self._origin: dict[str, str] = {}
+        self._errors: dict[str, str] = {}
+        self._plugged: set[str] = set()     # names an entry point gave
+        self._loaded = False
+
+    def add(self, name: str, obj: Any, origin: str = "code") -> Any:
+        """Register ``obj`` as ``name`` (re-registering replaces the entry);
+        returns ``obj``, so that it serves as a decorator's body."""
+        if not name:
+            raise ConfigError(f"a {self.kind} needs a name ({obj!r})")
+        self._entries[name] = obj
+        self._origin[name] = origin
+        self._errors.pop(name, None)
+        return obj
+
+    def remove(self, name: str) -> None:
+        """Forget ``name`` (no error if it is not registered)."""
+        self._entries.pop(name, None)
+        self._origin.pop(name, None)
+
+    def _load(self) -> None:
+        if self._loaded:
+            return
+        self._loaded = True
+        for ep in metadata.entry_points(group=self.group):
+            if ep.name in self._entries:
+                continue
+            try:
+                obj = ep.load()
+                if self._check is not None:
+                    obj = self._check(ep.name, obj)
+            except Exception as e:  # a broken plug-in must not break the others
+                self._errors[ep.name] = f"{ep.value}: {type(e).__name__}: {e}"
+                continue
+            dist = getattr(ep, "dist", None)
+            self.add(ep.name, obj, f"{dist.name if dist else '?'} ({ep.value})")
+            self._plugged.add(ep.name)
+
+    def reload(self) -> None:
+        """Forget what entry points gave and read them again (after
+        installing a plug-in in a running process, or after a test changed
+        what ``importlib.metadata.entry_points`` returns)."""
+        for k in self._plugged:
+            self.remove(k)
+        self._plugged.clear()
+        self._errors.clear()
+        self._loaded = False
+
+    def entries(self) -> dict[str, Any]:
+        """Every entry by name: those named ``first``, then the others sorted."""
+        self._load()
+        order = [n for n in self._first if n in self._entries]
+        order += sorted(n for n in self._entries if n not in self._first)
+        return {n: self._entries[n] for n in order}
+
+    def origin(self, name: str) -> str:
+        """Where an entry came from: ``code`` (or the origin it was added
+        with) or ``distribution (module:object)``."""
+        self._load()
+        return self._origin.get(name, "?")
+
+    def broken(self) -> dict[str, str]:
+        """Entry points that failed to load, with the reason."""
+        self._load()
+        return dict(self._errors)
+
+    def get(self, name: str, label: str | None = None) -> Any:
+        """The entry registered as ``name``; the error lists the valid names,
+        or says why a plug-in of that name failed to load."""
+        self._load()
+        try:
+            return self._entries[name]
+        except KeyError:
+            where = f"{label}: " if label else ""
+            if name in self._errors:
+                raise ConfigError(f"{where}{self.kind} {name!r} failed to load: {self._errors[name]}") from None
+            valid = ", ".join(self.entries()) or "none (is the package installed?)"
+            raise ConfigError(f"{where}unknown {self.kind} {name!r}; valid: {valid}") from None
+
+    def __contains__(self, name: str) -> bool:
+        self._load()
+        return name in self._entries
+
+    def copy(self) -> "Registry":
+        """An independent registry with the same entries (tests restore it)."""
+        other = Registry(self.kind, self.group, check=self._check, first=self._first)
+        other._entries, other._origin = dict(self._entries), dict(self._origin)
+        other._errors, other._loaded = dict(self._errors), self._loaded
+        other._plugged = set(self._plugged)
+        return other
+
+
 ENTRY_POINT_GROUP = "isp.stages"
 
-_REGISTRY: dict[str, type] = {}
-_ORIGIN: dict[str, str] = {}
-_entry_points_loaded = False
-_entry_point_errors: dict[str, str] = {}
+#: the stage classes by name
+STAGES = Registry("stage", ENTRY_POINT_GROUP)
 
 
 def register_stage(cls=None, *, name: str | None = None, origin: str = "code"):
@@ -41,71 +174,35 @@ def register_stage(cls=None, *, name: str | None = None, origin: str = "code"):
         key = name or getattr(c, "name", "")
         if not key:
             raise ConfigError(f"stage class {c.__qualname__} has no name")
-        _REGISTRY[key] = c
-        _ORIGIN.setdefault(key, origin)
-        return c
+        return STAGES.add(key, c, origin)
 
     return deco(cls) if cls is not None else deco
-
-
-def _load_entry_points() -> None:
-    global _entry_points_loaded
-    if _entry_points_loaded:
-        return
-    _entry_points_loaded = True
-    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name in _REGISTRY:
-            continue
-        try:
-            cls = ep.load()
-        except Exception as e:  # a broken plug-in must not break the others
-            _entry_point_errors[ep.name] = f"{ep.value}: {type(e).__name__}: {e}"
-            continue
-        _REGISTRY[ep.name] = cls
-        dist = getattr(ep, "dist", None)
-        _ORIGIN[ep.name] = f"{dist.name if dist else '?'} ({ep.value})"
 
 
 def reload_entry_points() -> None:
     """Forget what entry points gave and read them again (after installing a
     plug-in in a running process)."""
-    global _entry_points_loaded
-    for k in [k for k, o in _ORIGIN.items() if o != "code"]:
-        _REGISTRY.pop(k, None)
-        _ORIGIN.pop(k, None)
-    _entry_point_errors.clear()
-    _entry_points_loaded = False
+    STAGES.reload()
 
 
 def list_stages() -> dict[str, type]:
     """All registered stage classes by name, sorted."""
-    _load_entry_points()
-    return dict(sorted(_REGISTRY.items()))
+    return STAGES.entries()
 
 
 def stage_origin(name: str) -> str:
     """Where a stage came from: ``code`` or ``distribution (module:Class)``."""
-    _load_entry_points()
-    return _ORIGIN.get(name, "?")
+    return STAGES.origin(name)
 
 
 def broken_stages() -> dict[str, str]:
     """Entry points that failed to load, with the reason."""
-    _load_entry_points()
-    return dict(_entry_point_errors)
+    return STAGES.broken()
 
 
 def get_stage_class(name: str, label: str | None = None) -> type:
     """The class registered as ``name``; the error lists the valid names."""
-    _load_entry_points()
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        where = f"{label}: " if label else ""
-        if name in _entry_point_errors:
-            raise ConfigError(f"{where}stage {name!r} failed to load: {_entry_point_errors[name]}") from None
-        valid = ", ".join(sorted(_REGISTRY)) or "none (is the package installed?)"
-        raise ConfigError(f"{where}unknown stage {name!r}; valid: {valid}") from None
+    return STAGES.get(name, label)
 
 
 def create_stage(name: str, *, label: str | None = None, **params: Any) -> Stage:

@@ -31,14 +31,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from importlib.metadata import entry_points
-
 import numpy as np
+
+from isp.registry import Registry
 
 __all__ = ["ROI_ACROSS_PX", "Effect", "Geometry", "create_effect", "list_effects", "register_effect"]
 
 ENTRY_POINT_GROUP = "calib.effects"
-_REGISTRY: dict[str, type] = {}
+
+
+def _check_entry(name: str, cls) -> type:
+    if not getattr(cls, "name", None):
+        raise TypeError(f"{getattr(cls, '__name__', cls)!r} needs a `name`")
+    return cls
+
+
+#: the effect classes by name
+EFFECTS = Registry("effect", ENTRY_POINT_GROUP, check=_check_entry)
 
 
 def register_effect(cls):
@@ -46,34 +55,24 @@ def register_effect(cls):
     ``name``."""
     if not getattr(cls, "name", None):
         raise TypeError(f"{cls.__name__} needs a `name`")
-    _REGISTRY[cls.name] = cls
-    return cls
-
-
-def _load_entry_points() -> None:
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name not in _REGISTRY:
-            try:
-                register_effect(ep.load())
-            except Exception as e:    # a broken plug-in must not break the loop: say so
-                import warnings
-
-                warnings.warn(f"effect plug-in {ep.name!r} failed to load: {e}", stacklevel=2)
+    return EFFECTS.add(cls.name, cls)
 
 
 def list_effects() -> dict[str, str]:
-    """name → one-line description of every registered effect."""
-    _load_entry_points()
-    return {n: (c.__doc__ or "").strip().splitlines()[0] for n, c in sorted(_REGISTRY.items())}
+    """name → one-line description of every registered effect. A plug-in
+    that failed to load is named in a warning (the loop runs without it)."""
+    entries = EFFECTS.entries()
+    for name, why in EFFECTS.broken().items():
+        import warnings
+
+        warnings.warn(f"effect plug-in {name!r} failed to load: {why}", stacklevel=2)
+    return {n: (c.__doc__ or "").strip().splitlines()[0] for n, c in entries.items()}
 
 
 def create_effect(name: str) -> "Effect":
-    """An effect by registered name."""
-    _load_entry_points()
-    try:
-        return _REGISTRY[name]()
-    except KeyError:
-        raise KeyError(f"unknown effect {name!r}; registered: {', '.join(sorted(_REGISTRY))}") from None
+    """An effect by registered name (:class:`isp.errors.ConfigError` for an
+    unknown one, listing the registered names)."""
+    return EFFECTS.get(name)()
 
 
 @dataclass(frozen=True, eq=False)

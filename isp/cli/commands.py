@@ -39,10 +39,10 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from importlib import metadata
 from typing import Callable
 
 from isp.errors import ConfigError
+from isp.registry import Registry
 
 ENTRY_POINT_GROUP = "isp.commands"
 
@@ -101,10 +101,20 @@ BUILTIN = (
     Command("batch", "process every raw file in a folder", module="isp.cli.batch"),
 )
 
-_REGISTRY: dict[str, Command] = {c.name: c for c in BUILTIN}
-_ORIGIN: dict[str, str] = {c.name: "isp" for c in BUILTIN}
-_entry_points_loaded = False
-_entry_point_errors: dict[str, str] = {}
+
+
+def _check_entry(name: str, obj) -> Command:
+    """What an ``isp.commands`` entry point must give: a :class:`Command`
+    (renamed to its entry point's name)."""
+    if not isinstance(obj, Command):
+        raise TypeError(f"{type(obj).__name__}, not an isp.cli.commands.Command")
+    return obj if obj.name == name else Command(name, obj.help, obj.module, obj.run, obj.add_arguments)
+
+
+#: the commands by name
+COMMANDS = Registry("command", ENTRY_POINT_GROUP, check=_check_entry, first=tuple(c.name for c in BUILTIN))
+for _c in BUILTIN:
+    COMMANDS.add(_c.name, _c, "isp")
 
 
 def register_command(name: str | Command, *, help: str | None = None, add_arguments: Callable | None = None):
@@ -123,9 +133,7 @@ def register_command(name: str | Command, *, help: str | None = None, add_argume
     'say hello'
     """
     if isinstance(name, Command):
-        _REGISTRY[name.name] = name
-        _ORIGIN[name.name] = "code"
-        return name
+        return COMMANDS.add(name.name, name)
 
     def deco(fn):
         register_command(Command(name, help or "", run=fn, add_arguments=add_arguments))
@@ -134,53 +142,21 @@ def register_command(name: str | Command, *, help: str | None = None, add_argume
     return deco
 
 
-def _load_entry_points() -> None:
-    global _entry_points_loaded
-    if _entry_points_loaded:
-        return
-    _entry_points_loaded = True
-    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name in _REGISTRY:
-            continue
-        try:
-            cmd = ep.load()
-            if not isinstance(cmd, Command):
-                raise TypeError(f"{type(cmd).__name__}, not an isp.cli.commands.Command")
-        except Exception as e:  # a broken plug-in must not break the other commands
-            _entry_point_errors[ep.name] = f"{ep.value}: {type(e).__name__}: {e}"
-            continue
-        if cmd.name != ep.name:
-            cmd = Command(ep.name, cmd.help, cmd.module, cmd.run, cmd.add_arguments)
-        _REGISTRY[ep.name] = cmd
-        dist = getattr(ep, "dist", None)
-        _ORIGIN[ep.name] = f"{dist.name if dist else '?'} ({ep.value})"
-
-
 def list_commands() -> dict[str, Command]:
     """Every command by name: the ISP's own first, then the others by name."""
-    _load_entry_points()
-    own = {c.name: _REGISTRY[c.name] for c in BUILTIN if c.name in _REGISTRY}
-    return own | {k: _REGISTRY[k] for k in sorted(_REGISTRY) if k not in own}
+    return COMMANDS.entries()
 
 
 def command_origin(name: str) -> str:
     """Where a command came from: ``isp``, ``code`` or ``distribution (module:object)``."""
-    _load_entry_points()
-    return _ORIGIN.get(name, "?")
+    return COMMANDS.origin(name)
 
 
 def broken_commands() -> dict[str, str]:
     """Entry points of the ``isp.commands`` group that failed to load, with the reason."""
-    _load_entry_points()
-    return dict(_entry_point_errors)
+    return COMMANDS.broken()
 
 
 def get_command(name: str) -> Command:
     """The command registered as ``name``; the error lists the valid names."""
-    _load_entry_points()
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        if name in _entry_point_errors:
-            raise ConfigError(f"command {name!r} failed to load: {_entry_point_errors[name]}") from None
-        raise ConfigError(f"unknown command {name!r}; valid: {', '.join(list_commands())}") from None
+    return COMMANDS.get(name)

@@ -174,7 +174,7 @@ def test_each_effect_alone_is_named_measured_and_explained(name):
     effect without a device here fails: a new effect gets its test."""
     from calibration.loop import effects
     if name not in ALONE:
-        if getattr(effects._REGISTRY.get(name), "__module__", "") == effects.__name__:
+        if getattr(effects.EFFECTS.entries().get(name), "__module__", "") == effects.__name__:
             pytest.fail(f"no injected device for the built-in effect {name!r}: add one to ALONE")
         pytest.skip(f"{name}: a plug-in effect, no injected device here")
     rep, _ = _alone(name)

@@ -4,6 +4,8 @@ registered from outside is listed and created by name."""
 
 import pytest
 
+from isp.errors import ConfigError
+
 from calibration.loop.effects import Effect, create_effect, list_effects, register_effect
 
 pytestmark = pytest.mark.property
@@ -13,7 +15,7 @@ def test_registry_lists_the_required_effects():
     have = set(list_effects())
     assert {"sensor_tilt", "focus_shift", "field_curvature", "pixel_crosstalk", "lateral_ca", "sharpening",
             "veiling_glare"} <= have
-    with pytest.raises(KeyError, match="unknown effect"):
+    with pytest.raises(ConfigError, match="unknown effect 'nope'; valid: field_curvature, focus_shift"):
         create_effect("nope")
 
 
@@ -30,4 +32,4 @@ def test_plugin_effect_via_register():
         assert "test_nothing" in list_effects()
         assert create_effect("test_nothing").transfer([0.0], None) is None
     finally:
-        effects._REGISTRY.pop("test_nothing", None)
+        effects.EFFECTS.remove("test_nothing")

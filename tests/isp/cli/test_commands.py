@@ -14,6 +14,7 @@ from importlib import metadata
 import pytest
 
 import isp.cli.commands as commands
+import isp.registry
 from isp.cli.commands import Command, get_command, list_commands, register_command
 from isp.cli.main import main
 from isp.errors import ConfigError
@@ -27,9 +28,7 @@ EVERY = ["process", "info", "stages", "batch", "calib", "demo", "eval", "export"
 @pytest.fixture
 def registry(monkeypatch):
     """The registry, restored after the test."""
-    monkeypatch.setattr(commands, "_REGISTRY", dict(commands._REGISTRY))
-    monkeypatch.setattr(commands, "_ORIGIN", dict(commands._ORIGIN))
-    monkeypatch.setattr(commands, "_entry_point_errors", dict(commands._entry_point_errors))
+    monkeypatch.setattr(commands, "COMMANDS", commands.COMMANDS.copy())
     return commands
 
 
@@ -102,9 +101,9 @@ def test_a_broken_plug_in_is_reported_and_the_others_run(registry, monkeypatch, 
     eps = [metadata.EntryPoint("broken", "no_such_package.cli:COMMAND", commands.ENTRY_POINT_GROUP),
            metadata.EntryPoint("notacommand", "isp.cli.run:run_command", commands.ENTRY_POINT_GROUP)]
     real = metadata.entry_points  # the stage registry reads the same function: only this group changes
-    monkeypatch.setattr(commands.metadata, "entry_points",
+    monkeypatch.setattr(isp.registry.metadata, "entry_points",
                         lambda group: eps if group == commands.ENTRY_POINT_GROUP else real(group=group))
-    monkeypatch.setattr(commands, "_entry_points_loaded", False)
+    registry.COMMANDS.reload()
     broken = registry.broken_commands()
     assert "ModuleNotFoundError" in broken["broken"] and "not an isp.cli.commands.Command" in broken["notacommand"]
     with pytest.raises(ConfigError, match="command 'broken' failed to load"):
