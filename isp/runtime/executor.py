@@ -38,10 +38,10 @@ OpenMP, torch, ONNX Runtime), else ``forkserver`` (``spawn`` where there is
 no forkserver). Start-up of a 2-worker pool, from creating it to a first
 result from each worker, with numpy, rawpy and the pipeline imported in the
 parent and the task importing what a batch task imports
-(``python -m benchmarks.executor_startup``, median of 5 fresh interpreters
-on a 2-core VM with other work running): fork 0.16 s, forkserver 0.71 s
-(0.69 s with the server importing the task's modules, ``imports``), spawn
-0.77 s. Forkserver's cost is its server starting and each worker importing
+(``python -m benchmarks.executor_startup --runs 5``, median of 5 fresh
+interpreters on an idle 2-core AMD EPYC): fork 0.05 s, forkserver 0.24 s
+(0.22 s with the server importing the task's modules, ``imports``), spawn
+0.28 s. Forkserver's cost is its server starting and each worker importing
 the task's modules; it is paid once per pool, which is why pools persist
 for an executor's lifetime and jobs bind a payload to one pool.
 
