@@ -58,7 +58,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from benchmarks.correction_tiling import _measure  # noqa: E402
+from benchmarks.correction_tiling import measure_stage  # noqa: E402
 
 
 #: tile sizes (px, context included) every model is timed at by default
@@ -85,7 +85,7 @@ def _stage(path: Path, frame, threads: int, tile_size: int | None):
 
 
 def _run(stage, frame, memory: bool = False) -> dict:
-    r = _measure(stage, frame, memory=memory)
+    r = measure_stage(stage, frame, memory=memory)
     # each output is dropped before the next run, as a pipeline drops a frame it has passed on:
     # kept alive, every run's 144 MB output is fresh memory from the kernel (page faults measured
     # at 0.05-0.3 s per 12 MP frame on top of the stage's own 0.1 s)

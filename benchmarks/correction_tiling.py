@@ -94,7 +94,7 @@ def _reset_peak() -> bool:
         return False
 
 
-def _measure(stage, frame, memory: bool = False) -> dict:
+def measure_stage(stage, frame, memory: bool = False) -> dict:
     """One run of the stage: wall seconds, wall seconds inside the model,
     CPU seconds of this thread outside it, and (``memory``) peak memory."""
     sess, t_model, cpu_model = stage.session, [0.0], [0.0]
@@ -156,11 +156,11 @@ def main(argv=None) -> dict:
         tiles = plan_tiles((h, w), tile, margin, mult, border)
         computed = sum(t.window_shape[0] * t.window_shape[1] for t in tiles)
 
-        cold = _measure(stage, frame, memory=True)  # first run: ORT arena and output pages fresh
+        cold = measure_stage(stage, frame, memory=True)  # first run: ORT arena and output pages fresh
         del cold["out"]
         warm = []
         for _ in range(args.runs):   # as inside a pipeline, whose earlier stages warmed the allocator
-            warm.append(_measure(stage, frame))
+            warm.append(measure_stage(stage, frame))
             out_mib = round(warm[-1].pop("out").nbytes / 2 ** 20, 1)
 
         def spread(key):

@@ -43,10 +43,10 @@ def sample_reader(n: int = 8, size: int = 128):
     from functools import partial
     from types import SimpleNamespace
 
-    from export.onnx_export import _model_input, sample_frame
+    from export.onnx_export import model_input, sample_frame
     from export.quantize import ReplayReader
 
-    feeds = iter([{"input": _model_input(sample_frame((size, size), True, k), True)} for k in range(n)])
+    feeds = iter([{"input": model_input(sample_frame((size, size), True, k), True)} for k in range(n)])
     return ReplayReader(SimpleNamespace(get_next=partial(next, feeds, None)))
 
 

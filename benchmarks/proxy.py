@@ -236,9 +236,9 @@ def screen(model, names, n_params, bias, workers) -> list[str]:
     from calibration.fit import proxy as _proxy   # fit_proxy's own worker set-up and task
 
     payload = (model.nominal, model.obs, model.settings, names, bias)
-    with pool_executor(workers).bind(payload, setup=_proxy._worker_models) as pool:
+    with pool_executor(workers).bind(payload, setup=_proxy.worker_models) as pool:
         return screen_parameters(model, names, n_params, bias=bias,
-                                 fun_many=lambda pts: pool.map(_proxy._residual_task, list(pts)))
+                                 fun_many=lambda pts: pool.map(_proxy.residual_task, list(pts)))
 
 
 #: how a device's edges are rendered: its PSF map, wider and finer than the fits' forward model

@@ -69,9 +69,9 @@ def _cache_dir() -> Path:
 
 
 def _psf_task(args):
-    from calibration.optics.psf.map import _region_task
+    from calibration.optics.psf.map import region_task
 
-    return _region_task(args)[0]
+    return region_task(args)[0]
 
 
 def reference_map(pl, psfmap, origin, size, step, workers):

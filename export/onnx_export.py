@@ -205,7 +205,7 @@ def sample_frame(shape: tuple[int, int], fov: bool, seed: int = 0) -> np.ndarray
     return np.ascontiguousarray(img, dtype=np.float32)
 
 
-def _model_input(img: np.ndarray, fov: bool) -> np.ndarray:
+def model_input(img: np.ndarray, fov: bool) -> np.ndarray:
     """(1, C, H, W) float32 from (H, W, 3): RGB, then the full-frame field."""
     from modules.correction import field_coordinates
 
@@ -236,7 +236,7 @@ def onnx_parity(model, session, sizes=((64, 96), (96, 128)), seed: int = 0) -> f
     fov = getattr(model, "fov_encoding", "none") == "xy"
     err = 0.0
     for k, size in enumerate(sizes):
-        x = _model_input(sample_frame(size, fov, seed + k), fov)
+        x = model_input(sample_frame(size, fov, seed + k), fov)
         with torch.no_grad():
             ref = model(torch.from_numpy(x)).numpy()
         got = run_model(session, x)
@@ -354,7 +354,7 @@ def _export_bytes(model, opset: int, packing: int = 1) -> bytes:
     from modules.correction import pack_input
 
     fov = getattr(model, "fov_encoding", "none") == "xy"
-    x = torch.from_numpy(pack_input(_model_input(sample_frame((64, 96), fov), fov), packing))
+    x = torch.from_numpy(pack_input(model_input(sample_frame((64, 96), fov), fov), packing))
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the legacy exporter's deprecation and constant-folding notes

@@ -225,6 +225,21 @@ def test_private_packages_stay_inside_their_parent():
     assert not bad, _report(bad, "imports of a private package from outside its parent")
 
 
+def test_benchmarks_use_only_public_names():
+    """The benchmark scripts are the library's users: what they need from it
+    is public API, not its internals."""
+    bad = []
+    for path in sorted((ROOT / "benchmarks").glob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                for a in node.names:
+                    if (a.name.startswith("_") and not a.name.startswith("__")
+                            and node.module != "benchmarks" and _module_of(node.module)):
+                        bad.append(f"  benchmarks/{path.name}:{node.lineno}: {node.module}.{a.name}")
+    assert not bad, f"{len(bad)} private names imported by benchmarks:\n" + "\n".join(bad)
+
+
 @pytest.mark.parametrize("package", [m for m, p in MODULES.items() if p.name == "__init__.py"])
 def test_every_package_says_what_it_holds_and_may_import(package):
     doc = ast.get_docstring(ast.parse(MODULES[package].read_text(encoding="utf-8")))

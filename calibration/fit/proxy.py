@@ -251,8 +251,10 @@ class ProxyFit(FittedLens):
 
 
 # -- evaluation (picklable: one model per worker process) -----------------------------
-def _residual_task(u: np.ndarray) -> np.ndarray:
-    w = worker_payload()        # _worker_models, built once per worker
+def residual_task(u: np.ndarray) -> np.ndarray:
+    """The residuals at parameters ``u``, in a worker whose payload
+    :func:`worker_models` set up: one column of a parallel Jacobian."""
+    w = worker_payload()        # worker_models, built once per worker
     return _residuals(w["model"], w["space"], w["bias"], u)
 
 
@@ -487,7 +489,7 @@ class ProxyFitSettings:
             object.__setattr__(self, "coarse", (int(rows), int(cols)))
 
 
-def _worker_models(payload) -> dict:
+def worker_models(payload) -> dict:
     """What a fit's worker holds (the executor's setup, once per worker):
     the model, the Jacobian's cheaper model, the parameter space, the bias."""
     from calibration.fit.forward_model import SfrModel
@@ -556,7 +558,7 @@ def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor) -> ProxyF
     if ex.parallel:
         # one pool for screening and fit, its workers' models built once over every candidate
         # parameter; the fit's points are embedded in that space (zeros elsewhere: the same lens)
-        pool = ex.bind((nominal, obs, settings, names, bias, jacobian_settings), setup=_worker_models)
+        pool = ex.bind((nominal, obs, settings, names, bias, jacobian_settings), setup=worker_models)
     elif jacobian_settings is not None:
         cheap_model = SfrModel(nominal, obs, jacobian_settings)
     all_names, where = names, None
@@ -575,7 +577,7 @@ def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor) -> ProxyF
         if screen and len(names) > n_params:
             # screened on the residuals the fit will use (the asymmetry makes decenters visible
             # that SFRA hides), by the Jacobian's model: a ranking, and the fit's first Jacobian
-            task = _residual_task if jacobian_settings is None else _cheap_residual_task
+            task = residual_task if jacobian_settings is None else _cheap_residual_task
             screen_model = model if cheap_model is None else cheap_model
             names, jac0 = screen_parameters(screen_model, names, n_params, bias=bias,
                                             return_jacobian=True,
@@ -601,7 +603,7 @@ def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor) -> ProxyF
         def fun_many(points):
             if pool is None or len(points) == 1:
                 return [fun(p) for p in points]
-            return with_prior(points, on_pool(_residual_task, points))
+            return with_prior(points, on_pool(residual_task, points))
 
         def cheap_many(points):
             if pool is None:

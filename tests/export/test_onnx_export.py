@@ -44,11 +44,11 @@ def exported(tmp_path_factory):
 
 def _reader(n=6, size=64, seed=0):
     """Calibration crops (1, 5, size, size): smooth random RGB + field."""
-    from export.onnx_export import _model_input, sample_frame
+    from export.onnx_export import model_input, sample_frame
 
     class Reader:
         def __init__(self):
-            self.it = iter([{"input": _model_input(sample_frame((size, size), True, seed + k), True)}
+            self.it = iter([{"input": model_input(sample_frame((size, size), True, seed + k), True)}
                             for k in range(n)])
 
         def get_next(self):
@@ -73,9 +73,9 @@ def test_fp32_parity_and_constant_weights(exported):
     inp = proto.graph.input[0].type.tensor_type.shape.dim
     assert [x.dim_param for x in inp[2:]] == ["height", "width"]
     # independent check of the file on disk at a third size
-    from export.onnx_export import _model_input, sample_frame
+    from export.onnx_export import model_input, sample_frame
 
-    x = _model_input(sample_frame((48, 80), True, 9), True)
+    x = model_input(sample_frame((48, 80), True, 9), True)
     sess = ort.InferenceSession(str(d / "tiny.onnx"), providers=["CPUExecutionProvider"])
     with torch.no_grad():
         ref = model(torch.from_numpy(x)).numpy()
@@ -95,13 +95,13 @@ def test_fp32_parity_and_constant_weights(exported):
 
 
 def test_planar_export_is_the_same_function(exported, tmp_path):
-    from export.onnx_export import _model_input, export_onnx, sample_frame
+    from export.onnx_export import model_input, export_onnx, sample_frame
 
     d, model, _ = exported
     report = export_onnx(d / "tiny.pt", tmp_path / "planar.onnx", tile_size=256, packed=False,
                          measure_overlap=False)
     assert "space_to_depth" not in report["metadata"] and report["parity_max_abs"] <= 1e-4
-    x = _model_input(sample_frame((48, 80), True, 9), True)
+    x = model_input(sample_frame((48, 80), True, 9), True)
     sess = ort.InferenceSession(str(tmp_path / "planar.onnx"), providers=["CPUExecutionProvider"])
     with torch.no_grad():
         ref = model(torch.from_numpy(x)).numpy()
@@ -209,7 +209,7 @@ def test_int8_psnr_drop(exported, quantized):
     measures that one (``isp export --int8 --calib-data``)."""
     import cv2
 
-    from export.onnx_export import _model_input, sample_frame
+    from export.onnx_export import model_input, sample_frame
     from modules.correction import run_model
 
     d = exported[0]
@@ -218,7 +218,7 @@ def test_int8_psnr_drop(exported, quantized):
     p32, p8 = [], []
     for k in range(4):
         target = np.clip(sample_frame((96, 128), True, 100 + k), 0, 1)
-        x = _model_input(cv2.GaussianBlur(target, (0, 0), 1.5), True)
+        x = model_input(cv2.GaussianBlur(target, (0, 0), 1.5), True)
         for s, acc in ((s32, p32), (s8, p8)):
             y = run_model(s, x)[0].transpose(1, 2, 0)
             acc.append(10 * np.log10(1 / np.mean((y - target) ** 2)))
@@ -301,7 +301,7 @@ def test_dequantized_twin_is_the_fp32_graph(exported, quantized):
     here), which the INT8 model, its activations rounded too, is not."""
     import onnx as onnx_
 
-    from export.onnx_export import _model_input, sample_frame
+    from export.onnx_export import model_input, sample_frame
     from export.quantize import dequantize_qdq
     from modules.correction import run_model
 
@@ -315,7 +315,7 @@ def test_dequantized_twin_is_the_fp32_graph(exported, quantized):
     onnx_.save(twin, str(d / "tiny.twin.onnx"))
     s32, s8, stw = (ort.InferenceSession(str(d / f), providers=["CPUExecutionProvider"])
                     for f in ("tiny.onnx", "tiny.int8.onnx", "tiny.twin.onnx"))
-    x = _model_input(np.clip(sample_frame((96, 128), True, 7), 0, 1), True)
+    x = model_input(np.clip(sample_frame((96, 128), True, 7), 0, 1), True)
     y32, y8, ytw = (run_model(s, x) for s in (s32, s8, stw))
     psnr = lambda a, b: 10 * np.log10(1 / np.mean((a - b) ** 2))  # noqa: E731
     assert psnr(ytw, y32) >= 38, psnr(ytw, y32)   # 41.0 dB measured

@@ -526,7 +526,7 @@ def _is_coaxial(pl: PerturbedLens) -> bool:
     return all(p.rotation is None and p.vertex[0] == 0.0 and p.vertex[1] == 0.0 for p in poses)
 
 
-def _region_task(args) -> tuple[np.ndarray, np.ndarray]:
+def region_task(args) -> tuple[np.ndarray, np.ndarray]:
     """One region: (channels, m, m) PSFs and (channels,) window energies.
     A plain picklable function of its inputs (DESIGN.md, scale-out)."""
     pl, fld, center, nodes, weights, method, samples, m, pitch, aiming, aim_each, threads = args
@@ -654,11 +654,11 @@ class PSFMapSettings:
 
 
 def _region_job(task) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_region_task` of one region's (field, centre), the rest of its
+    """:func:`region_task` of one region's (field, centre), the rest of its
     arguments read from the executor's payload (sent to each worker once)."""
     pl, *rest = worker_payload()
     fld, center = task
-    return _region_task((pl, fld, center, *rest))
+    return region_task((pl, fld, center, *rest))
 
 
 def psf_map(lens_or_perturbed: Lens | PerturbedLens, settings: PSFMapSettings | None = None, *,
