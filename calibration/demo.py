@@ -23,8 +23,10 @@ The synthetic camera
 * DNG: four per-CFA-phase GainMap opcodes (17×13) that undo the shading, as
   phone DNGs carry them.
 
-The demo processes the capture twice, with the correction stage's packaged
-model and without it (``--no-correction``), and a third time a capture
+The DNG names its lens (LensModel ``US-12210142-B2-e9``), so the default
+pipeline's correction stage finds the packaged model through its lens
+profile (:mod:`isp.profiles`). The demo processes the capture twice, with
+that model and without it (``--correction none``), and a third time a capture
 without blur and noise (the reference), then reports the PSNR of each to
 the reference around the slanted squares and writes a before/after crop.
 
@@ -109,8 +111,14 @@ def gain_maps(h: int, w: int, points=(13, 17)):
     return tuple(ops)
 
 
-def demo_meta(h: int, w: int) -> CameraMeta:
-    """Metadata of the demo camera (everything the DNG will carry)."""
+#: the LensModel the demo writes: the lens whose PSFs blur it, the one the packaged
+#: correction model's lens profile names (``modules/models/e9_default.toml``)
+DEMO_LENS = "US-12210142-B2-e9"
+
+
+def demo_meta(h: int, w: int, lens: str = DEMO_LENS) -> CameraMeta:
+    """Metadata of the demo camera (everything the DNG will carry); ``lens``
+    is its LensModel, the identity a lens profile matches."""
     cm = CAMERA_MIX @ XYZ_TO_SRGB
     neutral = CAMERA_MIX @ np.ones(3)
     neutral = neutral / neutral[1]
@@ -120,7 +128,7 @@ def demo_meta(h: int, w: int) -> CameraMeta:
         color_matrix_1=cm, calibration_illuminant_1=21, as_shot_neutral=tuple(neutral),
         baseline_exposure=0.0, noise_profile=((NOISE_S, NOISE_O),),
         opcodes={2: gain_maps(h, w)}, f_number=1.8, focal_length_mm=4.3, exposure_time_s=1 / 100,
-        iso=100.0, lens="demo 4.3 mm f/1.8", datetime="2026:11:21 12:00:00", bits_per_sample=10,
+        iso=100.0, lens=lens, datetime="2026:11:21 12:00:00", bits_per_sample=10,
     )
 
 
@@ -144,9 +152,11 @@ def make_capture(h: int = 1500, w: int = 2000, seed: int = 0, exposure: float = 
                  optics: str = "lens", noise: bool = True):
     """Simulate the demo capture.
 
-    ``optics``: ``"lens"`` (the default phone lens, :func:`lens_blur`),
-    ``"gaussian"`` (σ = 0.7 px) or ``"none"``; ``noise=False`` leaves out the
-    sensor noise (the reference capture of :func:`run_demo`).
+    ``optics``: ``"lens"`` (the default phone lens, :func:`lens_blur`,
+    written as LensModel :data:`DEMO_LENS`), ``"gaussian"`` (σ = 0.7 px) or
+    ``"none"`` (no LensModel, so no lens profile matches either);
+    ``noise=False`` leaves out the sensor noise (the reference capture of
+    :func:`run_demo`).
 
     Returns
     -------
@@ -177,7 +187,8 @@ def make_capture(h: int = 1500, w: int = 2000, seed: int = 0, exposure: float = 
     mosaic = np.clip(mosaic, 0.0, None)
     noisy = mosaic + rng.standard_normal(mosaic.shape) * np.sqrt(NOISE_S * mosaic + NOISE_O) if noise else mosaic
     dn = np.clip(np.round(noisy * (WHITE - BLACK) + BLACK), 0, WHITE).astype(np.uint16)
-    return dn, demo_meta(h, w), scene
+    lens = {"lens": DEMO_LENS, "gaussian": "Gaussian blur 0.7 px"}.get(optics, "")
+    return dn, demo_meta(h, w, lens), scene
 
 
 def square_boxes(h: int, w: int) -> dict[str, list[tuple[slice, slice]]]:
@@ -201,8 +212,8 @@ def psnr(a: np.ndarray, b: np.ndarray, peak: float = 1.0) -> float:
 
 def _process(dng: Path, *, correction: bool):
     """(display-referred RGB before JPEG, linear RGB, the pipeline, the
-    encoded output frame) of the default pipeline, with or without the
-    correction model."""
+    encoded output frame) of the built-in ``linear`` look, with or without
+    the correction model of the capture's lens profile."""
     from isp.frame import Domain
     from isp.pipeline import Pipeline
     from isp.io.read import read_raw
@@ -215,7 +226,9 @@ def _process(dng: Path, *, correction: bool):
         if fr.domain is Domain.DISPLAY_RGB:
             keep["display"] = fr.data
 
-    pipeline = Pipeline.default() if correction else Pipeline.default(correction={"model": "none"})
+    # the scene-referred look: the demo scores linear RGB against the known scene
+    pipeline = Pipeline.default("linear") if correction else \
+        Pipeline.default("linear", correction={"model": "none"})
     out = pipeline.run(read_raw(dng), on_step=on_step)
     return keep["display"], keep["linear"], pipeline, out
 
@@ -295,7 +308,7 @@ def run_demo(outdir: Path, size=(1500, 2000), seed: int = 0) -> int:
           f"(uncorrected {uncorrected:.3f}; ideal 1.000)")
 
     corr = next(s for s in pipeline.stages if s.name == "correction")
-    what = corr.summary()
+    what = corr.summary(meta)
     zones = square_boxes(h, w)
     scores = {z: (np.mean([psnr(before[b], ref[b]) for b in boxes]), np.mean([psnr(after[b], ref[b]) for b in boxes]))
               for z, boxes in zones.items()}
@@ -304,8 +317,8 @@ def run_demo(outdir: Path, size=(1500, 2000), seed: int = 0) -> int:
            slice(max(0, int(0.12 * w - 0.8 * side)), int(0.12 * w - 0.2 * side)))
     fig = before_after_figure(outdir / "demo_before_after.png", [before[box], after[box], ref[box]],
                               ["no correction", "corrected", "no blur, no noise"], zoom=4)
-    print(f"optical correction: model {what['model']} ({what.get('source')}, lens {what.get('lens')}); "
-          f"wrote {jpg_nc} without it")
+    print(f"optical correction: model {what['model']} (profile {what.get('profile')}, {what.get('source')}, "
+          f"lens {what.get('lens')}); wrote {jpg_nc} without it")
     print("  PSNR to the capture without blur and noise, around the slanted squares: "
           + ", ".join(f"{z} {b:.2f} -> {a:.2f} dB" for z, (b, a) in scores.items()))
     print(f"  before/after crop (top-left square): {fig}")

@@ -10,18 +10,19 @@ recorded in :attr:`CameraMeta.notes` so that ``isp info`` can report it.
 
 Units
 -----
-=======================  ===========================================
-field                    unit / domain
-=======================  ===========================================
-black_level              sensor DN, per CFA position (R, C, S)
-white_level              sensor DN, per sample
-baseline_exposure        EV (stops)
-noise_profile            ((S, O), ...) per plane, on data scaled 0..1:
-                         variance = S·x + O
-pixel_pitch_um           µm
-focal_length_mm          mm
-origin                   (row, col) of data[0, 0] in active-area pixels
-=======================  ===========================================
+=========================  ===========================================
+field                      unit / domain
+=========================  ===========================================
+black_level                sensor DN, per CFA position (R, C, S)
+white_level                sensor DN, per sample
+baseline_exposure          EV (stops)
+baseline_exposure_offset   EV (stops), the profile's, added to it
+noise_profile              ((S, O), ...) per plane, on data scaled 0..1:
+                           variance = S·x + O
+pixel_pitch_um             µm
+focal_length_mm            mm
+origin                     (row, col) of data[0, 0] in active-area pixels
+=========================  ===========================================
 """
 
 from __future__ import annotations
@@ -106,6 +107,23 @@ class CameraMeta:
     calibration_illuminant_2: int | None = None
     calibration_illuminant_3: int | None = None
     illuminant_data_3: tuple[float, float] | None = None  # xy of illuminant 3 (DNG 1.6)
+
+    # camera profile: rendering tables and defaults (DNG 1.7.1.0 chapter 4)
+    #: (hues, sats, vals) of ProfileHueSatMapData1/2/3 (vals 1: a 2.5-D table)
+    profile_hue_sat_map_dims: tuple[int, int, int] | None = None
+    #: flat float32 (hue shift °, saturation scale, value scale) triplets,
+    #: value outermost, then hue, saturation innermost
+    profile_hue_sat_map_data_1: np.ndarray | None = None
+    profile_hue_sat_map_data_2: np.ndarray | None = None
+    profile_hue_sat_map_data_3: np.ndarray | None = None
+    profile_hue_sat_map_encoding: int = 0  # 0 linear, 1 sRGB (value axis)
+    profile_look_table_dims: tuple[int, int, int] | None = None
+    profile_look_table_data: np.ndarray | None = None
+    profile_look_table_encoding: int = 0   # 0 linear, 1 sRGB (value axis)
+    profile_tone_curve: np.ndarray | None = None  # (N, 2) points (x, y) in [0, 1]
+    baseline_exposure_offset: float | None = None  # EV, added to BaselineExposure
+    default_black_render: int | None = None  # 0 auto, 1 none (no shadows black point)
+    shadow_scale: float | None = None
 
     # exposure and noise
     baseline_exposure: float | None = None

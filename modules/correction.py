@@ -1,5 +1,13 @@
 """The optical-correction slot: runs an ONNX restoration model, or nothing.
 
+A correction model is learned for one lens. By default (``model = "auto"``)
+the stage runs the model of the lens profile that matches the frame's lens
+identity (:mod:`isp.profiles`: UniqueCameraModel, Make, Model, LensModel of
+``frame.meta``), and is the identity where no profile matches; its note in
+the history (``isp process -v``) names the profile, or says why none
+matched. ``model = FILE`` forces a model on every frame, ``"none"`` turns
+the stage off (``isp process --correction FILE|none``).
+
 Without a model the stage is the identity (and says so in the history).
 With one, it reads the model's metadata (written by ``isp export``; table
 below) and refuses, when the pipeline is built, a position whose domain
@@ -86,6 +94,7 @@ model that declares a ``stats`` input gets it, whatever its ``attention``.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 from dataclasses import dataclass
@@ -96,7 +105,7 @@ from typing import NamedTuple
 import numpy as np
 
 from isp.errors import ConfigError, PlacementError
-from isp.frame import Domain, Frame
+from isp.frame import Domain, Frame, Step
 from isp.stage import StageBase
 
 from modules.common.tiling import plan_tiles, run_tiled
@@ -383,12 +392,15 @@ MODELS_DIR = Path(__file__).parent / "models"
 SHIPPED_MODELS = {"default": "e9_default.int8.onnx"}
 #: ``model`` values that mean no model (the stage is the identity)
 NO_MODEL = ("none", "")
+#: the ``model`` value that picks, per frame, the model of the matching lens profile
+AUTO = "auto"
 
 
 def resolve_model(model: str | Path | None) -> Path | None:
     """The model file a ``model`` parameter names: ``"default"`` (or another
     key of :data:`SHIPPED_MODELS`) the packaged file, ``"none"``, ``""`` or
-    None no model, anything else a path.
+    None no model, anything else a path (``"auto"`` is resolved per frame,
+    by :func:`isp.profiles.match_profile`, and is not accepted here).
 
     >>> resolve_model("none") is None
     True
@@ -397,6 +409,8 @@ def resolve_model(model: str | Path | None) -> Path | None:
     """
     if model is None or (isinstance(model, str) and model.strip().lower() in NO_MODEL):
         return None
+    if isinstance(model, str) and model.strip().lower() == AUTO:
+        raise ValueError("model 'auto' names no file: it is the matching lens profile's, per frame")
     if isinstance(model, str) and model in SHIPPED_MODELS:
         return MODELS_DIR / SHIPPED_MODELS[model]
     return Path(model)
@@ -408,12 +422,15 @@ class Correction(StageBase):
 
     Parameters
     ----------
-    model : path, "default" or "none"
-        ONNX file exported by ``isp export``; its metadata fixes the domain
-        it must stand in, the tile size and the overlap (module table).
-        ``"default"``: the packaged INT8 model of the default phone lens
+    model : "auto", path, "default" or "none"
+        ``"auto"``: per frame, the model of the lens profile matching
+        ``frame.meta`` (:func:`isp.profiles.match_profile`), none where no
+        profile matches. A path: an ONNX file exported by ``isp export``,
+        run on every frame; its metadata fixes the domain it must stand in,
+        the tile size and the overlap (module table). ``"default"``: the
+        packaged INT8 model of the default phone lens, on every frame
         (:data:`SHIPPED_MODELS`); ``"none"``: no model, the identity
-        (``isp process --no-correction``).
+        (``isp process --correction none``).
     threads : int
         onnxruntime intra-op threads (the phone budget is 2).
     tile_size : int, optional
@@ -432,7 +449,7 @@ class Correction(StageBase):
     name = "correction"
     consumes = SLOT_DOMAINS
 
-    model: str | Path | None = "default"
+    model: str | Path | None = AUTO
     threads: int = 2
     tile_size: int | None = None
     overlap: int | None = None
@@ -448,6 +465,10 @@ class Correction(StageBase):
             raise ValueError(f"overlap must be ≥ 0, got {self.overlap}")
         if self.border is not None and self.border < 0:
             raise ValueError(f"border must be ≥ 0, got {self.border}")
+        object.__setattr__(self, "_by_model", {})   # auto: the stage of each profile's model
+        if isinstance(self.model, str) and self.model.strip().lower() == AUTO:
+            object.__setattr__(self, "model", AUTO)
+            return
         path = resolve_model(self.model)
         if path is not None and not path.is_file():
             shipped = " (the packaged default: reinstall the package)" if path.parent == MODELS_DIR else ""
@@ -455,9 +476,41 @@ class Correction(StageBase):
         object.__setattr__(self, "model", path)  # frozen: resolved once, here
 
     @property
+    def auto(self) -> bool:
+        """True when the model is chosen per frame by lens profile."""
+        return self.model == AUTO
+
+    @property
     def session(self):
         """The shared onnxruntime session (:func:`onnx_session`)."""
         return onnx_session(self.model, self.threads)
+
+    def for_frame(self, meta) -> tuple["Correction", str]:
+        """The stage that runs on a frame of metadata ``meta``, and why.
+
+        Returns
+        -------
+        stage : Correction
+            This stage with a fixed model: the matching profile's model
+            (``"auto"``; the identity where none matches), else itself.
+        reason : str
+            One line: the profile and what it matched on, or why no profile
+            matched ("" for a forced model or none).
+        """
+        if not self.auto:
+            return self, ""
+        from isp.profiles import match_profile
+
+        found = match_profile(meta)
+        path = found.profile.model if found.profile is not None else None
+        stage = self._by_model.get(path)
+        if stage is None:
+            try:
+                stage = dataclasses.replace(self, model=path or "none")
+            except ValueError as e:   # the profile's model file went away after it was read
+                raise ConfigError(f"lens profile {found.profile.name!r}: {e}") from None
+            self._by_model[path] = stage
+        return stage, found.reason()
 
     @cached_property
     def info(self) -> ModelInfo:
@@ -465,14 +518,33 @@ class Correction(StageBase):
 
     @cached_property
     def model_meta(self) -> dict[str, str]:
-        """The model's custom metadata (empty without a model)."""
-        if self.model is None:
+        """The model's custom metadata (empty without a model, or with one
+        chosen per frame)."""
+        if self.model is None or self.auto:
             return {}
         return dict(self.session.get_modelmeta().custom_metadata_map)
 
-    def summary(self) -> dict:
+    def summary(self, meta=None) -> dict:
         """What ``isp info`` reports: the model in use, where it comes from,
-        its lens, domain and size (``{"model": None}`` without one)."""
+        its lens, domain and size (``{"model": None}`` without one).
+
+        With ``model = "auto"``, the model of the profile matching ``meta``
+        (a CameraMeta) and the profile (``profile``, ``match``: the reason
+        in one line), or ``{"model": None, ...}`` saying why none matched;
+        without ``meta``, ``{"model": "auto", ...}``."""
+        if self.auto:
+            if meta is None:
+                return {"model": AUTO, "note": "the model of the lens profile matching each file "
+                                               "(`isp profiles`); none where no profile matches"}
+            from isp.profiles import match_profile
+
+            found = match_profile(meta)
+            if found.profile is None:
+                return {"model": None, "profile": None, "identity": found.identity,
+                        "note": f"rendered without correction: {found.reason()}"}
+            stage, _ = self.for_frame(meta)
+            return {**stage.summary(), "profile": found.profile.name, "match": found.reason(),
+                    "identity": found.identity}
         if self.model is None:
             return {"model": None, "note": "no correction model: the stage is the identity"}
         meta = self.model_meta
@@ -495,7 +567,8 @@ class Correction(StageBase):
         return Tiling(tile, margin, i.multiple, min(border, margin))
 
     def check(self, domain: Domain) -> None:
-        if self.model is None:
+        # "auto": the model is known per frame, and checked there (process)
+        if self.model is None or self.auto:
             return
         want = self.model_meta.get("domain")
         if want is None:
@@ -521,6 +594,17 @@ class Correction(StageBase):
                 raise ConfigError(f"model {info.name}: {e}") from None
 
     def process(self, frame: Frame) -> Frame:
+        if self.auto:
+            stage, why = self.for_frame(frame.meta)
+            if stage.model is None:
+                return frame.evolve(stage=self.name, note=f"identity: {why}")
+            try:
+                stage.check(frame.domain)
+            except ConfigError as e:
+                raise type(e)(f"{why}: {e}") from None
+            out = stage.process(frame)
+            step = Step(self.name, f"{why}: {out.history[-1].note}")
+            return dataclasses.replace(out, history=frame.history + (step,))
         if self.model is None:
             return frame.evolve(stage=self.name, note="identity (no model)")
         if frame.data.ndim != 3 or frame.data.shape[2] != 3:

@@ -1,10 +1,14 @@
-"""JPEG encoding with EXIF and the orientation applied to the pixels.
+"""JPEG encoding with EXIF, the sRGB ICC profile and the orientation applied
+to the pixels.
 
 References
 ----------
 * ITU-T T.81 | ISO/IEC 10918-1 (JPEG), via libjpeg-turbo in OpenCV.
-* JEITA CP-3451G / CIPA DC-008-2023 (Exif 2.32), APP1 segment layout and the
-  Orientation tag (0x0112): 1 = normal ... 8 = rotated 270° CW.
+* JEITA CP-3451G / CIPA DC-008-2023 (Exif 2.32), 4.5.4: the APP1 segment
+  layout; the fields written are :func:`modules.common.encoding.exif_fields`.
+* ICC.1:2022, annex B.4: an ICC profile in APP2 segments, each
+  ``ICC_PROFILE\\0``, its sequence number and the segment count, then a
+  piece of the profile.
 
 The pixels are turned upright before encoding and the EXIF Orientation is
 written as 1, so every viewer shows the same image (viewers that ignore
@@ -20,74 +24,32 @@ from typing import Literal
 import numpy as np
 
 from isp.frame import Domain, Frame
-from isp.meta import CameraMeta
 from isp.stage import StageBase
 
+from modules.common.encoding import apply_orientation, exif_bytes, srgb_icc_profile
 
-def apply_orientation(img: np.ndarray, orientation: int) -> np.ndarray:
-    """Turn an image stored with EXIF ``orientation`` (1..8) upright.
 
-    Parameters
-    ----------
-    img : (H, W, ...) ndarray
-    orientation : int
+def insert_icc(jpeg: bytes, profile: bytes) -> bytes:
+    """Put ``profile`` in APP2 ``ICC_PROFILE`` segments right after the
+    segments that open the stream (SOI and any APP0/APP1), as ICC.1 annex
+    B.4 lays them out: at most 65,519 profile bytes a segment, numbered from 1.
 
-    Returns
-    -------
-    ndarray (a view where possible): (H, W, ...) for 1–4, (W, H, ...) for 5–8.
-
-    >>> apply_orientation(np.arange(6).reshape(2, 3), 6)   # 90° CW
-    array([[3, 0],
-           [4, 1],
-           [5, 2]])
+    >>> j = insert_icc(b"\\xff\\xd8\\xff\\xd9", b"abc")
+    >>> j[2:4], j[6:18], j[18:20], j[20:23]
+    (b'\\xff\\xe2', b'ICC_PROFILE\\x00', b'\\x01\\x01', b'abc')
     """
-    ops = {
-        1: lambda a: a,
-        2: lambda a: a[:, ::-1],
-        3: lambda a: a[::-1, ::-1],
-        4: lambda a: a[::-1],
-        5: lambda a: np.swapaxes(a, 0, 1),
-        6: lambda a: np.swapaxes(a, 0, 1)[:, ::-1],
-        7: lambda a: np.swapaxes(a, 0, 1)[::-1, ::-1],
-        8: lambda a: np.swapaxes(a, 0, 1)[::-1],
-    }
-    if orientation not in ops:
-        raise ValueError(f"orientation must be 1..8, got {orientation}")
-    return ops[orientation](img)
-
-
-def exif_bytes(meta: CameraMeta, software: str = "phone-isp") -> bytes:
-    """An Exif APP1 payload (starting ``Exif\\0\\0``) with the camera and
-    capture fields of ``meta``; Orientation = 1 (pixels already upright)."""
-    from PIL import Image, TiffImagePlugin
-
-    exif = Image.Exif()
-    if meta.make:
-        exif[0x010F] = meta.make
-    if meta.model or meta.unique_camera_model:
-        exif[0x0110] = meta.model or meta.unique_camera_model
-    exif[0x0131] = software
-    exif[0x0112] = 1
-    if meta.datetime:
-        exif[0x0132] = meta.datetime
-    sub = {}
-    if meta.exposure_time_s:
-        sub[0x829A] = TiffImagePlugin.IFDRational(meta.exposure_time_s)
-    if meta.f_number:
-        sub[0x829D] = TiffImagePlugin.IFDRational(meta.f_number)
-    if meta.iso:
-        sub[0x8827] = int(round(meta.iso))
-    if meta.focal_length_mm:
-        sub[0x920A] = TiffImagePlugin.IFDRational(meta.focal_length_mm)
-    if meta.datetime:
-        sub[0x9003] = meta.datetime
-    if meta.lens:
-        sub[0xA434] = meta.lens
-    sub[0xA001] = 1  # ColorSpace: sRGB
-    if sub:
-        ifd = exif.get_ifd(0x8769)
-        ifd.update(sub)
-    return exif.tobytes()
+    if jpeg[:2] != b"\xff\xd8":
+        raise ValueError("not a JPEG stream (no SOI marker)")
+    step = 0xFFFF - 2 - 14
+    pieces = [profile[i:i + step] for i in range(0, len(profile), step)]
+    if len(pieces) > 255:
+        raise ValueError(f"ICC profile too large for APP2 segments ({len(profile)} bytes)")
+    segs = b"".join(b"\xff\xe2" + (len(p) + 16).to_bytes(2, "big") + b"ICC_PROFILE\0"
+                    + bytes([k + 1, len(pieces)]) + p for k, p in enumerate(pieces))
+    pos = 2
+    while jpeg[pos:pos + 2] in (b"\xff\xe0", b"\xff\xe1"):
+        pos += 2 + int.from_bytes(jpeg[pos + 2:pos + 4], "big")
+    return jpeg[:pos] + segs + jpeg[pos:]
 
 
 def insert_exif(jpeg: bytes, payload: bytes) -> bytes:
@@ -222,7 +184,8 @@ def _renumber_restarts(scan: bytes, offset: int) -> bytes:
 
 @dataclass(frozen=True)
 class Jpeg(StageBase):
-    """Encode as JPEG: orientation applied to the pixels, EXIF written.
+    """Encode as JPEG: orientation applied to the pixels, EXIF and the sRGB
+    ICC profile written.
 
     Parameters
     ----------
@@ -232,6 +195,8 @@ class Jpeg(StageBase):
         Chroma subsampling.
     exif : bool
         Write an Exif APP1 segment (camera, exposure, Orientation = 1).
+    icc : bool
+        Write the sRGB ICC profile (APP2).
     threads : int
         Bands encoded at once (see :func:`encode_jpeg`); 1 = plain libjpeg.
     """
@@ -243,6 +208,7 @@ class Jpeg(StageBase):
     quality: int = 95
     subsampling: Literal["420", "422", "444"] = "420"
     exif: bool = True
+    icc: bool = True
     threads: int = 2
 
     def __post_init__(self):
@@ -256,6 +222,8 @@ class Jpeg(StageBase):
         data = encode_jpeg(img, self.quality, self.subsampling, self.threads)
         if self.exif:
             data = insert_exif(data, exif_bytes(frame.meta))
+        if self.icc:
+            data = insert_icc(data, srgb_icc_profile())
         note = f"quality {self.quality}, {self.subsampling}, {len(data) / 1e6:.2f} MB"
         if frame.meta.orientation != 1:
             note += f", orientation {frame.meta.orientation} applied"

@@ -1,7 +1,14 @@
 """Plain functions the tests import: where the shared data lives
 (``../shared/data`` beside the repo, or a skip), and the builders of small
 synthetic PSF maps, devices and observations. The fixtures that wrap them
-are in ``tests/conftest.py``."""
+are in ``tests/conftest.py``.
+
+Below those, the builders that several test modules of one package share:
+the restoration tests' PSF maps, latent images, synthesis plans, TOML
+configs and ONNX models; the export tests' model and calibration reader;
+the simulated-capture tests' Gaussian PSFs; the lens-file tests' files and
+one-line errors; the opcode tests' hand-encoded opcodes. Their fixtures
+are in the ``conftest.py`` of the test folder."""
 
 from __future__ import annotations
 
@@ -211,3 +218,340 @@ def small_lens(last=None):
     lens = Lens(s, epd=1.0, half_fov_deg=20.0)
     bfl = paraxial.first_order(lens).bfl if last is None else last
     return lens.with_surface(4, thickness=bfl)
+
+
+# -- the network, evaluation, synthesis and training tests (restoration) ------------
+
+def randomise_attention(layer, std=0.5, seed=0):
+    """Attention weights of a DOConv ``layer`` far from their near-uniform
+    initialisation, so the attentions differ between images, pixels and
+    kernels."""
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in layer.attention.parameters():
+            p.copy_(torch.randn(p.shape, generator=g, dtype=p.dtype) * std)
+
+
+#: the frame (height, width) the evaluation tests' PSF maps and crops are on
+EVAL_FRAME = (384, 512)
+
+
+def ring_psf_map(kind="gauss", shift=(0, 0), grid=(3, 4), n=32, pitch_um=0.5):
+    """A PSFMap on the :data:`EVAL_FRAME` sensor of 1-µm pixels: Gaussians
+    widening with the field radius (σ 0.3 px at the centre to ≈ 1.8 px in
+    the corners, per channel a little wider), or deltas displaced by
+    ``shift`` PSF samples (``pitch_um`` µm on 1-µm pixels)."""
+    import math
+
+    import numpy as np
+
+    rows, cols = grid
+
+    def kernel(r, c, ch, xx, yy):
+        if kind == "delta":
+            k = np.zeros_like(xx)
+            k[n // 2 + shift[0], n // 2 + shift[1]] = 1.0
+            return k
+        rho = math.hypot((r + 0.5) / rows - 0.5, (c + 0.5) / cols - 0.5) / math.hypot(0.5, 0.5)
+        s = 0.3 + 1.5 * rho + 0.1 * ch
+        return np.exp(-(xx ** 2 + yy ** 2) / (2 * s * s))
+
+    h, w = EVAL_FRAME
+    return kernel_psf_map(kernel, height=h, width=w, grid=grid, n=n, pitch_um=pitch_um)
+
+
+def identity_model(J, origin, full_size):
+    """A correction model (the evaluation's runner signature) that returns
+    its input."""
+    return J
+
+
+def onnx_select_rgb(path, meta=None):
+    """An ONNX model whose output is its input's RGB (a 1×1 conv selecting
+    channels 0–2 of RGB + field), with the correction stage's metadata;
+    written to ``path``, which it returns (a skip without onnx)."""
+    import numpy as np
+
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    w = np.zeros((3, 5, 1, 1), np.float32)
+    w[[0, 1, 2], [0, 1, 2]] = 1.0
+    inp = helper.make_tensor_value_info("input", TensorProto.FLOAT, [1, 5, "h", "w"])
+    out = helper.make_tensor_value_info("output", TensorProto.FLOAT, [1, 3, "h", "w"])
+    graph = helper.make_graph([helper.make_node("Conv", ["input", "w"], ["output"])], "sel", [inp], [out],
+                              initializer=[helper.make_tensor("w", TensorProto.FLOAT, w.shape, w.ravel())])
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    for k, v in {"domain": "camera_rgb", "fov_encoding": "xy", "input_multiple": "4", "lens": "toy",
+                 **(meta or {})}.items():
+        e = m.metadata_props.add()
+        e.key, e.value = k, v
+    onnx.save(m, str(path))
+    return path
+
+
+def field_gaussian_map(height=96, width=128, grid=(3, 4), n=16, pitch_um=0.5, sigmas=None, delta=False):
+    """A PSF map of Gaussians whose width grows over the field (and differs
+    per channel; ``sigmas[r, c, ch]`` in PSF samples where given), or of
+    deltas (an ideal lens)."""
+    import numpy as np
+
+    def kernel(r, c, ch, xx, yy):
+        if delta:
+            return (xx == 0) & (yy == 0)
+        s = sigmas[r, c, ch] if sigmas is not None else 0.4 + 0.35 * (r + c) + 0.15 * ch
+        return np.exp(-((xx - 0.2 * c) ** 2 + (yy - 0.1 * r) ** 2) / (2 * s * s))
+
+    return kernel_psf_map(kernel, height=height, width=width, grid=grid, n=n, pitch_um=pitch_um)
+
+
+def latent_png(tmp_path, size=96, seed=0):
+    """A latent sRGB image with edges and texture (8-bit PNG) in
+    ``tmp_path / "latent"``; returns that folder."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:size, 0:size]
+    img = np.stack([0.5 + 0.4 * np.sin(x / 6.0 + k) * np.cos(y / 9.0 - k) for k in range(3)], -1)
+    img[size // 3:2 * size // 3, size // 4:size // 2] = rng.uniform(0.05, 0.95, 3)
+    u8 = np.clip(np.rint(img * 255), 0, 255).astype(np.uint8)
+    d = tmp_path / "latent"
+    d.mkdir(exist_ok=True)
+    cv2.imwrite(str(d / f"img{seed}.png"), u8[:, :, ::-1])
+    return d
+
+
+def make_synth_plan(tmp_path, cameras, maps, *, seed=0, **settings):
+    """A :class:`restoration.synth.pairs.SynthPlan` of 32-px pairs from
+    ``maps`` (``None``: an ideal lens), ``cameras`` and one
+    :func:`latent_png`; ``settings`` replace :class:`SynthSettings` fields."""
+    from restoration.synth.pairs import SynthPlan, SynthSettings, find_latents
+    from restoration.synth.colour import colour_table
+
+    st = SynthSettings(**{"size": 32, "cct_steps": 4, **settings})
+    m0 = next((m for m in maps if m is not None), None)
+    full = (m0.sensor.height_px, m0.sensor.width_px) if m0 is not None else (96, 128)
+    lat = tuple(str(p) for p in find_latents(latent_png(tmp_path)))
+    return SynthPlan(tuple(maps), cameras, colour_table(list(cameras), st.cct_k, st.cct_steps), lat, full,
+                     seed, st, (4e-4, 1e-6))
+
+
+def widening_gaussian_map(height=96, width=128, grid=(3, 4), n=16, pitch_um=0.5):
+    """Gaussian PSFs whose width grows over the field (a known blur)."""
+    import numpy as np
+
+    def kernel(r, c, ch, xx, yy):
+        s = 0.6 + 0.4 * (r + c) + 0.15 * ch
+        return np.exp(-(xx ** 2 + yy ** 2) / (2 * s * s))
+
+    return kernel_psf_map(kernel, height=height, width=width, grid=grid, n=n, pitch_um=pitch_um)
+
+
+def latent_pngs(d, size=144, count=3):
+    """``count`` latent sRGB images with edges and texture (8-bit PNG) in
+    the folder ``d`` (made if absent); returns ``d``."""
+    import cv2
+    import numpy as np
+
+    d.mkdir(parents=True, exist_ok=True)
+    for seed in range(count):
+        rng = np.random.default_rng(seed)
+        y, x = np.mgrid[0:size, 0:size]
+        img = np.stack([0.5 + 0.4 * np.sin(x / (3.0 + seed) + k) * np.cos(y / 5.0 - k) for k in range(3)], -1)
+        for _ in range(6):
+            r, c, h, w = rng.integers(0, size - 20, 4) // 1
+            img[r:r + 8 + h % 24, c:c + 8 + w % 24] = rng.uniform(0.05, 0.95, 3)
+        u8 = np.clip(np.rint(img * 255), 0, 255).astype(np.uint8)
+        cv2.imwrite(str(d / f"img{seed}.png"), u8[:, :, ::-1])
+    return d
+
+
+#: the model arguments of the tiny DOConv UNet the training and checkpoint tests build
+TINY_UNET_KW = {"widths": [8, 16], "depths": [1, 1, 1], "expansion": 2}
+
+
+def write_toml(path, d: dict):
+    """Write the two-level dict ``d`` (sections of keys) as TOML to ``path``;
+    returns ``path``."""
+    import json
+
+    def val(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, dict):
+            return "{" + ", ".join(f"{k} = {val(x)}" for k, x in v.items()) + "}"
+        if isinstance(v, list):
+            return "[" + ", ".join(val(x) for x in v) + "]"
+        return repr(v)
+
+    path.write_text("".join(f"[{s}]\n" + "".join(f"{k} = {val(v)}\n" for k, v in t.items()) + "\n"
+                            for s, t in d.items()))
+    return path
+
+
+# -- the export tests ------------------------------------------------------------------
+
+#: the model arguments of the tiny DOConv UNet the export tests export
+EXPORT_KW = {"widths": [8, 16], "depths": [1, 1, 1]}
+#: the checkpoint metadata the export tests export with
+EXPORT_META = {"domain": "camera_rgb", "placement": "camera_rgb after demosaic", "lens": "test-lens",
+               "fov_encoding": "xy", "training_data": "abc123", "input_multiple": 4, "receptive_radius": 63,
+               "attention": "local", "process": {"tone": "none", "white": 4.0}}
+
+
+def onnx_calibration_reader(n=6, size=64, seed=0):
+    """Calibration crops (1, 5, size, size): smooth random RGB + field."""
+    from export.onnx_export import model_input, sample_frame
+
+    class Reader:
+        def __init__(self):
+            self.it = iter([{"input": model_input(sample_frame((size, size), True, seed + k), True)}
+                            for k in range(n)])
+
+        def get_next(self):
+            return next(self.it, None)
+
+        def __len__(self):
+            return n
+
+    return Reader()
+
+
+# -- the simulated-capture tests (calibration.simulate, calibration.optics.illumination) --
+
+def gaussian_psf(sigma_um: float, pitch_um: float, n: int = 65, *, sigma_y_um: float | None = None,
+                 theta_deg: float = 0.0, shift_um=(0.0, 0.0)):
+    """(n, n) samples of a (rotated, elliptical, shifted) Gaussian, summing
+    to 1, in the calibration.optics.psf.result grid convention (centre n//2)."""
+    import math
+
+    import numpy as np
+
+    o = (np.arange(n) - n // 2) * pitch_um
+    x, y = np.meshgrid(o - shift_um[0], o - shift_um[1])
+    t = math.radians(theta_deg)
+    u, v = x * math.cos(t) + y * math.sin(t), -x * math.sin(t) + y * math.cos(t)
+    sy = sigma_um if sigma_y_um is None else sigma_y_um
+    g = np.exp(-0.5 * (u * u / sigma_um ** 2 + v * v / sy ** 2))
+    return g / g.sum()
+
+
+def gaussian_psf_map(sensor, grid, sigma_um, pitch_um: float | None = None, n: int = 49):
+    """A PSFMap of Gaussians on ``sensor`` (a :class:`calibration.optics.lens.Sensor`);
+    ``sigma_um(row, col, channel)`` → σ in µm."""
+    import numpy as np
+
+    from calibration.optics.psf.map import PSFMap, region_centers_mm
+
+    pitch = sensor.pixel_pitch_um / 4 if pitch_um is None else pitch_um
+    rows, cols = grid
+    ps = np.empty((rows, cols, 3, n, n), np.float32)
+    for r in range(rows):
+        for c in range(cols):
+            for k in range(3):
+                ps[r, c, k] = gaussian_psf(sigma_um(r, c, k), pitch, n)
+    return PSFMap(ps, pitch, region_centers_mm(sensor, grid), np.zeros((rows, cols, 2)), ("R", "G", "B"), sensor)
+
+
+def smooth_ri(sensor, corner: float = 0.36):
+    """A smooth phone-like relative illumination on ``sensor``, ``corner``
+    at the sensor's corner."""
+    import numpy as np
+
+    from calibration.optics.illumination import RelativeIllumination
+
+    hd = sensor.half_diagonal_mm
+    r = np.linspace(0.0, 1.05 * hd, 24)
+    return RelativeIllumination.from_samples(r, 1.0 - (1.0 - corner) * (r / hd) ** 2)
+
+
+# -- the lens-file tests (calibration.optics.io) ----------------------------------------
+
+def write_lens_file(tmp_path, name, text, encoding="utf-8"):
+    """``text`` written to ``tmp_path / name`` in ``encoding``; returns the path."""
+    p = tmp_path / name
+    p.write_bytes(text.encode(encoding))
+    return p
+
+
+def one_line_lens_error(fn, *args, **kw) -> str:
+    """The message of the LensError ``fn`` raises; asserts it is one line."""
+    from calibration.optics.lens import LensError
+
+    with pytest.raises(LensError) as e:
+        fn(*args, **kw)
+    msg = str(e.value)
+    assert "\n" not in msg and msg, msg
+    return msg
+
+
+def minimal_lens_dict(**over) -> dict:
+    """A minimal lens/v1 singlet (surfaces, aperture) as a dict; ``over``
+    replaces top-level keys."""
+    d = {"schema": "lens/v1",
+         "surfaces": [{"radius": 50.0, "thickness": 4.0, "material": "N-BK7", "semi_diameter": 6.0},
+                      {"radius": "inf", "thickness": 1.0, "stop": True, "semi_diameter": 5.0},
+                      {"curvature": -0.02, "thickness": 45.0}],
+         "aperture": {"epd": 10.0}}
+    d.update(over)
+    return d
+
+
+# -- the opcode tests (isp.opcodes): shared blobs and opcodes encoded by hand (DNG 1.7.1.0, ch. 7) --
+
+def raw_data_file(*parts) -> Path:
+    """Path of a file in ``../shared/data/raw``, or a skip."""
+    return data_file("raw", *parts)
+
+
+def opcode_blob(name: str) -> bytes:
+    """The bytes of the sample opcode list ``../shared/data/raw/opcodes/NAME`` (or a skip)."""
+    return raw_data_file("opcodes", name).read_bytes()
+
+
+def tiff_tag(path: Path, subifd: bool, name: str = "OpcodeList2") -> bytes:
+    """The value of TIFF tag ``name`` of IFD0 (or its first SubIFD), read by
+    tifffile (a skip without it)."""
+    tifffile = pytest.importorskip("tifffile")
+    with tifffile.TiffFile(path) as tif:
+        page = tif.pages[0].pages[0] if subifd else tif.pages[0]
+        return page.tags[name].value
+
+
+def opcode_header(opcode_id: int, params: bytes, version=(1, 3, 0, 0), flags=0) -> bytes:
+    """An opcode: its 16-byte header, then ``params``."""
+    import struct
+
+    return struct.pack(">I4BII", opcode_id, *version, flags, len(params)) + params
+
+
+def opcode_list(*opcodes: bytes) -> bytes:
+    """An opcode list: the count, then the opcodes."""
+    import struct
+
+    return struct.pack(">I", len(opcodes)) + b"".join(opcodes)
+
+
+def opcode_area(t=0, l=0, b=8, r=8, plane=0, planes=1, rp=1, cp=1) -> bytes:
+    """An area spec (32 bytes)."""
+    import struct
+
+    return struct.pack(">8I", t, l, b, r, plane, planes, rp, cp)
+
+
+def gain_map_params(gains, sv, sh, ov, oh, area=None) -> bytes:
+    """The parameters of a GainMap of ``gains`` (points V, points H, planes)."""
+    import struct
+
+    import numpy as np
+
+    g = np.asarray(gains, dtype=np.float32)
+    pv, ph, planes = g.shape
+    return ((area or opcode_area()) + struct.pack(">II4dI", pv, ph, sv, sh, ov, oh, planes)
+            + g.astype(">f4").tobytes())

@@ -618,14 +618,31 @@ def shading_gain_maps(ri: np.ndarray, cfa, points: tuple[int, int] = (17, 23), *
 
 # -- captures --------------------------------------------------------------------------
 
+def lens_model(lens) -> str:
+    """The LensModel a simulated capture of ``lens`` (a :class:`Lens`)
+    carries, the identity a lens profile matches (:mod:`isp.profiles`): the
+    stem of the file the prescription was read from where it extends the
+    lens's name (a patent's embodiments share its name: ``US-12210142-B2-e9``
+    from ``US-12210142-B2-e9.zmx``, named ``US-12210142-B2``), else the name
+    ("simulated lens" without one)."""
+    name = lens.name or ""
+    source = (lens.metadata or {}).get("source")
+    stem = Path(str(source.get("file", ""))).stem if isinstance(source, dict) else ""
+    if stem and (not name or (stem.startswith(name) and stem != name)):
+        return stem
+    return name or "simulated lens"
+
+
 def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_time_s: float = 1 / 100,
                  iso: float = 100.0):
     """The CameraMeta a simulated capture is written with.
 
     Colour: the demo camera of :mod:`calibration.simulate.scene` (camera RGB = ``CAMERA_MIX``
     · linear sRGB, so ColorMatrix1 (D65) = ``CAMERA_MIX · M(XYZ→sRGB)`` and the
-    D65 neutral is ``CAMERA_MIX·(1, 1, 1)``, normalised to green). Optics:
-    the lens's name, F-number and paraxial EFL when given.
+    D65 neutral is ``CAMERA_MIX·(1, 1, 1)``, normalised to green). Identity:
+    UniqueCameraModel "phone-isp simulated phone", LensModel
+    :func:`lens_model` (+ " (perturbed)" for a perturbed lens), which the
+    lens profiles match. Optics: F-number and paraxial EFL when given.
     """
     from calibration.simulate.scene import CAMERA_MIX, XYZ_TO_SRGB
     from isp.meta import CameraMeta
@@ -638,7 +655,7 @@ def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_tim
         from calibration.optics.perturb import nominal
 
         pl = nominal(lens)
-        name = pl.lens.name or "simulated lens"
+        name = lens_model(pl.lens)
         if not pl.perturbation.is_zero:
             name += " (perturbed)"
         try:
@@ -648,7 +665,7 @@ def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_tim
         if fo is not None and math.isfinite(fo.efl):
             fno, efl = float(fo.f_number), float(abs(fo.efl))
     return CameraMeta(
-        make="phone-isp", model="simulated camera", unique_camera_model="phone-isp simulated camera",
+        make="phone-isp", model="simulated phone", unique_camera_model="phone-isp simulated phone",
         cfa=sensor.cfa, black_level=np.full((1, 1, 1), sensor.black_level), white_level=(sensor.white_level,),
         color_matrix_1=CAMERA_MIX @ XYZ_TO_SRGB, calibration_illuminant_1=21, as_shot_neutral=tuple(neutral),
         baseline_exposure=0.0, noise_profile=(tuple(sensor.noise_profile),),

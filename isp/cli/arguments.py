@@ -4,8 +4,8 @@
 value is argparse's usage error, exit code 2); :func:`numbers` reads a
 comma-separated option in a command's ``run`` (a bad value is a
 ConfigError, exit code 2); the rest serve the commands that run the
-pipeline (``process``, ``info``, ``batch``): the headerless dump options
-and ``--set STAGE.PARAM=VALUE``.
+pipeline (``process``, ``info``, ``batch``): the headerless dump options,
+``--set STAGE.PARAM=VALUE`` and ``--correction FILE|none``.
 """
 
 from __future__ import annotations
@@ -87,6 +87,29 @@ def headerless(args: argparse.Namespace):
         raise ConfigError(f"headerless geometry: {e}") from None
 
 
+def add_correction_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--correction FILE|none`` (and ``--no-correction``, the same as
+    ``--correction none``): the correction stage's model, whatever the lens
+    profiles say (by default the model of the profile matching each file's
+    lens, none where no profile matches: :mod:`isp.profiles`)."""
+    parser.add_argument("--correction", metavar="FILE|none",
+                        help="correction model to run on every file: an ONNX file, 'default' (the packaged "
+                             "model of the default phone lens) or 'none'; by default ('auto') the model of "
+                             "the lens profile matching the file (`isp profiles`), none where no profile matches")
+    parser.add_argument("--no-correction", dest="correction", action="store_const", const="none",
+                        help="the same as --correction none")
+
+
+def add_look_argument(parser: argparse.ArgumentParser) -> None:
+    """``--look NAME``: which built-in pipeline renders the file
+    (:data:`isp.pipeline.LOOKS`)."""
+    parser.add_argument("--look", choices=("adobe", "linear"),
+                        help="built-in pipeline: 'adobe' (default; renders as Adobe's DNG SDK: camera "
+                             "profile, exposure ramp, tone curve, neutral highlights) or 'linear' (the "
+                             "scene-referred render: exposure, colour matrix, sRGB encoding, no tone "
+                             "curve; the correction models are trained on it)")
+
+
 def parse_overrides(items: list[str] | None) -> list[tuple[str, str, object]]:
     """``--set STAGE.PARAM=VALUE`` options → ``(stage, param, value)``; the
     value is read as TOML (``90``, ``true``, ``[1, 2]``), a bare word as a
@@ -109,13 +132,67 @@ def parse_overrides(items: list[str] | None) -> list[tuple[str, str, object]]:
     return out
 
 
-def pipeline_from_args(args: argparse.Namespace):
+def choose_encoder(config: dict, output: str, overrides: list[tuple[str, str, object]]) -> dict:
+    """End ``config`` in the encoding stage of ``output``'s extension
+    (:func:`isp.io.files.encoder_for`) and apply the ``--set`` overrides of
+    the encoding stages (``jpeg``, ``png``, ``tiff``).
+
+    A final encoding stage of another format is replaced (its parameters
+    dropped); a pipeline that ends before any encoding stage gets one. A
+    32-bit float TIFF (``tiff.bits=32``) right after a ``gamma`` stage
+    leaves that stage out, so the file holds the linear values.
+
+    >>> c = {"stage": [{"name": "gamma"}, {"name": "jpeg", "quality": 90}]}
+    >>> choose_encoder(c, "x.png", [("png", "bits", 16)])["stage"]
+    [{'name': 'gamma'}, {'name': 'png', 'bits': 16}]
+    >>> choose_encoder(c, "x.tif", [("tiff", "bits", 32)])["stage"]
+    [{'name': 'tiff', 'bits': 32}]
+    """
+    from isp.io.files import ENCODERS, encoder_for
+
+    encoder = encoder_for(output)
+    stages = [e for e in config.get("stage", []) if isinstance(e, dict)]
+    last = stages[-1] if stages else None
+    if last is not None and last.get("name") in ENCODERS.values():
+        if last["name"] != encoder:
+            stages[-1] = {"name": encoder}
+    else:
+        stages.append({"name": encoder})
+    for stage, param, value in overrides:
+        if stage != encoder:
+            raise ConfigError(f"--set {stage}.{param}: {output} is written by the {encoder!r} stage "
+                              f"(the output's extension chooses it), not {stage!r}")
+        stages[-1][param] = value
+    if encoder == "tiff" and stages[-1].get("bits") == 32 and len(stages) > 1 \
+            and stages[-2].get("name") == "gamma":
+        del stages[-2]
+    return {**config, "stage": stages}
+
+
+def pipeline_from_args(args: argparse.Namespace, output: str | None = None):
     """``(config, pipeline)`` of the ``--config``, ``--set`` and
-    ``--no-correction`` options, the pipeline built (and so checked) before
-    any pixel is read; a config error names the ``--config`` file."""
+    ``--correction`` options, the pipeline built (and so checked) before
+    any pixel is read; a config error names the ``--config`` file.
+    ``--correction`` sets the model of every correction stage (ConfigError
+    when the pipeline has none). With ``output`` (a file name, or just its
+    extension), the pipeline ends in that format's encoding stage
+    (:func:`choose_encoder`)."""
+    from isp.io.files import ENCODERS
     from isp.pipeline import Pipeline, pipeline_config
 
-    config = pipeline_config(args.config, parse_overrides(args.set), no_correction=args.no_correction)
+    overrides = parse_overrides(args.set)
+    encoding = [o for o in overrides if o[0] in ENCODERS.values()] if output is not None else []
+    config = pipeline_config(args.config, [o for o in overrides if o not in encoding],
+                             look=getattr(args, "look", None))
+    if output is not None:
+        config = choose_encoder(config, output, encoding)
+    forced = getattr(args, "correction", None)
+    if forced is not None:
+        slots = [e for e in config.get("stage", []) if isinstance(e, dict) and e.get("name") == "correction"]
+        if not slots:
+            raise ConfigError(f"--correction {forced}: the pipeline has no correction stage")
+        for e in slots:
+            e["model"] = forced
     try:
         return config, Pipeline.from_config(config)
     except ConfigError as e:

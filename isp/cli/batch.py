@@ -5,22 +5,27 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from isp.cli.arguments import add_headerless_arguments, headerless, pipeline_from_args
+from isp.cli.arguments import (add_correction_arguments, add_headerless_arguments, add_look_argument,
+                               headerless, pipeline_from_args)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``isp batch``."""
     p.description = ("Process every raw file in DIR (by extension) into OUTDIR, in parallel, with a "
-                     "progress bar. Bad files are reported and skipped; the exit code is 1 if any failed.")
-    p.epilog = "example:\n  isp batch captures/ -o jpegs/ --workers 2"
+                     "progress bar. The summary lists every file not processed and why (failed, or not "
+                     "taken: not a raw file by its extension); the exit code is 1 if any failed.")
+    p.epilog = ("examples:\n  isp batch captures/ -o jpegs/ --workers 2\n"
+                "  isp batch captures/ -o pngs/ --format .png --set png.bits=16")
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("input", help="folder of raw files")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--config", help="pipeline TOML file")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE")
-    p.add_argument("--no-correction", action="store_true", help="correction stage without a model")
-    p.add_argument("--format", default=".jpg", help="output suffix (default .jpg)")
+    add_correction_arguments(p)
+    add_look_argument(p)
+    p.add_argument("--format", default=".jpg",
+                   help="output extension, which chooses the encoding stage: .jpg (default), .png or .tif")
     add_headerless_arguments(p)
 
 
@@ -30,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
     from isp.runtime.threads import tune_allocator
 
     tune_allocator()
-    config, _ = pipeline_from_args(args)  # refuse a bad config before any work
+    suffix = args.format if args.format.startswith(".") else f".{args.format}"
+    config, _ = pipeline_from_args(args, f"--format {suffix}")  # refuse a bad config before any work
     with batch_executor(args.workers, len(find_inputs(Path(args.input)))) as executor:
         return run_batch(Path(args.input), Path(args.output), config, executor=executor,
-                         headerless=headerless(args), suffix=args.format)
+                         headerless=headerless(args), suffix=suffix)

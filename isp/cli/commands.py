@@ -5,7 +5,8 @@ A command is a :class:`Command` record: its name, the one line
 (``add_arguments(parser)``) and runs it (``run(args)``), imported only when
 the command runs. Commands arrive as stages do (:mod:`isp.registry`):
 
-* the ISP's own (``process``, ``info``, ``stages``, ``batch``), listed here;
+* the ISP's own (``process``, ``info``, ``stages``, ``batch``, ``profiles``),
+  listed here;
 * the entry-point group ``isp.commands`` of any installed distribution, e.g.
   in its ``pyproject.toml``::
 
@@ -99,6 +100,8 @@ BUILTIN = (
     Command("info", "print a raw file's metadata as JSON", module="isp.cli.info"),
     Command("stages", "list the registered stages (built-in and plug-ins)", module="isp.cli.stages"),
     Command("batch", "process every raw file in a folder", module="isp.cli.batch"),
+    Command("profiles", "list the lens profiles: which correction model runs on which lens",
+            module="isp.cli.profiles"),
 )
 
 

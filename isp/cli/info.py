@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 
-from isp.cli.arguments import add_headerless_arguments, headerless, pipeline_from_args
+from isp.cli.arguments import (add_correction_arguments, add_headerless_arguments, headerless,
+                               pipeline_from_args)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``isp info``."""
     p.description = ("Print what the reader found in a raw file as JSON: geometry, CFA, levels, colour "
                      "matrices and illuminants, opcodes and what the pipeline will apply or skip (and "
-                     "why), and the reader's notes.")
+                     "why), the correction model its lens profile gives (or why none), and the "
+                     "reader's notes.")
     p.epilog = "example:\n  isp info photo.dng | less"
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("input")
@@ -20,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="pipeline TOML file whose correction model to report")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE",
                    help="override a stage parameter, e.g. correction.model=my.onnx")
-    p.add_argument("--no-correction", action="store_true", help="report the pipeline without a model")
+    add_correction_arguments(p)
     add_headerless_arguments(p)
 
 
@@ -43,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
                     for p in plan if p.action == "skipped"],
     }
     info.pop("path", None)
-    info["correction"] = _correction(args)
+    info["correction"] = _correction(args, meta)
     text = json.dumps(info, indent=2, default=str)
     if args.json:
         from isp.io.files import write_bytes_atomic
@@ -53,13 +56,21 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _correction(args) -> list[dict] | dict:
+def _correction(args, meta) -> list[dict] | dict:
     """The correction model(s) the pipeline of ``--config``/``--set``/
-    ``--no-correction`` would run (the default pipeline's packaged model
-    when none is given)."""
+    ``--correction`` would run on this file: by default the model of the
+    lens profile matching ``meta``, or none and why (:mod:`isp.profiles`)."""
     _, pipeline = pipeline_from_args(args)
     stages = [s for s in pipeline.stages if s.name == "correction"]
     if not stages:
         return {"model": None, "note": "the pipeline has no correction stage"}
-    out = [s.summary() if hasattr(s, "summary") else {"model": "?"} for s in stages]
+
+    def summary(stage):
+        if not hasattr(stage, "summary"):
+            return {"model": "?"}
+        # the built-in stage reports the model of the file's profile; a plug-in's may take no metadata
+        takes_meta = bool(inspect.signature(stage.summary).parameters)
+        return stage.summary(meta) if takes_meta else stage.summary()
+
+    out = [summary(s) for s in stages]
     return out[0] if len(out) == 1 else out

@@ -6,16 +6,25 @@ import argparse
 import time
 from pathlib import Path
 
-from isp.cli.arguments import add_headerless_arguments, headerless, pipeline_from_args
+from isp.cli.arguments import (add_correction_arguments, add_headerless_arguments, add_look_argument,
+                               headerless, pipeline_from_args)
 
 EPILOG = """\
 examples:
   isp process photo.dng -o photo.jpg
-  isp process photo.dng -o before.jpg --no-correction      # without the optical correction
-  isp process photo.dng -o photo.jpg --set correction.model=my_lens.int8.onnx
+  isp process photo.dng -o before.jpg --correction none    # without the optical correction
+  isp process photo.dng -o photo.jpg --correction my_lens.int8.onnx   # this model, whatever the lens
   isp process photo.dng -o photo.jpg --set white_balance.mode=grey_world --set jpeg.quality=90
   isp process photo.dng -o photo.png --config my_pipeline.toml --save-stages stages/
+  isp process photo.dng -o photo.png --set png.bits=16      # 16-bit PNG
+  isp process photo.dng -o photo.tif                        # 16-bit TIFF
+  isp process photo.dng -o scene.tif --look linear --set tiff.bits=32   # float, scene-linear
   isp process dump.RAW -o dump.jpg --width 1920 --height 1080 --bits 10 --pattern RGGB
+
+The optical correction runs the model of the lens profile that matches the
+file's lens (UniqueCameraModel, Make, Model, LensModel), and nothing where no
+profile matches; -v says which profile matched, or why none did. `isp profiles`
+lists the profiles.
 
 A pipeline file is a list of [[stage]] tables (name + parameters), e.g.:
   [[stage]]
@@ -29,22 +38,24 @@ See `isp stages` for every stage and its parameters.
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``isp process``."""
-    p.description = ("Process one raw file through the pipeline (default: black level, lens shading, "
-                     "white balance, demosaic, correction, luminance, colour, gamma, JPEG).")
+    p.description = ("Process one raw file through the pipeline (default, the 'adobe' look: black level, "
+                     "lens shading, white balance, demosaic, correction, Adobe's render, JPEG; "
+                     "--look linear for the scene-referred render).")
     p.epilog = EPILOG
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("input", help="raw file (DNG, a camera raw LibRaw reads, or a headerless dump)")
-    p.add_argument("-o", "--output", required=True, help="output .jpg (or .png/.tif if the "
-                                                         "pipeline ends before the jpeg stage)")
+    p.add_argument("-o", "--output", required=True,
+                   help="output file; its extension chooses the encoding stage: .jpg/.jpeg (JPEG), "
+                        ".png (PNG, 8 bit; png.bits=16), .tif/.tiff (TIFF, 16 bit; tiff.bits=32: float). "
+                        "Each carries the sRGB ICC profile and EXIF")
     p.add_argument("--config", help="pipeline TOML file ([[stage]] tables)")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE",
                    help="override a stage parameter (repeatable), e.g. jpeg.quality=90")
     p.add_argument("--save-stages", metavar="DIR",
                    help="write every intermediate as NN_stage.png (viewable) and .npy (exact)")
     p.add_argument("-v", "--verbose", action="store_true", help="print each stage's decision and time")
-    p.add_argument("--no-correction", action="store_true",
-                   help="run the correction stage without a model (identity); by default it runs "
-                        "the packaged model of the default phone lens (see `isp info`)")
+    add_correction_arguments(p)
+    add_look_argument(p)
     add_headerless_arguments(p)
 
 
@@ -55,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from isp.runtime.threads import tune_allocator
 
     tune_allocator()
-    _, pipeline = pipeline_from_args(args)
+    _, pipeline = pipeline_from_args(args, args.output)
     out = Path(args.output)
     t0 = time.perf_counter()
     frame = read_raw(args.input, headerless=headerless(args))

@@ -45,6 +45,11 @@ TAG = {
     "FocalLength": 37386, "DateTimeOriginal": 36867,
     "FocalPlaneXResolution": 41486, "FocalPlaneYResolution": 41487,
     "FocalPlaneResolutionUnit": 41488,
+    "ShadowScale": 50739, "ProfileHueSatMapDims": 50937, "ProfileHueSatMapData1": 50938,
+    "ProfileHueSatMapData2": 50939, "ProfileToneCurve": 50940, "ProfileLookTableDims": 50981,
+    "ProfileLookTableData": 50982, "ProfileHueSatMapEncoding": 51107,
+    "ProfileLookTableEncoding": 51108, "BaselineExposureOffset": 51109,
+    "DefaultBlackRender": 51110, "ProfileHueSatMapData3": 52537,
 }
 
 #: tags that belong to the raw IFD (the one holding the CFA or LinearRaw
@@ -223,3 +228,88 @@ def _as_numbers(v, rational: bool) -> list | None:
             return None
         return [None if den == 0 else num / den for num, den in zip(flat[0::2], flat[1::2])]
     return flat
+
+
+def profile_fields(r: TagReader) -> dict[str, Any]:
+    """The camera profile's rendering tags as :class:`~isp.meta.CameraMeta`
+    fields (``profile_*``, ``baseline_exposure_offset``,
+    ``default_black_render``, ``shadow_scale``); a malformed tag is left out
+    with a note on ``r``.
+
+    Follows DNG 1.7.1.0 chapter 4 and the SDK's reader
+    (``dng_camera_profile_info::ParseTag``, ``dng_camera_profile::Parse``):
+    ProfileHueSatMapDims holds hues, sats and optionally vals (absent or 0
+    means 1); a table's data holds ``hues · sats · vals`` triplets, or
+    ``hues · (sats − 1) · vals`` when the zero-saturation column is left
+    out; ProfileToneCurve holds (x, y) pairs, at least two, x increasing,
+    all in [0, 1]; the encodings are 0 (linear) or 1 (sRGB).
+    """
+    out: dict[str, Any] = {}
+    for dims_tag, data_tags, key in (
+            ("ProfileHueSatMapDims", ("ProfileHueSatMapData1", "ProfileHueSatMapData2",
+                                      "ProfileHueSatMapData3"), "profile_hue_sat_map"),
+            ("ProfileLookTableDims", ("ProfileLookTableData",), "profile_look_table")):
+        present = [t for t in data_tags if r.has(t)]
+        if not present:
+            continue
+        dims = r.numbers(dims_tag)
+        if dims is None or len(dims) not in (2, 3) or any(d != int(d) for d in dims):
+            r.notes.append(f"{dims_tag} missing or malformed ({dims}); {', '.join(present)} ignored")
+            continue
+        hues, sats = int(dims[0]), int(dims[1])
+        vals = int(dims[2]) if len(dims) == 3 and int(dims[2]) > 0 else 1
+        if hues < 1 or sats < 2 or hues * sats * vals > 1 << 20:
+            r.notes.append(f"{dims_tag} {hues}x{sats}x{vals} is not a usable table size; "
+                           f"{', '.join(present)} ignored")
+            continue
+        kept = 0
+        for i, tag in enumerate(data_tags):
+            data = r.array(tag) if tag in present else None
+            if data is None:
+                continue
+            if data.size not in (hues * sats * vals * 3, hues * (sats - 1) * vals * 3):
+                r.notes.append(f"{tag} has {data.size} values for {hues}x{sats}x{vals} "
+                               "triplets; ignored")
+                continue
+            field = f"{key}_data" if len(data_tags) == 1 else f"{key}_data_{i + 1}"
+            out[field] = data.astype(np.float32)
+            kept += 1
+        if kept:
+            out[f"{key}_dims"] = (hues, sats, vals)
+    for tag, key in (("ProfileHueSatMapEncoding", "profile_hue_sat_map_encoding"),
+                     ("ProfileLookTableEncoding", "profile_look_table_encoding")):
+        code = r.integer(tag)
+        if code is None:
+            continue
+        if code not in (0, 1):
+            r.notes.append(f"{tag} {code} is not 0 (linear) or 1 (sRGB); linear used")
+            continue
+        out[key] = code
+    curve = r.array("ProfileToneCurve")
+    if curve is not None:
+        pts = curve.reshape(-1, 2) if curve.size % 2 == 0 else None
+        if (pts is None or pts.shape[0] < 2 or pts.min() < 0 or pts.max() > 1
+                or np.any(np.diff(pts[:, 0]) <= 0)):
+            r.notes.append(f"ProfileToneCurve with {curve.size} values is not a valid curve "
+                           "(pairs in [0, 1], x increasing); the default curve is used")
+        else:
+            out["profile_tone_curve"] = pts
+    offset = r.number("BaselineExposureOffset")
+    if offset is not None:
+        if abs(offset) > 16:
+            r.notes.append(f"BaselineExposureOffset {offset:g} EV is outside ±16 EV; ignored")
+        else:
+            out["baseline_exposure_offset"] = offset
+    black = r.integer("DefaultBlackRender")
+    if black is not None:
+        if black in (0, 1):
+            out["default_black_render"] = black
+        else:
+            r.notes.append(f"DefaultBlackRender {black} is not 0 (auto) or 1 (none); ignored")
+    scale = r.number("ShadowScale")
+    if scale is not None:
+        if 0 < scale <= 10:
+            out["shadow_scale"] = scale
+        else:
+            r.notes.append(f"ShadowScale {scale:g} is outside (0, 10]; ignored")
+    return out

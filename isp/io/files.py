@@ -1,4 +1,5 @@
-"""Writing pipeline outputs and intermediates, atomically.
+"""Writing pipeline outputs and intermediates, atomically, and which
+encoding stage an output's extension asks for.
 
 Every file is written to a temporary name in the destination folder and
 renamed into place, so an interrupted or failed run never leaves a partial
@@ -14,11 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from isp.errors import IspError
+from isp.errors import ConfigError, IspError
 from isp.frame import Domain, Frame
 
-_IMAGE_SUFFIXES = {".png", ".tif", ".tiff"}
-_JPEG_SUFFIXES = {".jpg", ".jpeg"}
+#: the encoding stage (``modules``) that writes each output extension
+ENCODERS: dict[str, str] = {".jpg": "jpeg", ".jpeg": "jpeg", ".png": "png", ".tif": "tiff", ".tiff": "tiff"}
+#: the formats :data:`ENCODERS` covers, as error messages list them
+FORMATS = ".jpg/.jpeg (JPEG), .png (PNG), .tif/.tiff (TIFF)"
+_SIGNATURES = (("jpeg", b"\xff\xd8"), ("png", b"\x89PNG\r\n\x1a\n"), ("tiff", b"II*\x00"),
+               ("tiff", b"MM\x00*"))
 
 
 def default_mode() -> int:
@@ -56,48 +61,79 @@ def atomic_path(path: str | os.PathLike):
         raise
 
 
-def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` via a temporary file and a rename."""
+def write_bytes_atomic(path: str | os.PathLike, data) -> Path:
+    """Write ``data`` (bytes or any contiguous buffer, e.g. a uint8 array) to
+    ``path`` via a temporary file and a rename."""
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
 
 
-def encode_image(rgb: np.ndarray, suffix: str, bits: int = 16) -> bytes:
-    """PNG or TIFF bytes of display RGB (float 0..1), 8 or 16 bit."""
-    import cv2
+def encoder_for(path: str | os.PathLike) -> str:
+    """The encoding stage that writes ``path``, chosen by its extension
+    (:data:`ENCODERS`, case-insensitive).
 
-    x = np.clip(np.nan_to_num(rgb, nan=0.0), 0.0, 1.0)
-    if x.ndim == 3:
-        x = x[..., ::-1]  # OpenCV writes BGR
-    x = np.round(x * (65535 if bits == 16 else 255)).astype(np.uint16 if bits == 16 else np.uint8)
-    ok, buf = cv2.imencode(suffix, np.ascontiguousarray(x))
-    if not ok:
-        raise IspError(f"OpenCV cannot encode {suffix}")
-    return buf.tobytes()
+    Raises
+    ------
+    ConfigError
+        An extension no encoding stage writes; the message names the file
+        and the formats.
+
+    >>> encoder_for("photo.TIF")
+    'tiff'
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix not in ENCODERS:
+        what = f"extension {suffix!r}" if suffix else "no extension"
+        raise ConfigError(f"{path}: unknown output format ({what}); formats: {FORMATS}")
+    return ENCODERS[suffix]
+
+
+def encoded_format(data: bytes) -> str | None:
+    """The encoding stage whose format ``data`` has, by its signature
+    (JPEG SOI, the PNG signature, a TIFF header), or None.
+
+    >>> encoded_format(b"\\x89PNG\\r\\n\\x1a\\n...")
+    'png'
+    """
+    for name, magic in _SIGNATURES:
+        if data.startswith(magic):
+            return name
+    return None
 
 
 def write_output(frame: Frame, path: str | os.PathLike) -> Path:
-    """Write a pipeline's final frame.
+    """Write a pipeline's final frame to ``path``, atomically.
 
-    ``encoded`` frames (JPEG bytes) go to ``.jpg``/``.jpeg``; ``display_rgb``
-    frames to 16-bit ``.png``/``.tif``. Anything else is refused: a linear
+    ``encoded`` frames (a file's bytes) are written as they are, to a name
+    whose extension is their format's (:data:`ENCODERS`). A ``display_rgb``
+    frame is first encoded by the stage of the extension with its default
+    parameters (:func:`encoder_for`). Anything else is refused: a linear
     frame needs an encoding stage first.
+
+    Raises
+    ------
+    ConfigError
+        The extension does not match the encoded format, or is unknown.
+    IspError
+        A frame in a domain no encoder takes here.
     """
     path = Path(path)
-    suffix = path.suffix.lower()
-    if frame.domain is Domain.ENCODED:
-        data = bytes(frame.data)
-        if data[:2] == b"\xff\xd8" and suffix not in _JPEG_SUFFIXES:
-            raise IspError(f"{path}: the pipeline ends in JPEG; name the output .jpg")
-        return write_bytes_atomic(path, data)
+    encoder = encoder_for(path)
     if frame.domain is Domain.DISPLAY_RGB:
-        if suffix not in _IMAGE_SUFFIXES:
-            raise IspError(f"{path}: the pipeline ends in display RGB (no jpeg stage); "
-                           "name the output .png or .tif")
-        return write_bytes_atomic(path, encode_image(frame.data, suffix))
-    raise IspError(f"{path}: the pipeline ends in {frame.domain.value}; add gamma (and jpeg) "
-                   "stages to write an image")
+        from isp.registry import create_stage
+
+        frame = create_stage(encoder)(frame)
+    if frame.domain is Domain.ENCODED:
+        data = np.ascontiguousarray(frame.data, dtype=np.uint8)   # written as it is, not copied
+        made = encoded_format(data[:16].tobytes())
+        if made is not None and made != encoder:
+            names = "/".join(s for s, e in ENCODERS.items() if e == made)
+            raise ConfigError(f"{path}: the pipeline ends in the {made} stage; name the output {names} "
+                              "(or end the pipeline in the encoder of the extension)")
+        return write_bytes_atomic(path, data)
+    raise IspError(f"{path}: the pipeline ends in {frame.domain.value}; add gamma (and an encoding "
+                   "stage) to write an image")
 
 
 def preview(frame: Frame) -> np.ndarray:
@@ -117,12 +153,15 @@ def preview(frame: Frame) -> np.ndarray:
 
 def save_stage(directory: str | os.PathLike, index: int, name: str, frame: Frame) -> list[Path]:
     """Write one intermediate as ``NN_name.npy`` (exact data) plus a viewable
-    ``NN_name.png`` (or the ``.jpg`` itself for an encoded frame)."""
+    ``NN_name.png`` (or the encoded file itself for an encoded frame:
+    ``.jpg``, ``.png`` or ``.tif``)."""
     d = Path(directory)
     stem = f"{index:02d}_{name}"
     out = []
     if frame.domain is Domain.ENCODED:
-        out.append(write_bytes_atomic(d / f"{stem}.jpg", bytes(frame.data)))
+        data = bytes(frame.data)
+        suffix = {"jpeg": ".jpg", "png": ".png", "tiff": ".tif"}.get(encoded_format(data) or "", ".bin")
+        out.append(write_bytes_atomic(d / f"{stem}{suffix}", data))
         return out
     import io as _io
 

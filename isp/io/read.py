@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from isp.io.dng_tags import TagReader, tag_dict
+from isp.io.dng_tags import TagReader, profile_fields, tag_dict
 from isp.errors import InputError
 from isp.frame import CFA, Domain, Frame
 from isp.meta import LIGHT_SOURCES, CameraMeta
@@ -195,16 +195,47 @@ def _read_libraw(path: Path) -> Frame:
     try:
         with rawpy.imread(str(path)) as raw:
             return _frame_from_libraw(path, raw, tags)
-    except InputError:
-        raise
-    except rawpy.LibRawFileUnsupportedError:
-        raise InputError(path, "unsupported format: not a raw file LibRaw can read") from None
-    except (rawpy.LibRawIOError, rawpy.LibRawDataError) as e:
-        raise InputError(path, f"corrupt or truncated raw data ({_libraw_msg(e)})") from None
-    except rawpy.LibRawError as e:
-        raise InputError(path, f"LibRaw cannot decode it ({_libraw_msg(e)})") from None
+    except (InputError, rawpy.LibRawError) as e:
+        # a compression LibRaw has no decoder for fails in odd places (at the
+        # sensor layout, "unsupported format"): name the compression instead
+        if tags is not None and tags.compression not in _LIBRAW_COMPRESSIONS:
+            raise InputError(path, _unsupported_compression(tags.compression, rawpy.libraw_version)) from None
+        if isinstance(e, InputError):
+            raise
+        raise _libraw_error(path, e) from None
     except MemoryError:
         raise InputError(path, "image too large to decode (out of memory)") from None
+
+
+#: the raw image compressions (TIFF/DNG Compression tag) that LibRaw decodes in a DNG:
+#: uncompressed, lossless JPEG, Deflate, lossy JPEG (DNG Specification 1.7.1.0, "Compression")
+_LIBRAW_COMPRESSIONS = {1, 7, 8, 34892}
+#: compressions a DNG-like file may use that LibRaw lacks, by name
+_COMPRESSION_NAMES = {
+    9: ("VC-5 (GoPro)", "convert it to a standard DNG first, e.g. with GoPro's gpr_tools "
+                        "(gpr_tools -i FILE.GPR -o FILE.DNG)"),
+    52546: ("JPEG XL", "re-save it without JPEG XL first, e.g. with Adobe DNG Converter"),
+}
+
+
+def _unsupported_compression(code: int, libraw_version) -> str:
+    """The one-line reason for a raw image compressed with ``code``, which
+    the installed LibRaw does not decode."""
+    version = ".".join(str(v) for v in libraw_version) if isinstance(libraw_version, tuple) \
+        else str(libraw_version)
+    name, hint = _COMPRESSION_NAMES.get(code, ("an unknown", "convert it to a standard DNG first"))
+    return f"{name} compression (Compression = {code}) is not supported by LibRaw {version}; {hint}"
+
+
+def _libraw_error(path: Path, e: Exception) -> InputError:
+    """The one-line error of a LibRaw exception."""
+    import rawpy
+
+    if isinstance(e, rawpy.LibRawFileUnsupportedError):
+        return InputError(path, "unsupported format: not a raw file LibRaw can read")
+    if isinstance(e, (rawpy.LibRawIOError, rawpy.LibRawDataError)):
+        return InputError(path, f"corrupt or truncated raw data ({_libraw_msg(e)})")
+    return InputError(path, f"LibRaw cannot decode it ({_libraw_msg(e)})")
 
 
 def _libraw_msg(e: Exception) -> str:
@@ -598,7 +629,7 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
         camera_calibration_1=ccs[0], camera_calibration_2=ccs[1], camera_calibration_3=ccs[2],
         calibration_illuminant_1=ills[0], calibration_illuminant_2=ills[1],
         calibration_illuminant_3=ills[2],
-        baseline_exposure=be, noise_profile=noise, opcodes=opcodes,
+        baseline_exposure=be, noise_profile=noise, opcodes=opcodes, **profile_fields(r),
         pixel_pitch_um=pitch, focal_length_mm=focal, f_number=f_number, lens=lens,
         exposure_time_s=exposure, iso=float(iso) if iso else None,
         datetime=str(exif.get("DateTimeOriginal", "") or "") or r.text("DateTimeOriginal"), exif=exif,

@@ -8,13 +8,16 @@ OpcodeList3 after demosaicing. Phone DNGs use them mostly for lens shading
 linearisation (``MapPolynomial``) and lens distortion (``WarpRectilinear``).
 
 This module reads a list into typed, immutable opcode objects, writes them
-back byte for byte, and evaluates the ones whose maths the pipeline needs
-(gain maps, vignette, polynomial and table maps). It does not apply anything
-to an image: which opcode runs where is the pipeline stages' decision.
+back byte for byte, and applies each to an image as the specification and
+the Adobe DNG SDK do (:meth:`Opcode.apply`, placed in its list's image by an
+:class:`OpcodeContext`): warps with lateral colour, bad-pixel repair, gain
+and value maps, per-row and per-column corrections, trimming. Which opcode
+runs at which pipeline stage is the stages' decision
+(:mod:`isp.io.opcode_plan`).
 One module per opcode family (``gain_map``, ``warp``, ``vignette``, ...),
 the base class and area spec in ``base``, the byte-layout reader and field
 checks they share in ``binary``, list parsing in ``lists``. May import:
-numpy and :mod:`isp.errors`.
+numpy and :mod:`isp.errors` (OpenCV, lazily, for the warps' resampling).
 
 Binary layout (all big-endian)
 ------------------------------
@@ -80,6 +83,7 @@ from isp.opcodes.base import (
     OPCODE_NAMES,
     AreaSpec,
     Opcode,
+    OpcodeContext,
     UnknownOpcode,
 )
 from isp.opcodes.base import MAX_POLYNOMIAL_DEGREE as MAX_POLYNOMIAL_DEGREE
@@ -98,7 +102,7 @@ __all__ = [
     "AreaSpec", "DeltaPerColumn", "DeltaPerRow", "FLAG_OPTIONAL",
     "FLAG_PREVIEW_SKIPPABLE", "FixBadPixelsConstant",
     "FixBadPixelsList", "FixVignetteRadial", "GainMap", "MapPolynomial",
-    "MapTable", "OPCODE_NAMES", "Opcode", "OpcodeError", "ScalePerColumn",
+    "MapTable", "OPCODE_NAMES", "Opcode", "OpcodeContext", "OpcodeError", "ScalePerColumn",
     "ScalePerRow", "TrimBounds", "UnknownOpcode", "WarpFisheye",
     "WarpRectilinear", "WarpRectilinear2", "parse_opcode_list",
     "serialize_opcode_list",

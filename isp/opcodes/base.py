@@ -8,6 +8,7 @@ bounds-checked big-endian reads and the field checks are in
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -44,6 +45,100 @@ MAX_WARP_PLANES = 4
 MAX_POLYNOMIAL_DEGREE = 8
 #: Most MapTable entries: one per 16-bit input value.
 MAX_TABLE_SIZE = 0x10000
+
+# --------------------------------------------------------------------------
+# where the data sits
+
+@dataclass(frozen=True)
+class OpcodeContext:
+    """The image an opcode list applies to, and where an array of pixels
+    sits in it: what :meth:`Opcode.apply` needs besides the pixels.
+
+    DNG 1.7.1.0, chapter 7: OpcodeList1 applies to the stored raw image
+    (stage 1: integer values as stored, before linearisation), OpcodeList2
+    to the linearised active area (stage 2: black = 0, white = the 16-bit
+    code 65535), OpcodeList3 to the demosaiced image (stage 3, same scale).
+    Area specs, bad-pixel coordinates and TrimBounds are in pixels of that
+    image; the optical centres and map origins of the lens opcodes are
+    fractions of its size. A pipeline often holds only a window of it (the
+    DefaultCrop), so the context says where ``data[0, 0]`` sits.
+
+    Attributes
+    ----------
+    stage : {1, 2, 3}
+        Which opcode list (and so which image) this is.
+    origin : (int, int)
+        (row, col) of ``data[0, 0]`` in the list's image, pixels (>= 0).
+    image_size : (int, int) or None
+        (H, W) of the list's image in pixels; None: the data reaches its
+        bottom-right corner (``origin + data shape``).
+    code_max : float
+        The data value of the 16-bit code 65535, which is the scale the
+        SDK's opcodes work on: 65535 for stage-1 data in DN as LibRaw
+        delivers it (8–16-bit integer raws), 1.0 for stages 2 and 3
+        (black = 0, white = 1).
+    pixel_aspect_ratio : float
+        DefaultScale H / V (PixelAspectRatio), 1 for square pixels; the
+        radial opcodes measure distances in square units.
+    """
+
+    stage: int
+    origin: tuple[int, int] = (0, 0)
+    image_size: tuple[int, int] | None = None
+    code_max: float = 1.0
+    pixel_aspect_ratio: float = 1.0
+
+    def __post_init__(self):
+        if self.stage not in (1, 2, 3):
+            raise ValueError(f"stage must be 1, 2 or 3, got {self.stage!r}")
+        oy, ox = (int(v) for v in self.origin)
+        if oy < 0 or ox < 0:
+            raise ValueError(f"origin must be >= 0, got {self.origin!r}")
+        object.__setattr__(self, "origin", (oy, ox))
+        if self.image_size is not None:
+            h, w = (int(v) for v in self.image_size)
+            if h < 1 or w < 1:
+                raise ValueError(f"image_size must be positive, got {self.image_size!r}")
+            object.__setattr__(self, "image_size", (h, w))
+        if not (math.isfinite(self.code_max) and self.code_max > 0):
+            raise ValueError(f"code_max must be finite and > 0, got {self.code_max!r}")
+        if not (math.isfinite(self.pixel_aspect_ratio) and self.pixel_aspect_ratio > 0):
+            raise ValueError(f"pixel_aspect_ratio must be finite and > 0, "
+                             f"got {self.pixel_aspect_ratio!r}")
+
+    @classmethod
+    def for_stage(cls, stage: int, **kw) -> "OpcodeContext":
+        """The context of a list's image held whole: stage 1 in 16-bit DN
+        (``code_max`` 65535), stages 2 and 3 normalised (``code_max`` 1)."""
+        kw.setdefault("code_max", 65535.0 if stage == 1 else 1.0)
+        return cls(stage, **kw)
+
+    def size(self, shape) -> tuple[int, int]:
+        """(H, W) of the list's image for data of ``shape``: ``image_size``,
+        grown to hold the data where it is smaller."""
+        oy, ox = self.origin
+        h, w = oy + int(shape[0]), ox + int(shape[1])
+        if self.image_size is None:
+            return (h, w)
+        return (max(self.image_size[0], h), max(self.image_size[1], w))
+
+    def moved(self, dy: int, dx: int, image_size: tuple[int, int]) -> "OpcodeContext":
+        """The context after the image is cropped so that its new top-left
+        pixel was ``(dy, dx)`` (TrimBounds) and the data to the crop."""
+        oy, ox = self.origin
+        return OpcodeContext(self.stage, (max(oy - dy, 0), max(ox - dx, 0)), image_size,
+                             self.code_max, self.pixel_aspect_ratio)
+
+
+def data_planes(data: np.ndarray) -> int:
+    """Planes of an image array: 1 for (H, W), P for (H, W, P)."""
+    return 1 if data.ndim == 2 else int(data.shape[2])
+
+
+def plane_view(data: np.ndarray, plane: int) -> np.ndarray:
+    """A writable (H, W) view of plane ``plane`` of ``data``."""
+    return data if data.ndim == 2 else data[:, :, plane]
+
 
 # --------------------------------------------------------------------------
 # area spec
@@ -126,6 +221,43 @@ class AreaSpec:
             return np.arange(int(image_width), dtype=np.int64)
         return np.arange(self.left, min(self.right, int(image_width)), self.col_pitch,
                          dtype=np.int64)
+
+    def window(self, ctx: OpcodeContext, shape) -> tuple[slice, slice] | None:
+        """Slices of an array of ``shape`` (placed by ``ctx``) that the area
+        covers, as the SDK's ``dng_area_spec::Overlap`` clips it.
+
+        The lattice starts at the area's Top/Left whatever the window: a
+        window starting inside the area starts at the first lattice row and
+        column at or after its own first pixel. An empty rectangle covers
+        the whole image. Returns ``(rows, cols)`` slices of the data, or
+        None where the area misses it.
+
+        >>> ctx = OpcodeContext(2, origin=(2, 2))
+        >>> AreaSpec(1, 0, 10, 10, row_pitch=2, col_pitch=2).window(ctx, (6, 6))
+        (slice(1, 6, 2), slice(0, 6, 2))
+        """
+        oy, ox = ctx.origin
+        h, w = int(shape[0]), int(shape[1])
+        if self.is_empty:
+            return slice(0, h, 1), slice(0, w, 1)
+
+        def one(start, stop, pitch, off, n):
+            if start < off:
+                start += -(-(off - start) // pitch) * pitch
+            stop = min(stop, off + n)
+            if start >= stop:
+                return None
+            return slice(start - off, stop - off, pitch)
+
+        rows = one(self.top, self.bottom, self.row_pitch, oy, h)
+        cols = one(self.left, self.right, self.col_pitch, ox, w)
+        if rows is None or cols is None:
+            return None
+        return rows, cols
+
+    def plane_range(self, planes: int) -> range:
+        """The area's planes that an image of ``planes`` planes has."""
+        return range(self.plane, min(self.plane + self.planes, int(planes)))
 
     def to_bytes(self) -> bytes:
         """The 32-byte big-endian encoding."""
@@ -222,6 +354,48 @@ class Opcode:
     def _parse(cls, r: Reader, size: int, **header) -> "Opcode":
         raise NotImplementedError
 
+    # -- applying ---------------------------------------------------------
+    def unsupported(self, stage: int, planes: int) -> str | None:
+        """Why this opcode cannot be applied to a stage-``stage`` image of
+        ``planes`` planes, or None where it can (:meth:`apply`)."""
+        return None
+
+    def apply(self, data: np.ndarray, ctx: OpcodeContext) -> np.ndarray:
+        """Apply the opcode to ``data`` as DNG 1.7.1.0 chapter 7 and the
+        Adobe DNG SDK do.
+
+        Parameters
+        ----------
+        data : (H, W) or (H, W, P) ndarray of float32
+            The pixels: the list's image, or the window of it that ``ctx``
+            places. Stage 1: stored values (DN); stages 2 and 3: black = 0,
+            white = 1.
+        ctx : OpcodeContext
+            Which list, and where ``data`` sits in its image.
+
+        Returns
+        -------
+        ndarray of float32
+            The result. Opcodes that change pixels in place (maps, deltas,
+            gains, bad pixels) write into ``data`` and return it, so pass a
+            copy to keep the input; the warps return a new array, TrimBounds
+            a view.
+
+        Raises
+        ------
+        OpcodeError
+            Where :meth:`unsupported` gives a reason.
+        """
+        raise OpcodeError("applying it is not implemented", name=self.name)
+
+    def _check_apply(self, data: np.ndarray, ctx: OpcodeContext) -> None:
+        if data.ndim not in (2, 3):
+            raise OpcodeError(f"data must be (H, W) or (H, W, P), got shape {data.shape}",
+                              name=self.name)
+        reason = self.unsupported(ctx.stage, data_planes(data))
+        if reason is not None:
+            raise OpcodeError(reason, name=self.name)
+
     # -- reporting --------------------------------------------------------
     def _describe(self) -> dict[str, Any]:
         return {}
@@ -279,6 +453,9 @@ class UnknownOpcode(Opcode):
 
     def _params(self):
         return self.data
+
+    def unsupported(self, stage, planes):
+        return "unknown or vendor opcode: its parameters cannot be interpreted"
 
     def _describe(self):
         return {"parameter_bytes": len(self.data)}

@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from isp.opcodes.base import AreaSpec, Opcode
+from isp.opcodes.base import AreaSpec, Opcode, OpcodeContext, data_planes, plane_view
 from isp.opcodes.binary import OpcodeError, expect_size, frozen_array, set_field
 
 _GAIN_MAP_HEADER = struct.Struct(">II4dI")
@@ -226,6 +226,29 @@ class GainMap(Opcode):
         sh, oh = self.map_spacing[1], self.map_origin[1]
         wc = _interp_weights((c + 0.5) / int(image_width), oh, sh, self.points_h)
         return (self.gains[:, :, int(map_plane)].astype(np.float64) @ wc.T).astype(np.float32)
+
+    def apply(self, data: np.ndarray, ctx: OpcodeContext) -> np.ndarray:
+        """Multiply the area's pixels by the interpolated gains, in place
+        (SDK ``dng_opcode_GainMap::ProcessArea``): image plane p of the area
+        uses map plane :meth:`map_plane_for` (p), positions are fractions
+        of the list's image (:meth:`evaluate`). Stage-1 results are rounded
+        and clipped to 0..``code_max``; stages 2 and 3 are not clipped (the
+        SDK clips the product at white). Returns ``data``."""
+        self._check_apply(data, ctx)
+        window = self.area.window(ctx, data.shape)
+        if window is None:
+            return data
+        h, w = ctx.size(data.shape)
+        oy, ox = ctx.origin
+        rows = np.arange(data.shape[0])[window[0]] + oy
+        cols = np.arange(data.shape[1])[window[1]] + ox
+        for p in self.area.plane_range(data_planes(data)):
+            view = plane_view(data, p)
+            y = view[window] * self.evaluate(rows, cols, h, w, self.map_plane_for(p))
+            if ctx.stage == 1:
+                y = np.clip(np.rint(y), 0.0, ctx.code_max)
+            view[window] = y
+        return data
 
     def same_rows(self, other: "GainMap") -> bool:
         """True if ``other`` has the same point rows (count, spacing, origin)."""

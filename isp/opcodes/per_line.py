@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from isp.opcodes.base import AreaSpec, Opcode
+from isp.opcodes.base import AreaSpec, Opcode, OpcodeContext, data_planes, plane_view
 from isp.opcodes.binary import OpcodeError, expect_size, frozen_array, set_field
 
 # --------------------------------------------------------------------------
@@ -46,6 +46,43 @@ class _PerLine(Opcode):
         return (self.area.to_bytes() + struct.pack(">I", self.values.size)
                 + self.values.astype(">f4").tobytes())
 
+    def _combine(self, x: np.ndarray, v: np.ndarray, code_max: float) -> np.ndarray:
+        raise NotImplementedError
+
+    def apply(self, data: np.ndarray, ctx: OpcodeContext) -> np.ndarray:
+        """Apply one value per lattice row (column) of the area, in place
+        (SDK ``dng_opcode_DeltaPerRow`` and its siblings): lattice row k of
+        the area (image row ``Top + k RowPitch``) takes ``values[k]``,
+        whichever window of the image ``data`` is. An empty area has no
+        values and changes nothing. Stage 1 results are rounded and clipped
+        to 0..``code_max`` (the SDK stores them back into the integer raw
+        image); stages 2 and 3 are not clipped (the SDK pins to [-1, 1]).
+        Returns ``data``."""
+        self._check_apply(data, ctx)
+        if not np.isfinite(self.values).all():
+            raise OpcodeError(f"{int((~np.isfinite(self.values)).sum())} non-finite value(s)",
+                              name=self.name)
+        window = self.area.window(ctx, data.shape)
+        if window is None or self.values.size == 0:
+            return data
+        rows, cols = window
+        oy, ox = ctx.origin
+        if self.AXIS == "row":
+            first = (rows.start + oy - self.area.top) // self.area.row_pitch
+            n = len(range(rows.start, rows.stop, rows.step))
+            v = self.values[first:first + n][:, None]
+        else:
+            first = (cols.start + ox - self.area.left) // self.area.col_pitch
+            n = len(range(cols.start, cols.stop, cols.step))
+            v = self.values[first:first + n][None, :]
+        for p in self.area.plane_range(data_planes(data)):
+            view = plane_view(data, p)
+            y = self._combine(view[window], v, ctx.code_max)
+            if ctx.stage == 1:
+                y = np.clip(np.rint(y), 0.0, ctx.code_max)
+            view[window] = y
+        return data
+
     @classmethod
     def _parse(cls, r, size, **header):
         if size < AreaSpec.SIZE + 4:
@@ -72,20 +109,32 @@ class _PerLine(Opcode):
 
 @dataclass(frozen=True, eq=False, repr=False)
 class DeltaPerRow(_PerLine):
-    """Add a value per row (ID 10). ``values`` (float32) are offsets on
-    the 0..1 scale of the image (per lattice row of the area)."""
+    """Add a value per row (ID 10). ``values`` (float32) are offsets in
+    units of the integer image the SDK holds (16-bit codes: DN in stage 1,
+    65535 = white in stages 2 and 3), per lattice row of the area."""
 
     ID = 10
     AXIS = "row"
 
+    def _combine(self, x, v, code_max):
+        # the values are in units of the integer image (DN in stage 1,
+        # 16-bit codes in stage 2): the SDK scales them with the image
+        return x + v * np.float32(code_max / 65535.0)
+
 
 @dataclass(frozen=True, eq=False, repr=False)
 class DeltaPerColumn(_PerLine):
-    """Add a value per column (ID 11). ``values`` (float32) are offsets on
-    the 0..1 scale of the image (per lattice column of the area)."""
+    """Add a value per column (ID 11). ``values`` (float32) are offsets in
+    units of the integer image the SDK holds (16-bit codes: DN in stage 1,
+    65535 = white in stages 2 and 3), per lattice column of the area."""
 
     ID = 11
     AXIS = "col"
+
+    def _combine(self, x, v, code_max):
+        # the values are in units of the integer image (DN in stage 1,
+        # 16-bit codes in stage 2): the SDK scales them with the image
+        return x + v * np.float32(code_max / 65535.0)
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -96,6 +145,9 @@ class ScalePerRow(_PerLine):
     ID = 12
     AXIS = "row"
 
+    def _combine(self, x, v, code_max):
+        return x * v
+
 
 @dataclass(frozen=True, eq=False, repr=False)
 class ScalePerColumn(_PerLine):
@@ -104,3 +156,6 @@ class ScalePerColumn(_PerLine):
 
     ID = 13
     AXIS = "col"
+
+    def _combine(self, x, v, code_max):
+        return x * v

@@ -4,17 +4,38 @@ SDK ``dng_misc_opcodes.cpp``)."""
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from isp.opcodes.base import MAX_POLYNOMIAL_DEGREE, MAX_TABLE_SIZE, AreaSpec, Opcode
+from isp.opcodes.base import (
+    MAX_POLYNOMIAL_DEGREE, MAX_TABLE_SIZE, AreaSpec, Opcode, OpcodeContext, data_planes,
+    plane_view,
+)
 from isp.opcodes.binary import OpcodeError, as_floats, expect_size, frozen_array, set_field
 
 # --------------------------------------------------------------------------
 # value maps
+
+def map_area(op, data: np.ndarray, ctx: OpcodeContext, fn) -> np.ndarray:
+    """Replace the values of ``op.area`` (its rectangle, lattice and planes)
+    in ``data`` by ``fn(values)``, in place; stage-1 results are rounded
+    and clipped to 0..``code_max`` as the SDK stores them back into the
+    integer raw image. Returns ``data``."""
+    window = op.area.window(ctx, data.shape)
+    if window is None:
+        return data
+    for p in op.area.plane_range(data_planes(data)):
+        view = plane_view(data, p)
+        y = fn(view[window])
+        if ctx.stage == 1:
+            y = np.clip(np.rint(y), 0.0, ctx.code_max)
+        view[window] = y
+    return data
+
 
 @dataclass(frozen=True, eq=False, repr=False)
 class MapTable(Opcode):
@@ -93,6 +114,17 @@ class MapTable(Opcode):
         return (self.table[np.minimum(index, self.table.size - 1)]
                 / np.float32(65535.0)).astype(np.float32)
 
+    def apply(self, data, ctx):
+        """Map the area's values through the table (DNG 1.7.1.0 ch. 7,
+        MapTable; SDK ``dng_opcode_MapTable``): each value is read as its
+        16-bit code ``round(65535 x / code_max)`` (clipped to 0..65535;
+        stage 1: the stored DN itself) and replaced by
+        ``table[min(code, TableSize - 1)] code_max / 65535``. In place;
+        returns ``data``."""
+        self._check_apply(data, ctx)
+        scale = np.float32(ctx.code_max)
+        return map_area(self, data, ctx, lambda v: self.evaluate(v / scale) * scale)
+
     def _describe(self):
         out = self.area.describe()
         out.update(table_size=int(self.table.size), table_min=int(self.table.min()),
@@ -170,6 +202,20 @@ class MapPolynomial(Opcode):
             y *= x
             y += c
         return y.astype(np.float32)
+
+    def apply(self, data, ctx):
+        """Replace the area's values x by the polynomial (DNG 1.7.1.0
+        ch. 7, MapPolynomial; SDK ``dng_opcode_MapPolynomial``). Stage 1:
+        x and y are stored values in DN, as the SDK rescales the
+        coefficients of a 16-bit image; the result is rounded and clipped
+        to 0..``code_max``. Stages 2 and 3: x on the 0..1 scale, y not
+        clipped (the SDK pins it to [-1, 1] and stores it in a 16-bit image;
+        here values beyond white stay for the later stages). In place;
+        returns ``data``."""
+        self._check_apply(data, ctx)
+        if not all(math.isfinite(c) for c in self.coefficients):
+            raise OpcodeError(f"non-finite coefficients {self.coefficients}", name=self.name)
+        return map_area(self, data, ctx, self.evaluate)
 
     def _describe(self):
         out = self.area.describe()

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from isp.opcodes.base import Opcode
-from isp.opcodes.binary import as_floats, check_center, expect_size, set_field
+from isp.opcodes.base import Opcode, OpcodeContext
+from isp.opcodes.binary import OpcodeError, as_floats, check_center, expect_size, set_field
 
 # --------------------------------------------------------------------------
 # vignette
@@ -106,6 +106,26 @@ class FixVignetteRadial(Opcode):
         gain *= r2
         gain += np.float32(1.0)
         return gain
+
+    def apply(self, data: np.ndarray, ctx: OpcodeContext) -> np.ndarray:
+        """Multiply every plane by the gain field of the list's image
+        (:meth:`evaluate` at its size, cut to the window ``data`` is), in
+        place (SDK ``dng_opcode_FixVignetteRadial::ProcessArea``). Stage-1
+        results are rounded and clipped to 0..``code_max``. Returns
+        ``data``."""
+        self._check_apply(data, ctx)
+        if not all(math.isfinite(k) for k in self.k):
+            raise OpcodeError(f"non-finite coefficients {self.k}", name=self.name)
+        h, w = ctx.size(data.shape)
+        oy, ox = ctx.origin
+        g = self.evaluate(h, w, pixel_aspect_ratio=ctx.pixel_aspect_ratio)[
+            oy:oy + data.shape[0], ox:ox + data.shape[1]]
+        if data.ndim == 3:
+            g = g[:, :, None]
+        np.multiply(data, g, out=data, casting="unsafe")
+        if ctx.stage == 1:
+            np.clip(np.rint(data, out=data), 0.0, ctx.code_max, out=data)
+        return data
 
     def _describe(self):
         return {"k": list(self.k), "center": [self.center_x, self.center_y]}

@@ -20,7 +20,7 @@ TASK_IMPORTS = ("rawpy", "isp.pipeline", "isp.io.read", "isp.io.files")
 RAW_SUFFIXES = {
     ".dng", ".nef", ".nrw", ".cr2", ".cr3", ".crw", ".arw", ".srf", ".sr2", ".raf", ".orf",
     ".rw2", ".pef", ".srw", ".kdc", ".dcr", ".mrw", ".3fr", ".iiq", ".x3f", ".erf", ".mef",
-    ".mos", ".raw",
+    ".mos", ".raw", ".gpr",
 }
 
 
@@ -43,11 +43,37 @@ def process_file(src: str, dst: str, config: dict, headerless=None) -> tuple[str
         return src, f"{src}: internal error: {type(e).__name__}: {e}"
 
 
-def find_inputs(folder: Path) -> list[Path]:
-    """Raw files (by suffix) directly in ``folder``, sorted."""
+def scan_folder(folder: Path) -> tuple[list[Path], list[tuple[Path, str]]]:
+    """What a batch over ``folder`` takes and what it does not.
+
+    Returns
+    -------
+    inputs : list of Path
+        The raw files (by suffix, :data:`RAW_SUFFIXES`) directly in
+        ``folder``, sorted.
+    not_taken : list of (Path, str)
+        Every other entry of ``folder`` with the reason it is left out,
+        sorted.
+    """
     if not folder.is_dir():
         raise IspError(f"{folder}: not a folder")
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in RAW_SUFFIXES)
+    inputs, not_taken = [], []
+    for p in sorted(folder.iterdir()):
+        if p.is_dir():
+            not_taken.append((p, "a folder (isp batch does not descend into folders)"))
+        elif not p.is_file():
+            not_taken.append((p, "not a regular file"))
+        elif p.suffix.lower() in RAW_SUFFIXES:
+            inputs.append(p)
+        else:
+            what = f"extension {p.suffix!r}" if p.suffix else "no extension"
+            not_taken.append((p, f"not a raw file by its name ({what})"))
+    return inputs, not_taken
+
+
+def find_inputs(folder: Path) -> list[Path]:
+    """Raw files (by suffix) directly in ``folder``, sorted."""
+    return scan_folder(folder)[0]
 
 
 def _process_job(job: tuple) -> tuple[str, str | None]:
@@ -67,14 +93,21 @@ def batch_executor(workers: int = 2, files: int | None = None, *, progress: bool
 def run_batch(folder: Path, outdir: Path, config: dict, *, executor: Executor | None = None, headerless=None,
               suffix: str = ".jpg") -> int:
     """Process every raw file of ``folder`` into ``outdir``; print a summary
-    of failures. Returns the exit code: 0, or 1 if any file failed.
+    that lists every file not processed with the reason: each failure (a
+    file the reader refuses, such as a compression LibRaw cannot decode, or
+    an error in the pipeline) and each entry of the folder not taken (not a
+    raw file by its extension, a subfolder). Returns the exit code: 0, or 1
+    if any file failed.
 
     ``executor`` runs the files, as they finish (default
     :func:`batch_executor` with 2 workers); a file whose task fails is
     reported with its error and the others go on."""
-    files = find_inputs(folder)
+    files, not_taken = scan_folder(folder)
     if not files:
-        raise IspError(f"{folder}: no raw files ({', '.join(sorted(RAW_SUFFIXES)[:6])}, ...)")
+        others = f"; it holds {len(not_taken)} other entr{'y' if len(not_taken) == 1 else 'ies'} " \
+                 f"({', '.join(p.name for p, _ in not_taken[:5])}{', ...' if len(not_taken) > 5 else ''})" \
+            if not_taken else ""
+        raise IspError(f"{folder}: no raw files ({', '.join(sorted(RAW_SUFFIXES)[:6])}, ...){others}")
     outdir.mkdir(parents=True, exist_ok=True)
     jobs = [(str(f), str(outdir / (f.stem + suffix)), config, headerless) for f in files]
     failures: list[str] = []
@@ -94,5 +127,8 @@ def run_batch(folder: Path, outdir: Path, config: dict, *, executor: Executor | 
         print(f"{len(failures)} failed:")
         for f in sorted(failures):
             print(f"  {f}")
-        return 1
-    return 0
+    if not_taken:
+        print(f"{len(not_taken)} not taken:")
+        for p, reason in not_taken:
+            print(f"  {p}: {reason}")
+    return 1 if failures else 0

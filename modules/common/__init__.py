@@ -1,8 +1,9 @@
 """Helpers shared by the built-in stages, and public to the packages above
 them: tiled execution with overlap (:mod:`.tiling`), per-CFA-phase
 arithmetic on mosaics (:mod:`.mosaic`), array-API helpers that let one
-function run on numpy and torch (:mod:`.xp`), and the DNG colour model
-(:mod:`.dng_colour`).
+function run on numpy and torch (:mod:`.xp`), the DNG colour model
+(:mod:`.dng_colour`), and what the encoding stages share: orientation, EXIF,
+ICC profiles (:mod:`.encoding`).
 
 They are a package of their own, not private to ``modules``, because
 ``restoration`` needs the same code: its model runner tiles a frame exactly

@@ -127,17 +127,23 @@ del _print_options
 __all__ = [
     "ILLUMINANT_CCT",
     "PCS_WHITE_XY",
+    "PROPHOTO_TO_XYZ_D50",
     "SOURCES",
+    "SRGB_TO_XYZ_D50",
     "bradford_matrix",
     "camera_neutral_to_xy",
     "camera_to_linear_srgb",
+    "camera_to_prophoto",
     "camera_to_xyz_d50",
     "check_source",
     "illuminant_to_cct",
     "interpolation_weight",
+    "matrix_prophoto_to_srgb",
     "matrix_xyz_d50_to_linear_srgb",
+    "matrix_xyz_d50_to_prophoto",
     "normalize_color_matrix",
     "normalize_forward_matrix",
+    "rgb_to_pcs_matrix",
     "xy_to_camera_neutral",
     "xy_to_cct",
 ]
@@ -149,6 +155,20 @@ PCS_WHITE_XY = (0.3457, 0.3585)
 #: White the SDK renders with when a file has neither AsShotNeutral nor
 #: AsShotWhiteXY (``dng_render.cpp``; ``D55_xy_coord``).
 DEFAULT_WHITE_XY = (0.3324, 0.3474)
+
+#: ROMM RGB (ProPhoto RGB) → CIE XYZ (D50), the working space of Adobe's
+#: renderer (ISO 22028-2:2013 / ANSI/I3A IT10.7666:2003; the DNG SDK's
+#: ``dng_space_ProPhoto``). Rows are rescaled by :func:`rgb_to_pcs_matrix`.
+PROPHOTO_TO_XYZ_D50 = ((0.7977, 0.1352, 0.0313),
+                       (0.2880, 0.7119, 0.0001),
+                       (0.0000, 0.0000, 0.8249))
+
+#: sRGB → CIE XYZ (D50): the sRGB primaries Bradford-adapted to D50, four
+#: decimals, as the ICC sRGB profile's colorants and the DNG SDK's
+#: ``dng_space_sRGB`` state them. Rows are rescaled by :func:`rgb_to_pcs_matrix`.
+SRGB_TO_XYZ_D50 = ((0.4361, 0.3851, 0.1431),
+                   (0.2225, 0.7169, 0.0606),
+                   (0.0139, 0.0971, 0.7141))
 
 #: Correlated colour temperature (K) of each EXIF LightSource code used by
 #: CalibrationIlluminant1/2, as ``dng_camera_profile::IlluminantToTemperature``
@@ -713,6 +733,13 @@ def xy_to_camera_neutral(meta: CameraMeta, xy, source: SourceName = "auto") -> n
 
 def _solve(meta: CameraMeta, neutral, xy, source: str):
     """CameraToXYZ_D50 and the notes explaining it."""
+    m, notes, _, _ = _solve_white(meta, neutral, xy, source)
+    return m, notes
+
+
+def _solve_white(meta: CameraMeta, neutral, xy, source: str):
+    """CameraToXYZ_D50, its notes, the white xy and the camera white
+    (the SDK's ``CameraWhite``: the white's camera neutral, max 1)."""
     if neutral is not None and xy is not None:
         raise ValueError("give the scene white as a camera neutral or as xy, not both")
     spec = _build_spec(meta, source)
@@ -745,7 +772,7 @@ def _solve(meta: CameraMeta, neutral, xy, source: str):
                  f"{1 - found.weight:.3f} on {c2.describe()}")
     else:
         head += f"; {spec.label}"
-    return m, (head, *notes, *spec.notes)
+    return m, (head, *notes, *spec.notes), white, spec.camera_white(white, found)
 
 
 def camera_to_xyz_d50(meta: CameraMeta, neutral=None, xy=None,
@@ -854,3 +881,126 @@ def camera_to_linear_srgb(meta: CameraMeta, applied_neutral=None, scene_neutral=
     if applied_neutral is not None:
         m = m @ np.diag(_as_neutral(applied_neutral, "applied neutral"))
     return m, notes
+
+
+# --------------------------------------------------------------------------
+# Adobe's render spaces (the SDK's dng_color_space)
+
+def rgb_to_pcs_matrix(m) -> np.ndarray:
+    """An RGB → XYZ (D50) matrix with its rows rescaled so that RGB white
+    maps to the PCS white exactly.
+
+    Parameters
+    ----------
+    m : (3, 3) array_like
+        A published, rounded RGB → XYZ D50 matrix (e.g.
+        :data:`PROPHOTO_TO_XYZ_D50`).
+
+    Returns
+    -------
+    (3, 3) ndarray, float64
+
+    Notes
+    -----
+    ``dng_color_space::SetMatrixToPCS``: ``M' = diag(XYZ_D50 / (M·1)) · M``
+    with ``XYZ_D50`` from xy (0.3457, 0.3585), Y = 1; rounding of the
+    published four decimals would otherwise tint white.
+
+    Examples
+    --------
+    >>> np.round(rgb_to_pcs_matrix(PROPHOTO_TO_XYZ_D50) @ np.ones(3), 4).tolist()
+    [0.9643, 1.0, 0.8251]
+    """
+    m = _as_matrix(m, "RGB to PCS matrix")
+    return (_pcs_xyz() / (m @ np.ones(3)))[:, None] * m
+
+
+def matrix_xyz_d50_to_prophoto() -> np.ndarray:
+    """XYZ (D50) → linear ProPhoto RGB, the inverse of
+    ``rgb_to_pcs_matrix(PROPHOTO_TO_XYZ_D50)`` (``MatrixFromPCS``).
+
+    Examples
+    --------
+    >>> np.round(matrix_xyz_d50_to_prophoto() @ xy_to_XYZ(np.array(PCS_WHITE_XY)), 6).tolist()
+    [1.0, 1.0, 1.0]
+    """
+    return np.linalg.inv(rgb_to_pcs_matrix(PROPHOTO_TO_XYZ_D50))
+
+
+def matrix_prophoto_to_srgb() -> np.ndarray:
+    """Linear ProPhoto RGB → linear sRGB through the D50 PCS, as Adobe's
+    renderer converts its working space to the output space.
+
+    Returns
+    -------
+    (3, 3) ndarray
+        ``sRGB = M · ProPhoto``; white maps to white.
+
+    Notes
+    -----
+    ``fRGBtoFinal = sRGB.MatrixFromPCS · ProPhoto.MatrixToPCS`` in
+    ``dng_render_task::Start``, both spaces from their D50 matrices
+    (:data:`SRGB_TO_XYZ_D50`, :data:`PROPHOTO_TO_XYZ_D50`) rescaled by
+    :func:`rgb_to_pcs_matrix`. The chromatic adaptation to the sRGB white
+    is inside the published sRGB D50 matrix (Bradford), so this matrix
+    differs from ``matrix_xyz_d50_to_linear_srgb() · ProPhoto`` by the
+    rounding of those four-decimal colorants (< 3e-4 per element).
+
+    Examples
+    --------
+    >>> np.round(matrix_prophoto_to_srgb() @ np.ones(3), 6).tolist()
+    [1.0, 1.0, 1.0]
+    """
+    return np.linalg.inv(rgb_to_pcs_matrix(SRGB_TO_XYZ_D50)) @ rgb_to_pcs_matrix(PROPHOTO_TO_XYZ_D50)
+
+
+def camera_to_prophoto(meta: CameraMeta, neutral=None, xy=None, source: SourceName = "auto"
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, ...]]:
+    """Camera RGB → linear ProPhoto RGB, with the camera white and the scene
+    white it was solved for: the colour inputs of Adobe's render.
+
+    Parameters
+    ----------
+    meta : CameraMeta
+    neutral, xy : array_like, optional
+        The scene white as a camera neutral or a chromaticity; default as
+        :func:`camera_to_xyz_d50` (AsShotNeutral, AsShotWhiteXY, else D55).
+    source : str
+        One of :data:`SOURCES`.
+
+    Returns
+    -------
+    matrix : (3, 3) ndarray
+        ``ProPhoto = matrix · camera`` for *unbalanced* camera RGB (white
+        level 1); the camera white maps to ProPhoto (1, 1, 1).
+    camera_white : (3,) ndarray
+        The camera neutral of the scene white, largest entry 1, pinned to
+        [0.001, 1]: where each camera channel clips (the SDK's
+        ``CameraWhite``).
+    white_xy : (2,) ndarray
+        The scene white's chromaticity (its CCT selects the HueSatMap
+        interpolation).
+    notes : tuple of str
+        As :func:`camera_to_xyz_d50`.
+
+    Raises
+    ------
+    InputError
+        The file has no ColorMatrix (or lacks what ``source`` asks for).
+
+    Notes
+    -----
+    ``dng_render_task::Start``: ``fCameraToRGB = ProPhoto.MatrixFromPCS ·
+    CameraToPCS`` with CameraToPCS from :func:`camera_to_xyz_d50` for the
+    white from ``NeutralToXY(AsShotNeutral)`` (DNG 1.7.1.0 chapter 6).
+
+    Examples
+    --------
+    >>> meta = CameraMeta(color_matrix_1=np.eye(3), as_shot_neutral=(0.5, 1.0, 0.7))
+    >>> m, white, xy, _ = camera_to_prophoto(meta)
+    >>> np.round(m @ white, 6).tolist(), np.round(white, 4).tolist()
+    ([1.0, 1.0, 1.0], [0.5, 1.0, 0.7])
+    """
+    m, notes, white_xy, camera_white = _solve_white(meta, neutral, xy, source)
+    return matrix_xyz_d50_to_prophoto() @ m, camera_white, white_xy, notes
+

@@ -2,8 +2,10 @@
 of the pipeline's stages after the slot, with real phone colour metadata
 (paper, section 4.1: "raw-like image", luminosity compression/decompression).
 
-The pipeline after the correction slot is ``luminance → ccm → gamma``
-(:data:`isp.pipeline.DEFAULT_STAGES`), so a display image ``L`` (sRGB) and
+The correction is trained and evaluated on the ``linear`` look, whose
+stages after the correction slot are ``luminance → ccm → gamma``
+(:data:`isp.pipeline.LOOKS`; the default ``adobe`` look renders with
+``dng_render`` instead), so a display image ``L`` (sRGB) and
 the slot's input ``J`` (white-balanced camera RGB, :class:`~isp.frame.Domain`
 ``camera_rgb``) are related by
 

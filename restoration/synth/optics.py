@@ -208,7 +208,7 @@ class CropBlur:
     touches (instead of one direct 2-D convolution per region), in float32.
 
     ``blur_image`` stays the readable oracle: the two agree to ~1e-6 of
-    the signal away from the crop's border (``tests/restoration/synth/test_pairs.py``); within
+    the signal away from the crop's border (``tests/restoration/synth/test_optics.py``); within
     :func:`map_margin_px` of it, this one sees zeros and ``blur_image`` the
     border replicated — callers crop that band off.
 

@@ -546,11 +546,12 @@ def generate(p: SynthPlan, out_dir, pairs: int, *, shard_size: int = 100, force:
 
 
 def _manifest(p: SynthPlan, pairs: int, shard_size: int, shards: list[dict], tdtype) -> dict:
-    from isp.pipeline import DEFAULT_STAGES
+    from isp.pipeline import LOOKS
 
+    stages = LOOKS["linear"]    # the look the correction is trained and evaluated on
     root = Path(os.path.commonpath(p.latents)) if len(p.latents) > 1 else Path(p.latents[0]).parent
     cam0 = p.cameras[0].meta
-    slot = DEFAULT_STAGES.index("correction")
+    slot = stages.index("correction")
     return {
         "schema": SCHEMA,
         "seed": p.seed,
@@ -559,7 +560,7 @@ def _manifest(p: SynthPlan, pairs: int, shard_size: int, shards: list[dict], tdt
         "shard_size": shard_size,
         "settings": asdict(p.settings),
         "domain": "camera_rgb",
-        "placement": f"after {DEFAULT_STAGES[slot - 1]}, before {DEFAULT_STAGES[slot + 1]}",
+        "placement": f"after {stages[slot - 1]}, before {stages[slot + 1]}",
         "process": {"stages": ["luminance", "ccm", "gamma"],
                     "luminance": {"tone": p.settings.tone, "white": p.settings.white,
                                   "gain": "2**exposure_ev per pair"},

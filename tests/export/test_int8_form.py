@@ -138,7 +138,7 @@ def test_an_int8_export_runs_the_int8_form_and_its_twin_the_float_form(fp32, tmp
     the copies included, quantised) and dequantize_qdq gives back the float
     form, the same function as the INT8 file's weights in float."""
     from export.quantize import dequantize_qdq, quantize_int8
-    from tests.export.test_onnx_export import _reader
+    from tests.helpers import onnx_calibration_reader as _reader
 
     q = quantize_int8(fp32, tmp_path / "m.int8.onnx", _reader())
     assert q["int8_form"] == {"spread_muls": 12, "padded_convs": 4}

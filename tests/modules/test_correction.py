@@ -300,3 +300,31 @@ def test_frame_statistics_rgb_and_field(rng):
     s = frame_statistics(d, 5, origin=(0, 0), full_size=(60, 40))  # the top half of the frame
     assert np.allclose(s[3:], field_coordinates((30, 40), (0, 0), (60, 40)).mean(axis=(1, 2)), atol=1e-6)
     assert abs(s[3]) < 1e-6 and np.isclose(s[4], -0.5)
+
+
+def test_auto_runs_the_model_of_the_frame_s_lens_profile_only(tmp_path):
+    """``model = "auto"`` (the default): the model of the profile matching
+    ``frame.meta``, per frame, the identity for another lens; a profile
+    model at a position its domain does not fit is refused when it runs."""
+    from isp.profiles import PROFILES, Profile, register_profile
+
+    m = _model(tmp_path / "m.onnx")                       # out = 2 · in, camera_rgb
+    register_profile(Profile("test-auto", {"LensModel": "TEST auto lens"}, m))
+    try:
+        stage = Pipeline.from_names(["correction"], start="camera_rgb").stages[0]
+        assert stage.model == "auto" and stage.summary()["model"] == "auto"
+        mine = _frame()
+        mine = Frame(mine.data, mine.domain, mine.meta.replace(lens="TEST auto lens"))
+        out = stage(mine)
+        assert np.allclose(out.data, 0.5)
+        assert out.history[-1].note.startswith("profile 'test-auto' (LensModel 'TEST auto lens'): m.onnx")
+        other = stage(_frame())
+        assert np.array_equal(other.data, _frame().data)
+        assert other.history[-1].note.startswith("identity: no profile for ")
+        assert stage.summary(mine.meta)["profile"] == "test-auto"
+        assert stage.summary(_frame().meta)["model"] is None
+        late = Pipeline.from_names(["correction"], start="linear_rgb")      # builds: no model known yet
+        with pytest.raises(PlacementError, match="profile 'test-auto'.*trained for camera_rgb"):
+            late.run(Frame(mine.data, Domain.LINEAR_RGB, mine.meta))
+    finally:
+        PROFILES.remove("test-auto")

@@ -1,4 +1,4 @@
-"""JPEG stage: EXIF read back by an independent decoder (Pillow), orientation
+"""JPEG stage: EXIF and the ICC profile read back by an independent decoder (Pillow), orientation
 against Pillow's exif_transpose (kind: published), fidelity and banded
 encoding (kind: property)."""
 
@@ -11,7 +11,7 @@ import pytest
 from PIL import Image, ImageOps
 
 from isp import CameraMeta, Domain, Frame, create_stage
-from modules.jpeg import apply_orientation
+from modules.common.encoding import apply_orientation
 
 
 def _display(h=48, w=64):
@@ -38,6 +38,35 @@ def test_exif_written_and_readable():
     assert float(sub[0x829A]) == pytest.approx(1 / 250)
     assert float(sub[0x829D]) == pytest.approx(1.8) and sub[0x8827] == 200
     assert float(sub[0x920A]) == pytest.approx(4.2) and sub[0xA434] == "lens x"
+
+
+@pytest.mark.published
+def test_icc_profile_in_app2():
+    """Pillow reassembles the APP2 ICC_PROFILE segments into the sRGB profile;
+    ``icc=False`` leaves them out."""
+    from PIL import ImageCms
+
+    from modules.common.encoding import srgb_icc_profile
+
+    f = Frame(_display(), Domain.DISPLAY_RGB, META)
+    data = bytes(create_stage("jpeg")(f).data)
+    im = Image.open(io.BytesIO(data))
+    assert im.info["icc_profile"] == srgb_icc_profile()
+    assert "sRGB" in ImageCms.getProfileDescription(ImageCms.ImageCmsProfile(io.BytesIO(im.info["icc_profile"])))
+    assert im.getexif()[0x010F] == "phone-isp"          # APP1 still read
+    bare = Image.open(io.BytesIO(bytes(create_stage("jpeg", icc=False)(f).data)))
+    assert "icc_profile" not in bare.info
+
+
+@pytest.mark.property
+def test_large_icc_profile_spans_segments():
+    from modules.jpeg import insert_icc
+
+    profile = bytes(range(256)) * 600                     # 153,600 bytes: three segments
+    data = insert_icc(bytes(create_stage("jpeg", exif=False, icc=False)(Frame(_display(), Domain.DISPLAY_RGB, META)).data),
+                      profile)
+    im = Image.open(io.BytesIO(data))
+    assert im.info["icc_profile"] == profile and data.count(b"ICC_PROFILE\0") == 3
 
 
 @pytest.mark.published

@@ -1,14 +1,13 @@
-"""Simulated captures (paper eq. 14): edge and chart rendering, Bayer
-sampling, relative illumination, Poisson–Gaussian noise, quantisation, DNG
-output (calibration.simulate.capture, optical_image, chart, sensor, and
-calibration.optics.illumination).
+"""Simulated captures (paper eq. 14; calibration/simulate/capture.py): edge
+and chart rendering through a PSF map and the pixel aperture, Bayer
+sampling, the whole path's noise, the GainMaps of the relative
+illumination, DNG output through the ISP, reproducibility, bad input.
 
 Kinds, as marked on each test:
 
 * property (analytic) — against a closed form (the exact Gaussian slanted edge of
-  calibration.sfr.synthetic, the separable Gaussian rectangle, the cos⁴ law of a
-  thin lens with its stop at the lens), at the tolerance of the method;
-* published — against a cited figure (../shared/data/lenses/README.md);
+  calibration.sfr.synthetic, the separable Gaussian rectangle), at the
+  tolerance of the method;
 * property — round trips, statistics, invariances, reproducibility.
 
 PSF maps here are calibration.optics.psf.map.PSFMap objects filled with Gaussian
@@ -24,11 +23,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from calibration.optics.illumination import (
-    RelativeIllumination,
-    relative_illumination,
-    ri_cos4,
-)
 from calibration.simulate.capture import (
     Chart,
     ImagingError,
@@ -44,84 +38,30 @@ from calibration.simulate.capture import (
     write_capture,
 )
 from calibration.simulate.optical_image import (
-    Kernel,
     KernelBank,
     aperture_decimate,
     convolve,
-    edge_profile,
     polygon_coverage,
 )
-from calibration.optics.lens import Lens, Sensor, Surface
-from calibration.optics.materials import model_material
+from calibration.optics.lens import Sensor
 from calibration.optics.psf.map import PSFMap, region_centers_mm
-from calibration.simulate.sensor import (
-    SensorError,
-    add_noise,
-    dn_to_linear,
-    expose,
-    mosaic,
-    quantise,
-)
+from calibration.simulate.sensor import SensorError, dn_to_linear
 from calibration.sfr.esfr import measure_sfr
 from calibration.sfr.synthetic import _int_phi, mtf50_of
 from calibration.sfr.synthetic import render_slanted_edge as exact_edge
 from isp.frame import CFA
-from tests.helpers import reference
-
-E9 = reference("lens_figures.json")["e9"]
-
-# -- fixtures -----------------------------------------------------------------------
-
-def gaussian(sigma_um: float, pitch_um: float, n: int = 65, *, sigma_y_um: float | None = None,
-             theta_deg: float = 0.0, shift_um=(0.0, 0.0)) -> np.ndarray:
-    """(n, n) samples of a (rotated, elliptical, shifted) Gaussian, summing
-    to 1, in the calibration.optics.psf.result grid convention (centre n//2)."""
-    o = (np.arange(n) - n // 2) * pitch_um
-    x, y = np.meshgrid(o - shift_um[0], o - shift_um[1])
-    t = math.radians(theta_deg)
-    u, v = x * math.cos(t) + y * math.sin(t), -x * math.sin(t) + y * math.cos(t)
-    sy = sigma_um if sigma_y_um is None else sigma_y_um
-    g = np.exp(-0.5 * (u * u / sigma_um ** 2 + v * v / sy ** 2))
-    return g / g.sum()
+from tests.helpers import gaussian_psf as gaussian
+from tests.helpers import gaussian_psf_map as gaussian_map
+from tests.helpers import smooth_ri
 
 
 def psf(data, pitch_um):
     return SimpleNamespace(data=np.asarray(data), pitch_um=float(pitch_um), center_mm=(0.0, 0.0))
 
 
-def gaussian_map(sensor: Sensor, grid, sigma_um, pitch_um: float | None = None, n: int = 49) -> PSFMap:
-    """A PSFMap of Gaussians; ``sigma_um(row, col, channel)`` → σ in µm."""
-    pitch = sensor.pixel_pitch_um / 4 if pitch_um is None else pitch_um
-    rows, cols = grid
-    ps = np.empty((rows, cols, 3, n, n), np.float32)
-    for r in range(rows):
-        for c in range(cols):
-            for k in range(3):
-                ps[r, c, k] = gaussian(sigma_um(r, c, k), pitch, n)
-    return PSFMap(ps, pitch, region_centers_mm(sensor, grid), np.zeros((rows, cols, 2)), ("R", "G", "B"), sensor)
-
-
 def box_gaussian_cdf(t, sigma: float, a: float = 1.0):
     """Φ(t/σ) averaged over a pixel aperture of width a (pixels)."""
     return sigma / a * (_int_phi((t + a / 2) / sigma) - _int_phi((t - a / 2) / sigma))
-
-
-def smooth_ri(sensor: Sensor, corner: float = 0.36) -> RelativeIllumination:
-    """A smooth phone-like falloff, ``corner`` at the sensor's corner."""
-    hd = sensor.half_diagonal_mm
-    r = np.linspace(0.0, 1.05 * hd, 24)
-    return RelativeIllumination.from_samples(r, 1.0 - (1.0 - corner) * (r / hd) ** 2)
-
-
-def thin_singlet(f_mm: float = 20.0, f_number: float = 10.0, sensor: Sensor | None = None) -> Lens:
-    """Equiconvex n = 1.5 singlet, stop at its front surface, image at the
-    paraxial focus: distortion-free to third order."""
-    from calibration.optics import paraxial
-    r = 2 * 0.5 * f_mm
-    lens = Lens((Surface(curvature=1 / r, thickness=0.3, material=model_material(1.5), stop=True),
-                 Surface(curvature=-1 / r, thickness=f_mm)), f_number=f_number, half_fov_deg=20.0,
-                sensor=sensor or Sensor(1.0, 400, 300), name="test singlet")
-    return lens.with_surface(1, thickness=paraxial.first_order(lens).bfl)
 
 
 # -- analytic: edges --------------------------------------------------------------------
@@ -215,17 +155,6 @@ def test_property_chart_matches_supersampled_bruteforce():
     assert np.abs(r.optical[:, :, 1] - brute).max() < 1e-3
 
 
-@pytest.mark.property
-def test_property_polygon_coverage_is_exact_area():
-    """property: sub-cell coverage sums to the polygon's area (shoelace) and
-    stays in [0, 1]."""
-    v = np.array([[3.2, 1.1], [11.7, 2.9], [9.4, 10.6], [2.5, 8.8]])
-    cov = polygon_coverage(v, 0.0, 0.0, 14, 13, 1.0)
-    area = 0.5 * abs(np.dot(v[:, 0], np.roll(v[:, 1], -1)) - np.dot(v[:, 1], np.roll(v[:, 0], -1)))
-    assert cov.min() >= 0 and cov.max() <= 1
-    assert abs(cov.sum() - area) < 1e-9
-
-
 # -- raster scenes: tiles and seams -------------------------------------------------------
 
 @pytest.mark.property
@@ -307,32 +236,7 @@ def test_property_bayer_sites_take_their_channel(cfa):
             assert np.abs(r.signal[i::2, j::2] - ref[i::2, j::2]).max() < 2e-5
 
 
-@pytest.mark.property
-def test_property_mosaic_and_levels():
-    """property: mosaic() puts R, G, B at the CFA sites of each pattern."""
-    rgb = np.stack([np.full((4, 6), v) for v in (1.0, 2.0, 3.0)], axis=-1)
-    for cfa in CFA:
-        m = mosaic(rgb, cfa)
-        assert np.array_equal(m[:2, :2], cfa.pattern + 1.0)
-
-
-# -- noise and quantisation -----------------------------------------------------------------
-
-@pytest.mark.property
-@pytest.mark.parametrize("level", [0.0, 0.005, 0.05, 0.3, 0.7, 0.95])
-def test_property_noise_variance_matches_profile(level):
-    """property: on a flat field (4e5 samples) the variance of the stored
-    data in 0..1 units (black removed) is S·x + O of the NoiseProfile
-    (quantisation included, Sheppard-corrected) within 2.5 % (sampling
-    s.e. of a variance: sqrt(2/N) = 0.22 %), and the mean is x within 5 s.e."""
-    sm = SensorModel(width_px=2, height_px=2)             # 10 bit, black 64, (S, O) = (2e-4, 2e-6)
-    s, o = sm.noise_profile
-    n = 400_000
-    y = dn_to_linear(expose(np.full(n, level), sm, rng=7), sm)
-    var = s * level + o
-    assert abs(y.var() / var - 1.0) < 0.025
-    assert abs(y.mean() - level) < 5 * math.sqrt(var / n)
-
+# -- noise ----------------------------------------------------------------------------------
 
 @pytest.mark.property
 def test_property_noise_on_a_simulated_flat_capture():
@@ -351,106 +255,6 @@ def test_property_noise_on_a_simulated_flat_capture():
         v = y[pat == c]
         assert abs(v.mean() - levels[c]) < 5 * math.sqrt((4e-4 * levels[c] + 1e-5) / v.size)
         assert abs(v.var() / (4e-4 * levels[c] + 1e-5) - 1.0) < 0.03
-
-
-@pytest.mark.property
-def test_property_quantisation_and_clipping():
-    """property: noise-free values are stored as round(B + x·(W − B));
-    overexposure clips at white, negative signals at 0 DN; uint16."""
-    sm = SensorModel(width_px=2, height_px=2, bit_depth=12, black_level=256.0)
-    x = np.array([-0.2, 0.0, 1e-4, 0.25, 0.5, 0.999, 1.0, 1.5, 7.0])
-    dn = expose(x, sm, noise=False)
-    assert dn.dtype == np.uint16
-    assert dn.tolist() == [0, 256, 256, 1216, 2176, 4091, 4095, 4095, 4095]
-    noisy = expose(np.full(10_000, 1.2), sm, rng=0)
-    assert noisy.max() == 4095 and np.all(noisy == 4095)
-    assert np.array_equal(quantise(x, sm), dn)
-
-
-@pytest.mark.property
-def test_property_poisson_part_is_discrete():
-    """property: without read noise, the signal is S times an integer
-    (photo-electrons), mean x/S."""
-    y = add_noise(np.full(50_000, 0.01), (1e-3, 0.0), rng=2) / 1e-3
-    assert np.allclose(y, np.round(y)) and abs(y.mean() - 10.0) < 0.05
-
-
-@pytest.mark.property
-def test_property_from_electrons():
-    """property: NoiseProfile from the photo-electron scale."""
-    sm = SensorModel.from_electrons(8000, 3.0, gain=2.0, width_px=4, height_px=4)
-    assert sm.noise_profile == pytest.approx((2 / 8000, (3 * 2 / 8000) ** 2))
-    assert sm.electrons_at_white == pytest.approx(4000)
-
-
-# -- relative illumination -----------------------------------------------------------------
-
-@pytest.mark.property
-def test_analytic_ri_cos4_thin_lens():
-    """analytic: a thin F/10 singlet with its stop at the lens is free of
-    distortion (third order) and pupil aberration, so flux conservation
-    gives the cos⁴ law: within 0.003 of cos⁴θ up to 20° (measured ≤ 0.002;
-    the real singlet's residual distortion is ≈ 0.4 %), 1 on axis, falling
-    monotonically."""
-    lens = thin_singlet()
-    ri = relative_illumination(lens, samples=5, max_height_mm=20 * math.tan(math.radians(20)), pupil_samples=32)
-    assert ri.value[0] == 1.0 and ri.height_mm[0] == 0.0
-    assert np.all(np.diff(ri.value) < 0)
-    assert np.abs(ri.value - ri_cos4(ri.field_deg)).max() < 0.003
-    assert ri.transmitted.min() == 1.0
-
-
-@pytest.mark.property
-def test_property_ri_image_space_assumes_a_focused_image():
-    """property: Rimmer's image-space solid angle assumes the sensor is the
-    bundles' focus; on the field-curved singlet the off-axis bundles focus
-    before the sensor and it *rises* off axis (documented in
-    calibration.optics.illumination), while flux conservation falls as cos⁴."""
-    lens = thin_singlet()
-    h = 20 * math.tan(math.radians(15))
-    img = relative_illumination(lens, samples=3, max_height_mm=h, pupil_samples=24, method="image_space")
-    flux = relative_illumination(lens, samples=3, max_height_mm=h, pupil_samples=24)
-    assert img.value[-1] > 1.0 > flux.value[-1]
-
-
-@pytest.mark.property
-def test_property_ri_on_sensor():
-    """property: the per-pixel map is 1 at the centre, falls toward the
-    corners and is symmetric; beyond the last sample the last value holds."""
-    sensor = Sensor(2.0, 64, 48)
-    ri = smooth_ri(sensor)
-    m = ri.on_sensor(sensor)
-    assert m.shape == (48, 64)
-    assert abs(m[23:25, 31:33].mean() - 1.0) < 1e-3
-    assert np.allclose(m, m[::-1, ::-1]) and np.allclose(m, m[:, ::-1])
-    assert m.min() == pytest.approx(m[0, 0]) and m[0, 0] < 0.4
-    assert float(ri(10.0)) == pytest.approx(float(ri.value[-1]))
-
-
-@pytest.mark.published
-def test_published_e9_relative_illumination(e9_lens):
-    """published + property: US-12210142-B2-e9 (F/1.95, 36.8° half field;
-    ../shared/data/lenses/README.md: "about 77 % of the stop-filling rays
-    pass at 0.7 field and 46 % at full field"). The transmitted fractions
-    of the RI bundles match within ±2 points (as tests/calibration/optics/test_trace.py's
-    vignetting test; 2-digit figure, grid of 64 across); RI falls monotonically from 1 and, at the sensor
-    corner, lies in a plausible phone range (0.1–0.4; we get ≈ 0.18, with
-    a vignetting cliff over the last 20 µm). Flux conservation and Rimmer's
-    image-space method agree within 1 % of the axial value."""
-    flux = relative_illumination(e9_lens, samples=9, pupil_samples=32)
-    img = relative_illumination(e9_lens, samples=9, pupil_samples=32, method="image_space")
-    assert flux.value[0] == 1.0
-    assert np.all(np.diff(flux.value) <= 1e-3)
-    corner = float(flux(e9_lens.sensor.half_diagonal_mm))
-    assert 0.1 < corner < 0.4
-    at = relative_illumination(e9_lens, fields_deg=[0.7 * e9_lens.half_fov_deg, e9_lens.half_fov_deg], pupil_samples=64)
-    (f07, t07), (f10, t10) = ((v["field"], v["fraction"]) for v in E9["vignetting_pass_fraction"])
-    assert (f07, f10) == (0.7, 1.0)
-    assert abs(at.transmitted[1] - t07) < 0.02 and abs(at.transmitted[2] - t10) < 0.02
-    common = np.intersect1d(np.round(flux.height_mm, 9), np.round(img.height_mm, 9))
-    a = flux(common)
-    b = img(common)
-    assert np.abs(a - b).max() < 0.01
 
 
 # -- DNG round trip and the ISP ---------------------------------------------------------------
@@ -576,21 +380,6 @@ def test_property_reproducible_with_a_seed():
     assert a.dtype == np.uint16 and a.shape == (150, 200)
 
 
-@pytest.mark.property
-def test_property_colorchecker_chart():
-    """property: the ColorChecker chart puts 24 patches in the central 4 × 6
-    cells; a rendered patch centre has its camera RGB (no blur reaches it)."""
-    chart = slanted_square_chart(300, 400, (6, 8), colorchecker=True)
-    patches = [s for s in chart.shapes if s.kind == "patch"]
-    assert len(patches) == 24
-    sensor = Sensor(1.0, 400, 300)
-    pm = gaussian_map(sensor, (1, 1), lambda r, c, k: 1.0, pitch_um=0.5, n=33)
-    r = render_chart(chart, pm, SensorModel.from_sensor(sensor), rgb=True, noise=False)
-    p = patches[7]
-    cx, cy = p.vertices.mean(axis=0)
-    assert np.allclose(r.optical[round(cy), round(cx)], p.level, atol=1e-9)
-
-
 # -- bad input -------------------------------------------------------------------------------------
 
 @pytest.mark.property
@@ -619,20 +408,6 @@ def test_bad_input_is_refused_with_the_reason():
         Shape(np.array([[0, 0], [4, 0], [1, 1], [0, 4]]), 0.5)
     with pytest.raises(ImagingError, match="lens_shading"):
         simulate_capture(None, psfmap=pm, sensor=sm, lens_shading="baked")
-
-
-@pytest.mark.property
-def test_property_kernel_keeps_its_moments():
-    """property: a PSF array becomes a sensor kernel without a flip (the
-    calibration.optics.psf.map convention: rows along +y = down the sensor), its
-    centroid in pixels = the PSF's in µm / pixel pitch."""
-    g = gaussian(0.8, 0.35, 41, shift_um=(0.7, -0.35))
-    k = Kernel.from_psf_array(g, 0.35, 1.4)
-    mean, cov = k.moments()
-    assert mean == pytest.approx([0.5, -0.25], abs=1e-6)
-    assert cov[0, 0] == pytest.approx((0.8 / 1.4) ** 2, rel=1e-4)
-    prof = edge_profile(k, (0.0, 1.0))                  # a horizontal edge: the y shift moves it up
-    assert float(prof(-0.25)) == pytest.approx(0.5, abs=1e-6)
 
 
 # -- speed (slow) --------------------------------------------------------------------------------

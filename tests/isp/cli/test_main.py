@@ -39,7 +39,7 @@ def test_process_set_overrides_and_png_output(cli, tmp_path, raw_file):
     out = tmp_path / "o.png"
     code, stdout, stderr = cli("process", str(raw_file("tinydng_colorchart.dng")), "-o", str(out),
                                "--config", str(cfg), "--set", "white_balance.mode=grey_world",
-                               "--set", "demosaic.method=bilinear", "-v")
+                               "--set", "demosaic.method=bilinear", "--set", "png.bits=16", "-v")
     assert code == 0, stderr
     assert "grey world" in stdout and "bilinear" in stdout
     import cv2
@@ -108,7 +108,7 @@ def test_demo_small(cli, tmp_path):
     assert abs(ratio - 1.0) < 0.03       # and its lens shading corrected
 
 
-@pytest.mark.parametrize("command", ["process", "info", "stages", "batch", "demo"])
+@pytest.mark.parametrize("command", ["process", "info", "stages", "batch", "demo", "profiles"])
 def test_help_teaches_with_an_example(command):
     parser = make_parser(command)
     sub = parser._subparsers._group_actions[0].choices[command]
@@ -141,7 +141,7 @@ def test_shipped_model_is_packaged_int8_and_small():
 
     path = MODELS_DIR / SHIPPED_MODELS["default"]
     assert path.is_file() and path.stat().st_size <= 5 * 2 ** 20
-    st = Correction()
+    st = Correction(model="default")
     assert st.model == path
     meta = st.model_meta
     assert meta["domain"] == "camera_rgb" and meta["precision"] == "int8"
@@ -170,7 +170,7 @@ def test_shipped_model_keeps_flat_fields(level):
 
     h, w = 384, 512
     meta = CameraMeta(cfa=CFA.RGGB, raw_size=(h, w), active_area=(0, 0, h, w))
-    st = Correction()
+    st = Correction(model="default")
     for colour in ((1.0, 1.0, 1.0), (1.0, 0.3, 0.2)):
         img = np.full((h, w, 3), level, np.float32) * np.asarray(colour, np.float32)
         out = st.process(Frame(img, Domain.CAMERA_RGB, meta)).data
@@ -192,12 +192,14 @@ def test_shipped_model_keeps_the_means_of_noise_and_texture():
     assert texture["worst_percent"] < 0.2, texture
 
 
-def test_process_corrects_by_default_and_no_correction_turns_it_off(cli, tmp_path, raw_file):
+def test_process_forced_model_corrects_and_no_correction_turns_it_off(cli, tmp_path, raw_file):
+    """The S6-metadata capture names no lens a profile matches (tests/isp/cli/
+    test_profiles.py), so the packaged model is forced here."""
     dng = str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng"))
     a, b = tmp_path / "a.png", tmp_path / "b.png"
     cfg = tmp_path / "to_display.toml"  # stop before JPEG so the outputs compare exactly
     cfg.write_text("".join(f'[[stage]]\nname = "{n}"\n' for n in DEFAULT_STAGES[:-1]))
-    code, out_on, err = cli("process", dng, "-o", str(a), "--config", str(cfg), "-v")
+    code, out_on, err = cli("process", dng, "-o", str(a), "--config", str(cfg), "-v", "--correction", "default")
     assert code == 0, err
     code, out_off, err = cli("process", dng, "-o", str(b), "--config", str(cfg), "-v",
                              "--no-correction")
@@ -215,7 +217,7 @@ def test_process_corrects_by_default_and_no_correction_turns_it_off(cli, tmp_pat
 
 def test_info_names_the_correction_model(cli, raw_file):
     dng = str(raw_file("SYNTHETIC_phone_S6meta_512x384.dng"))
-    code, stdout, err = cli("info", dng)
+    code, stdout, err = cli("info", dng, "--correction", "default")
     assert code == 0, err
     c = json.loads(stdout)["correction"]
     assert c["model"] == "e9_default.int8.onnx" and c["source"] == "packaged default"
