@@ -9,7 +9,12 @@ balance and luminance use as well:
    correlated colour temperature, with the conversions between a white
    chromaticity (xy) and a camera neutral that the interpolation needs;
 2. XYZ (D50) → linear sRGB (D65): Bradford chromatic adaptation D50 → D65,
-   then the sRGB primaries.
+   then the sRGB primaries;
+3. for Adobe's render (:mod:`modules.dng_render`), camera RGB → linear
+   ProPhoto RGB, the SDK's working space (:func:`camera_to_prophoto`, with
+   the camera white where each channel clips), and ProPhoto → linear sRGB
+   through the PCS with the SDK's published colorants
+   (:func:`matrix_prophoto_to_srgb`).
 
 Step 1 follows the *Adobe DNG Specification* 1.7.1.0, chapter 6, "Mapping
 Camera Color Space to CIE XYZ Space", and, where the specification leaves a
@@ -65,7 +70,8 @@ and is not done here (it moves an element by at most 5e-5).
 What this module does not do: triple-illuminant profiles (DNG 1.6
 ColorMatrix3; ignored with a note), ReductionMatrix (four-colour sensors are
 refused at the reader), HueSatMap / LookTable and ProfileToneCurve (rendering
-choices, not colour mapping), and CameraCalibrationSignature matching
+choices, not colour mapping: :mod:`modules.common.dng_profile` and
+:mod:`modules.common.dng_tone`), and CameraCalibrationSignature matching
 (CameraCalibration is always used when present, as the SDK does when the
 signatures agree or are both absent).
 
@@ -944,7 +950,7 @@ def matrix_prophoto_to_srgb() -> np.ndarray:
     :func:`rgb_to_pcs_matrix`. The chromatic adaptation to the sRGB white
     is inside the published sRGB D50 matrix (Bradford), so this matrix
     differs from ``matrix_xyz_d50_to_linear_srgb() · ProPhoto`` by the
-    rounding of those four-decimal colorants (< 3e-4 per element).
+    rounding of those four-decimal colorants (< 5e-4 per element).
 
     Examples
     --------

@@ -171,7 +171,11 @@ def srgb_icc_profile() -> bytes:
     """
     from PIL import ImageCms
 
-    return ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
+    profile = bytearray(ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes())
+    # LittleCMS stamps the creation time (ICC.1, 7.2.1, bytes 24-35); a fixed
+    # one makes equal pixels give equal files, run after run.
+    struct.pack_into(">6H", profile, 24, 1999, 10, 18, 0, 0, 0)
+    return _with_profile_id(profile)
 
 
 @lru_cache(maxsize=1)

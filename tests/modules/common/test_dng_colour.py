@@ -386,3 +386,42 @@ def test_property_color_matrix_3_is_reported():
     meta = canon_meta(color_matrix_3=CANON_CM_D65, calibration_illuminant_3=23)
     _, notes = camera_to_xyz_d50(meta)
     assert any("ColorMatrix3 ignored" in n for n in notes)
+
+
+# --------------------------------------------------------------------------
+# Adobe's render spaces: ProPhoto (ROMM) and sRGB through the D50 PCS
+
+@pytest.mark.published
+def test_render_space_matrices_are_the_published_colorants():
+    """ROMM RGB's normalised primary matrix (ISO 22028-2, as colour-science
+    derives it) and the sRGB primaries Bradford-adapted to D50, both at the
+    four decimals the SDK and the ICC sRGB profile print."""
+    import colour
+    from colour import xy_to_XYZ
+
+    from modules.common.dng_colour import PROPHOTO_TO_XYZ_D50, SRGB_TO_XYZ_D50, bradford_matrix
+
+    romm = colour.RGB_COLOURSPACES["ProPhoto RGB"].matrix_RGB_to_XYZ
+    np.testing.assert_allclose(PROPHOTO_TO_XYZ_D50, romm, atol=5e-5)
+    srgb = colour.RGB_COLOURSPACES["sRGB"]
+    adapted = bradford_matrix(xy_to_XYZ(srgb.whitepoint), xy_to_XYZ(np.array((0.3457, 0.3585)))) \
+        @ srgb.matrix_RGB_to_XYZ
+    np.testing.assert_allclose(SRGB_TO_XYZ_D50, adapted, atol=1e-4)
+
+
+@pytest.mark.property
+def test_prophoto_to_srgb_keeps_white_and_camera_white_maps_to_prophoto_white():
+    from modules.common.dng_colour import (camera_to_prophoto, matrix_prophoto_to_srgb,
+                                           matrix_xyz_d50_to_linear_srgb, matrix_xyz_d50_to_prophoto)
+
+    m = matrix_prophoto_to_srgb()
+    np.testing.assert_allclose(m @ np.ones(3), 1.0, atol=1e-12)
+    # the same conversion as through colour-science's Bradford, up to the colorants' rounding
+    np.testing.assert_allclose(m, matrix_xyz_d50_to_linear_srgb() @ np.linalg.inv(matrix_xyz_d50_to_prophoto()),
+                               atol=5e-4)
+    meta = canon_meta()
+    cam, white, xy, notes = camera_to_prophoto(meta)
+    np.testing.assert_allclose(cam @ white, 1.0, atol=1e-9)
+    assert white.max() == pytest.approx(1.0) and xy.shape == (2,) and notes
+    xyz, _ = camera_to_xyz_d50(meta)
+    np.testing.assert_allclose(cam, matrix_xyz_d50_to_prophoto() @ xyz, atol=1e-12)

@@ -71,3 +71,14 @@ def test_to_integer_rounds_and_saturates():
     assert to_integer(x, 16).dtype == np.uint16 and to_integer(x, 16)[0, 1, 0] == 65535
     u8 = np.array([[0, 255]], np.uint8)
     assert to_integer(u8, 8) is u8 and to_integer(u8, 16).tolist() == [[0, 65535]]
+
+
+def test_the_srgb_profile_is_the_same_in_every_process():
+    """Equal pixels give equal files: the profile carries no creation time."""
+    import subprocess
+    import sys
+
+    code = "from modules.common.encoding import srgb_icc_profile; print(srgb_icc_profile().hex())"
+    runs = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+            for _ in range(2)}
+    assert len(runs) == 1
