@@ -2,8 +2,9 @@
 them: tiled execution with overlap (:mod:`.tiling`), per-CFA-phase
 arithmetic on mosaics (:mod:`.mosaic`), array-API helpers that let one
 function run on numpy and torch (:mod:`.xp`), the DNG colour model
-(:mod:`.dng_colour`), and what the encoding stages share: orientation, EXIF,
-ICC profiles (:mod:`.encoding`).
+(:mod:`.dng_colour`), the maths of Adobe's render: camera-profile tables
+(:mod:`.dng_profile`) and tone curves (:mod:`.dng_tone`), and what the
+encoding stages share: orientation, EXIF, ICC profiles (:mod:`.encoding`).
 
 They are a package of their own, not private to ``modules``, because
 ``restoration`` needs the same code: its model runner tiles a frame exactly

@@ -355,7 +355,7 @@ def natural_spline(points) -> Callable[[np.ndarray], np.ndarray]:
     ``dng_spline_solver`` finds the slopes of the unique C² piecewise cubic
     whose second derivative is 0 at both ends (tridiagonal system), and
     evaluates each segment as a cubic Hermite polynomial with those end
-    slopes. scipy's ``CubicSpline(bc_type="natural")`` is that curve.
+    slopes; so does this function (Thomas algorithm for the slopes).
 
     Examples
     --------
@@ -370,24 +370,51 @@ def natural_spline(points) -> Callable[[np.ndarray], np.ndarray]:
         raise ValueError("tone curve points must lie in [0, 1]")
     if np.any(np.diff(p[:, 0]) <= 0):
         raise ValueError("tone curve x values must be strictly increasing")
-    x0, x1 = p[0, 0], p[-1, 0]
-    y0, y1 = p[0, 1], p[-1, 1]
-    if p.shape[0] == 2:
-        slope = (y1 - y0) / (x1 - x0)
+    x, y = p[:, 0], p[:, 1]
+    slopes = _natural_slopes(x, y)
 
-        def line(x):
-            x = np.clip(np.asarray(x, dtype=np.float64), x0, x1)
-            return y0 + (x - x0) * slope
-
-        return line
-    from scipy.interpolate import CubicSpline
-
-    spline = CubicSpline(p[:, 0], p[:, 1], bc_type="natural")
-
-    def curve(x):
-        return spline(np.clip(np.asarray(x, dtype=np.float64), x0, x1))
+    def curve(v):
+        v = np.clip(np.asarray(v, dtype=np.float64), x[0], x[-1])
+        j = np.clip(np.searchsorted(x, v, side="right"), 1, x.size - 1)
+        x0, x1, y0, y1 = x[j - 1], x[j], y[j - 1], y[j]
+        s0, s1 = slopes[j - 1], slopes[j]
+        h = x1 - x0
+        b = (v - x0) / h
+        c = 1.0 - b
+        # the cubic Hermite segment with end slopes s0, s1 (dng_spline.h)
+        return (y0 * (2.0 - c + b) + s0 * h * b) * c * c + (y1 * (2.0 - b + c) - s1 * h * c) * b * b
 
     return curve
+
+
+def _natural_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """End slopes of the natural cubic spline's segments: the tridiagonal
+    system ``h_j s_{j−1} + 2(h_{j−1} + h_j) s_j + h_{j−1} s_{j+1} =
+    3(h_j d_{j−1} + h_{j−1} d_j)`` with ``2 s_0 + s_1 = 3 d_0`` and
+    ``s_{n−2} + 2 s_{n−1} = 3 d_{n−2}`` (second derivative 0 at both ends);
+    ``h`` the knot spacings, ``d`` the secant slopes."""
+    n = x.size
+    h = np.diff(x)
+    d = np.diff(y) / h
+    if n == 2:
+        return np.array([d[0], d[0]])
+    lower, diag, upper, rhs = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    diag[0], upper[0], rhs[0] = 2.0, 1.0, 3.0 * d[0]
+    diag[-1], lower[-1], rhs[-1] = 2.0, 1.0, 3.0 * d[-1]
+    lower[1:-1] = h[1:]
+    diag[1:-1] = 2.0 * (h[:-1] + h[1:])
+    upper[1:-1] = h[:-1]
+    rhs[1:-1] = 3.0 * (h[1:] * d[:-1] + h[:-1] * d[1:])
+    # Thomas algorithm (the system is diagonally dominant)
+    for j in range(1, n):
+        w = lower[j] / diag[j - 1]
+        diag[j] -= w * upper[j - 1]
+        rhs[j] -= w * rhs[j - 1]
+    s = np.empty(n)
+    s[-1] = rhs[-1] / diag[-1]
+    for j in range(n - 2, -1, -1):
+        s[j] = (rhs[j] - upper[j] * s[j + 1]) / diag[j]
+    return s
 
 
 def tabulate(fn: Callable[[np.ndarray], np.ndarray], size: int = TABLE_SIZE) -> np.ndarray:

@@ -73,6 +73,7 @@ def test_to_integer_rounds_and_saturates():
     assert to_integer(u8, 8) is u8 and to_integer(u8, 16).tolist() == [[0, 65535]]
 
 
+@pytest.mark.property
 def test_the_srgb_profile_is_the_same_in_every_process():
     """Equal pixels give equal files: the profile carries no creation time."""
     import subprocess
