@@ -21,8 +21,8 @@ in a naive render. Two answers, chosen by ``mode``:
     default look the camera-white clamp that follows sets a reconstructed
     channel back to the clamp (it was raised from at least its clip level,
     which is not below the clamp), so there the two modes give the same
-    picture but for channels within 2 % below their clip level (the
-    threshold and slack of the Notes).
+    picture but for channels just below their clip level (the threshold
+    and slack of the Notes).
 
 Method (``reconstruct``)
 ------------------------
@@ -45,9 +45,10 @@ For balanced camera RGB :math:`x_c` (c ∈ {R, G, B}) with clip level
 :math:`g_c`, lens-shading gain :math:`s_c(p)` at pixel :math:`p` (from the
 file's GainMaps where ``lens_shading`` applied them) — a channel is clipped
 where :math:`x_c \\ge L_c`, or :math:`x_c \\ge (1 - \\delta) L_c`,
-:math:`\\delta = 0.01`, beside (8-neighbourhood) a pixel clipped in the same
-channel: demosaicing interpolates values just below the level inside a
-clipped area. With :math:`a, b` the other two channels:
+:math:`\\delta = 0.05`, within 3 px of a pixel at or above :math:`L_c` in
+the same channel: inside a clipped area demosaicing and noise leave values
+just below the level, which would stay tinted specks. With :math:`a, b` the
+other two channels:
 
 .. math::
 
@@ -111,8 +112,10 @@ RING_GRID = 4
 MIN_RING = 100
 #: lower bound of ring values, as a fraction of the clip level (darktable)
 RING_FLOOR = 0.2
-#: how far below its level (a fraction) a channel beside a clipped one still counts as clipped
-SLACK = 0.01
+#: how far below its level (a fraction) a channel near a clipped one still counts as clipped
+SLACK = 0.05
+#: ... within this many pixels (Chebyshev distance) of one at or above its level
+GROW = 3
 #: clip fraction of the least-clipped channel above which pixels go neutral
 NEUTRAL_FROM = 0.8
 #: points per row when the level field is sampled with cv2.remap
@@ -190,12 +193,13 @@ def _shading_field(frame: Frame, step: int = FIELD_STEP) -> tuple | None:
     """Lens-shading gain per colour on a coarse grid of the full frame, or
     None if the frame's history shows no lens-shading gains applied.
 
-    The ``lens_shading`` stage itself runs on a mosaic of ones ``step``
-    times smaller than the full frame (the active area): its opcodes place
-    their maps by fractions of the image size, so the smaller image samples
-    the same smooth field. Each colour takes the mean of its CFA sites.
-    The stage's default parameters are assumed (full strength, DNG map
-    sampling).
+    The ``lens_shading`` stage itself runs on a mosaic of ones up to
+    ``step`` times smaller than the full frame (the active area): its
+    opcodes place their maps by fractions of the image size, so the smaller
+    image samples the same smooth field. Each colour takes the mean of its
+    CFA sites. The stage's default parameters are assumed (full strength,
+    DNG map sampling); a frame that was never a mosaic (a linear DNG) gets
+    None.
 
     Returns
     -------
@@ -264,9 +268,9 @@ def clipped_pixels(rgb: np.ndarray, clip: ClipLevels) -> tuple[np.ndarray, np.nd
     """The pixels with a channel at or above its clip level.
 
     A channel counts as clipped at or above its level, and within
-    :data:`SLACK` below it where one of its 8 neighbours is clipped
-    (demosaicing interpolates values just below the level inside a clipped
-    area).
+    :data:`SLACK` below it where a pixel within :data:`GROW` pixels is at or
+    above it (demosaicing and noise leave values just below the level
+    inside a clipped area).
 
     Parameters
     ----------
@@ -295,10 +299,11 @@ def clipped_pixels(rgb: np.ndarray, clip: ClipLevels) -> tuple[np.ndarray, np.nd
     v = rgb.reshape(-1, 3)[idx]
     m = v >= lv
     slack = (v >= lv * np.float32(1.0 - SLACK)) & ~m
+    reach = np.ones((2 * GROW + 1, 2 * GROW + 1), np.uint8)
     for c in np.flatnonzero(slack.any(axis=0)):
         core = np.zeros(h * w, np.uint8)
         core[idx[m[:, c]]] = 1
-        near = cv2.dilate(core.reshape(h, w), np.ones((3, 3), np.uint8)).ravel()[idx] > 0
+        near = cv2.dilate(core.reshape(h, w), reach).ravel()[idx] > 0
         m[:, c] |= slack[:, c] & near
     keep = m[:, 0] | m[:, 1] | m[:, 2]
     return idx[keep], m[keep], lv[keep]
@@ -439,15 +444,15 @@ class Highlights(StageBase):
         See the module docstring.
     threshold : float
         Fraction of the white level at which a channel counts as clipped,
-        in (0, 1] (and up to 1 % below it beside a clipped neighbour: inside
-        a clipped area demosaicing interpolates values just below the level,
-        Malvar–He–Cutler by adding the other channels' Laplacian). Below 1
-        by default because the lens-shading gain that scales the level is
-        evaluated on a coarse grid and the two green phases' maps differ by
-        up to a few tenths of a per cent; darktable uses 0.987 on the
-        mosaic. Some sensors saturate further below the WhiteLevel their
-        files declare (the GoPro HERO6 and FUSION green at 0.951 of 16383):
-        lower it to reach them. Used by ``reconstruct``.
+        in (0, 1] (and up to 5 % below it within 3 px of a clipped pixel:
+        inside a clipped area demosaicing and noise leave values just below
+        the level; Malvar–He–Cutler adds the other channels' Laplacian and
+        their noise). Below 1 by default because the lens-shading gain that
+        scales the level is evaluated on a coarse grid and the two green
+        phases' maps differ by up to a few tenths of a per cent; darktable
+        uses 0.987 on the mosaic. Some sensors saturate further below the
+        WhiteLevel their files declare (the GoPro HERO6 and FUSION green at
+        0.951 of 16383): lower it to reach them. Used by ``reconstruct``.
     """
 
     name = "highlights"

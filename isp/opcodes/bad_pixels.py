@@ -18,19 +18,19 @@ not read.
 from __future__ import annotations
 
 import struct
+from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from isp.opcodes.base import Opcode, OpcodeContext, data_planes
+from isp.opcodes.base import Opcode, OpcodeContext
 from isp.opcodes.binary import U32_MAX, OpcodeError, as_u32, expect_size, frozen_array, set_field
 
 #: neighbourhood radius an isolated bad point needs free (SDK kBadPointPadding)
 POINT_PADDING = 2
 #: neighbourhood radius an isolated bad rectangle needs free (SDK kBadRectPadding)
 RECT_PADDING = 4
-_PAD = 6
 
 # sets of same-colour neighbours tried in turn for a clustered bad point
 # (SDK FixClusteredPixel), then for the pixels of a bad rectangle
@@ -53,14 +53,6 @@ def _repeat_index(idx: np.ndarray, n: int) -> np.ndarray:
         return np.zeros_like(idx)
     out = np.where(idx < 0, idx % 2, idx)
     return np.where(out >= n, n - 2 + (out - (n - 2)) % 2, out)
-
-
-def _padded(plane: np.ndarray, pad: int) -> np.ndarray:
-    """``plane`` (float64) with ``pad`` pixels on each side, repeated."""
-    h, w = plane.shape
-    rows = _repeat_index(np.arange(-pad, h + pad), h)
-    cols = _repeat_index(np.arange(-pad, w + pad), w)
-    return plane.astype(np.float64)[np.ix_(rows, cols)]
 
 
 class _Arith:
@@ -89,11 +81,20 @@ def _is_green(rows, cols, phase: int) -> np.ndarray:
     return ((np.asarray(rows) + np.asarray(cols) + phase + (phase >> 1)) & 1) == 0
 
 
-def _codes(data: np.ndarray, ctx: OpcodeContext) -> tuple[np.ndarray, float, bool]:
-    """The plane on the 16-bit code scale (float64), the scale, and whether
-    the codes are integers (stage 1)."""
+def _reader(data: np.ndarray, ctx: OpcodeContext):
+    """``(get, scale, arithmetic)``: ``get(rows, cols)`` reads pixels of the
+    plane ``data`` as float64 16-bit codes (indices outside repeated as the
+    SDK's tiles repeat them), ``scale`` is codes per data unit, and the
+    arithmetic is the SDK's integer one on stage-1 data."""
+    h, w = data.shape
     scale = 65535.0 / ctx.code_max
-    return data.astype(np.float64) * scale, scale, ctx.stage == 1
+
+    def get(rows, cols) -> np.ndarray:
+        r = _repeat_index(np.asarray(rows), h)
+        c = _repeat_index(np.asarray(cols), w)
+        return data[r, c].astype(np.float64) * scale
+
+    return get, scale, _Arith(ctx.stage == 1)
 
 # --------------------------------------------------------------------------
 # bad pixels
@@ -136,22 +137,20 @@ class FixBadPixelsConstant(Opcode):
         (a repaired pixel is not reused); a pixel without a good neighbour
         stays. In place; returns ``data``."""
         self._check_apply(data, ctx)
-        codes, scale, integer = _codes(data, ctx)
-        bad = np.rint(codes) == self.constant
+        get, scale, ar = _reader(data, ctx)
+        bad = np.rint(data * np.float32(scale)) == self.constant
         if not bad.any():
             return data
-        ar = _Arith(integer)
         ys, xs = np.nonzero(bad)
         oy, ox = ctx.origin
         green = _is_green(ys + oy, xs + ox, self.bayer_phase)
-        h, w = codes.shape
         total = np.zeros(ys.size)
         count = np.zeros(ys.size)
         for (dg, dn) in zip(((-1, -1), (-1, 1), (1, -1), (1, 1)),
                             ((-2, 0), (2, 0), (0, -2), (0, 2))):
             dy = np.where(green, dg[0], dn[0])
             dx = np.where(green, dg[1], dn[1])
-            v = codes[_repeat_index(ys + dy, h), _repeat_index(xs + dx, w)]
+            v = get(ys + dy, xs + dx)
             ok = np.rint(v) != self.constant
             total += np.where(ok, v, 0.0)
             count += ok
@@ -243,37 +242,37 @@ class FixBadPixelsList(Opcode):
         self._check_apply(data, ctx)
         if not len(self.points) and not len(self.rects):
             return data
-        codes, scale, integer = _codes(data, ctx)
-        ar = _Arith(integer)
-        h, w = codes.shape
+        get, scale, ar = _reader(data, ctx)
+        h, w = data.shape
         oy, ox = ctx.origin
-        pts = [(int(r) - oy, int(c) - ox) for r, c in self.points]
-        pts = sorted(set(pts))
+        listed = [(int(r) - oy, int(c) - ox) for r, c in self.points]
+        pts = sorted(set(listed))
+        repeated = {p for p, n in Counter(listed).items() if n > 1}   # never isolated
         rects = sorted({(int(t) - oy, int(l) - ox, int(b) - oy, int(r) - ox)
                         for t, l, b, r in self.rects})
-        buf = _padded(codes, _PAD)
-        green_at = lambda r, c: _is_green(r + oy, c + ox, self.bayer_phase)  # noqa: E731
         point_set = set(pts)
 
-        def in_rect(r, c) -> np.ndarray:
-            r, c = np.asarray(r), np.asarray(c)
-            hit = np.zeros(np.broadcast(r, c).shape, dtype=bool)
-            for t, l, b, rr in rects:
-                hit |= (r >= t) & (r < b) & (c >= l) & (c < rr)
-            return hit
+        def green_at(r, c):
+            return _is_green(np.asarray(r) + oy, np.asarray(c) + ox, self.bayer_phase)
+
+        def put(r, c, codes):
+            data[r, c] = np.asarray(codes) / scale
 
         def valid(r, c) -> np.ndarray:
             r, c = np.asarray(r), np.asarray(c)
-            return (r >= 0) & (r < h) & (c >= 0) & (c < w) & ~in_rect(r, c)
+            ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+            for t, l, b, rr in rects:
+                ok &= ~((r >= t) & (r < b) & (c >= l) & (c < rr))
+            return ok
 
         # -- points ---------------------------------------------------------
         inside = [(r, c) for r, c in pts if 0 <= r < h and 0 <= c < w]
         isolated, clustered = [], []
         pad = POINT_PADDING
         for r, c in inside:
-            alone = not any((r + dy, c + dx) in point_set
-                            for dy in range(-pad, pad + 1) for dx in range(-pad, pad + 1)
-                            if dy or dx)
+            alone = (r, c) not in repeated and not any(
+                (r + dy, c + dx) in point_set
+                for dy in range(-pad, pad + 1) for dx in range(-pad, pad + 1) if dy or dx)
             alone = alone and not any(t < r + pad + 1 and r - pad < b and l < c + pad + 1
                                       and c - pad < rr for t, l, b, rr in rects)
             if alone and pad <= r < h - pad and pad <= c < w - pad:
@@ -282,10 +281,9 @@ class FixBadPixelsList(Opcode):
                 clustered.append((r, c))
         if isolated:
             r, c = np.array(isolated).T
-            win = np.stack([buf[(r + _PAD + dy)[:, None],
-                                (c + _PAD)[:, None] + np.arange(-2, 3)[None, :]]
-                            for dy in range(-2, 3)], axis=1)        # (N, 5, 5)
-            buf[r + _PAD, c + _PAD] = _isolated(win, green_at(r, c), ar)
+            d = np.arange(-2, 3)
+            win = get(r[:, None, None] + d[None, :, None], c[:, None, None] + d[None, None, :])
+            put(r, c, _isolated(win, green_at(r, c), ar))      # (N, 5, 5) neighbourhoods
         for r, c in clustered:
             green = bool(green_at(r, c))
             for offsets in _POINT_SETS:
@@ -295,52 +293,42 @@ class FixBadPixelsList(Opcode):
                 cc = np.array([c + dx for _, dx in offsets])
                 ok = valid(rr, cc) & np.array([(a, b) not in point_set for a, b in zip(rr, cc)])
                 if ok.any():
-                    vals = buf[rr[ok] + _PAD, cc[ok] + _PAD]
-                    buf[r + _PAD, c + _PAD] = ar.mean(vals.sum(), ok.sum())
+                    put(r, c, ar.mean(get(rr[ok], cc[ok]).sum(), ok.sum()))
                     break
-        # -- rectangles -----------------------------------------------------
-        if rects:
-            if inside:
-                buf = _padded(buf[_PAD:_PAD + h, _PAD:_PAD + w], _PAD)
-            for index, (t, l, b, rr) in enumerate(rects):
-                t0, l0, b0, r0 = max(t, 0), max(l, 0), min(b, h), min(rr, w)
-                if t0 >= b0 or l0 >= r0:
-                    continue
-                alone = not any(tt < b + RECT_PADDING and t - RECT_PADDING < bb
-                                and ll < rr + RECT_PADDING and l - RECT_PADDING < rrr
-                                for j, (tt, ll, bb, rrr) in enumerate(rects) if j != index)
-                if alone and rr == l + 1 and l >= 2 and rr <= w - 2:
-                    rows = np.arange(t0, b0)
-                    buf[rows + _PAD, l + _PAD] = _single_line(buf, rows + _PAD, l + _PAD,
-                                                             green_at(rows, l), ar)
-                elif alone and b == t + 1 and t >= 2 and b <= h - 2:
-                    cols = np.arange(l0, r0)
-                    bt = buf.T
-                    bt[cols + _PAD, t + _PAD] = _single_line(bt, cols + _PAD, t + _PAD,
-                                                            green_at(t, cols), ar)
-                else:
-                    rows, cols = np.mgrid[t0:b0, l0:r0]
-                    rows, cols = rows.ravel(), cols.ravel()
-                    green = green_at(rows, cols)
-                    todo = np.ones(rows.size, dtype=bool)
-                    for offsets in _RECT_SETS:
-                        use = todo & (green | ((offsets[0][0] & 1) == 0))
-                        if not use.any():
-                            continue
-                        total = np.zeros(rows.size)
-                        count = np.zeros(rows.size)
-                        for dy, dx in offsets:
-                            ok = valid(rows + dy, cols + dx) & use
-                            v = buf[_repeat_index(rows + dy, h) + _PAD,
-                                    _repeat_index(cols + dx, w) + _PAD]
-                            total += np.where(ok, v, 0.0)
-                            count += ok
-                        done = use & (count > 0)
-                        buf[rows[done] + _PAD, cols[done] + _PAD] = ar.mean(total[done],
-                                                                             count[done])
-                        todo &= ~done
-        out = buf[_PAD:_PAD + h, _PAD:_PAD + w]
-        data[...] = (out / scale).astype(data.dtype)
+        # -- rectangles (reading the repaired points) -------------------------
+        for index, (t, l, b, rr) in enumerate(rects):
+            t0, l0, b0, r0 = max(t, 0), max(l, 0), min(b, h), min(rr, w)
+            if t0 >= b0 or l0 >= r0:
+                continue
+            alone = not any(tt < b + RECT_PADDING and t - RECT_PADDING < bb
+                            and ll < rr + RECT_PADDING and l - RECT_PADDING < rrr
+                            for j, (tt, ll, bb, rrr) in enumerate(rects) if j != index)
+            if alone and rr == l + 1 and l >= 2 and rr <= w - 2:
+                rows = np.arange(t0, b0)
+                put(rows, l, _single_line(lambda i, j: get(rows + i - 4, l + j - 4),
+                                          green_at(rows, l), ar))
+            elif alone and b == t + 1 and t >= 2 and b <= h - 2:
+                cols = np.arange(l0, r0)
+                put(t, cols, _single_line(lambda i, j: get(t + j - 4, cols + i - 4),
+                                          green_at(t, cols), ar))
+            else:
+                rows, cols = np.mgrid[t0:b0, l0:r0]
+                rows, cols = rows.ravel(), cols.ravel()
+                green = green_at(rows, cols)
+                todo = np.ones(rows.size, dtype=bool)
+                for offsets in _RECT_SETS:
+                    use = todo & (green | ((offsets[0][0] & 1) == 0))
+                    if not use.any():
+                        continue
+                    total = np.zeros(rows.size)
+                    count = np.zeros(rows.size)
+                    for dy, dx in offsets:
+                        ok = valid(rows + dy, cols + dx) & use
+                        total += np.where(ok, get(rows + dy, cols + dx), 0.0)
+                        count += ok
+                    done = use & (count > 0)
+                    put(rows[done], cols[done], ar.mean(total[done], count[done]))
+                    todo &= ~done
         return data
 
     def _describe(self):
@@ -382,12 +370,10 @@ def _isolated(win: np.ndarray, green: np.ndarray, ar: _Arith) -> np.ndarray:
     return ar.mean((est * use).sum(axis=0), 2 * use.sum(axis=0))
 
 
-def _single_line(buf: np.ndarray, rows: np.ndarray, col: int, green: np.ndarray,
-                 ar: _Arith) -> np.ndarray:
-    """FixSingleColumn for the pixels (rows, col) of ``buf`` (padded
-    coordinates; a transposed view for a row); the estimates."""
-    def p(i, j):                       # the 9 x 9 neighbourhood, centre (4, 4)
-        return buf[rows + i - 4, col + j - 4]
+def _single_line(p, green: np.ndarray, ar: _Arith) -> np.ndarray:
+    """FixSingleColumn for the pixels of a bad column: ``p(i, j)`` reads
+    the 9 x 9 neighbourhoods (centre (4, 4); rows and columns swapped for a
+    bad row), in 16-bit codes; the estimates."""
 
     def d(x, y):
         return np.abs(p(*x) - p(*y))

@@ -331,7 +331,6 @@ class _Warp(Opcode):
             else:
                 groups.setdefault(self._plane_key(q), []).append(p)
         cols = np.arange(w, dtype=np.float64)
-        workers = max(1, min(4, cv2.getNumThreads()))
         for planes in groups.values():
             if len(planes) == src.shape[2]:
                 image = np.ascontiguousarray(data)
@@ -339,8 +338,7 @@ class _Warp(Opcode):
                 image = np.ascontiguousarray(src[:, :, planes])
                 if len(planes) == 1:
                     image = image[:, :, 0]
-
-            def band(r0, planes=planes, image=image):
+            for r0 in range(0, h, _BAND_ROWS):
                 r1 = min(h, r0 + _BAND_ROWS)
                 with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                     # extreme coefficients overflow to positions far outside: clipped
@@ -349,18 +347,6 @@ class _Warp(Opcode):
                 res = cv2.remap(image, map1, map2, cv2.INTER_CUBIC,
                                 borderMode=cv2.BORDER_REPLICATE)
                 dst[r0:r1, :, planes] = res.reshape(r1 - r0, w, len(planes))
-
-            starts = range(0, h, _BAND_ROWS)
-            if workers == 1 or len(starts) == 1:
-                for r0 in starts:
-                    band(r0)
-            else:
-                # numpy and OpenCV release the GIL: the maps of one band are
-                # computed while another is resampled
-                from concurrent.futures import ThreadPoolExecutor
-
-                with ThreadPoolExecutor(workers, thread_name_prefix="warp") as pool:
-                    list(pool.map(band, starts))
         return out
 
 

@@ -562,9 +562,10 @@ def rgb_tone(rgb: np.ndarray, lut: np.ndarray) -> np.ndarray:
     [0.8, 0.6, 0.4]
     """
     rgb = np.asarray(rgb, dtype=np.float32)
-    planes = rgb_tone_planes(np.ascontiguousarray(rgb[..., 0]), np.ascontiguousarray(rgb[..., 1]),
-                             np.ascontiguousarray(rgb[..., 2]), lut)
-    return np.stack(planes, axis=-1)
+    flat = rgb.reshape(-1, 3)
+    planes = rgb_tone_planes(np.ascontiguousarray(flat[:, 0]), np.ascontiguousarray(flat[:, 1]),
+                             np.ascontiguousarray(flat[:, 2]), lut)
+    return np.stack(planes, axis=-1).reshape(rgb.shape)
 
 
 def rgb_tone_planes(r: np.ndarray, g: np.ndarray, b: np.ndarray,

@@ -20,7 +20,7 @@ import pytest
 from isp import (CFA, CameraMeta, ConfigError, Domain, Frame, Pipeline, StageBase, create_stage,
                  list_stages, register_stage)
 from isp.io.read import read_raw
-from isp.pipeline import DEFAULT_STAGES
+from isp.pipeline import DEFAULT_STAGES, LOOKS, pipeline_config
 from isp.stage import coerce_param
 
 
@@ -32,8 +32,46 @@ def test_default_pipeline_builds_and_chains_domains():
     assert p.output_domain is Domain.ENCODED
     # each stage's input domain is the previous one's output
     assert [d.value for d in p.domains] == [
-        "raw", "raw_linear", "raw_linear", "raw_linear", "camera_rgb", "camera_rgb",
-        "camera_rgb", "linear_rgb", "display_rgb", "encoded"]
+        "raw", "raw", "raw_linear", "raw_linear", "raw_linear", "raw_linear", "camera_rgb",
+        "camera_rgb", "camera_rgb", "camera_rgb", "display_rgb", "encoded"]
+    linear = Pipeline.default("linear")
+    assert [d.value for d in linear.domains][-5:] == [
+        "camera_rgb", "camera_rgb", "linear_rgb", "display_rgb", "encoded"]
+
+
+@pytest.mark.property
+def test_looks_share_the_stages_before_the_render():
+    adobe, linear = LOOKS["adobe"], LOOKS["linear"]
+    slot = adobe.index("correction")
+    assert adobe[:slot + 1] == linear[:slot + 1]
+    assert adobe[slot + 1:] == ("highlights", "dng_render", "jpeg")
+    assert linear[slot + 1:] == ("luminance", "ccm", "gamma", "jpeg")
+    assert DEFAULT_STAGES == adobe
+    # the adobe look demosaics as Adobe's SDK does; an override still wins
+    assert Pipeline.default().stages[adobe.index("demosaic")].params()["method"] == "bilinear"
+    p = Pipeline.default(demosaic={"method": "menon2007"})
+    assert p.stages[adobe.index("demosaic")].params()["method"] == "menon2007"
+    assert Pipeline.default("linear").stages[linear.index("demosaic")].params()["method"] == "malvar2004"
+
+
+@pytest.mark.property
+def test_a_look_from_toml_and_from_pipeline_config(tmp_path):
+    p = Pipeline.from_toml('look = "linear"\n')
+    assert [s.name for s in p.stages] == list(LOOKS["linear"])
+    cfg = pipeline_config(look="linear", overrides=[("gamma", "curve", "bt709")])
+    assert [e["name"] for e in cfg["stage"]] == list(LOOKS["linear"])
+    assert cfg["stage"][LOOKS["linear"].index("gamma")]["curve"] == "bt709"
+    file = tmp_path / "look.toml"
+    file.write_text('look = "adobe"\n')
+    assert [e["name"] for e in pipeline_config(file)["stage"]] == list(LOOKS["adobe"])
+    stages = tmp_path / "stages.toml"
+    stages.write_text('[[stage]]\nname = "black_level"\n')
+    with pytest.raises(ConfigError, match="either a look or a pipeline file"):
+        pipeline_config(stages, look="linear")
+    with pytest.raises(ConfigError, match="not both"):
+        Pipeline.from_toml('look = "linear"\n[[stage]]\nname = "black_level"\n')
+    with pytest.raises(ConfigError, match="unknown look 'film'; valid: adobe, linear"):
+        Pipeline.default("film")
 
 
 @pytest.mark.property

@@ -26,8 +26,11 @@ def test_process_save_stages(cli, tmp_path, raw_file):
     for i, name in enumerate(DEFAULT_STAGES[:-1], start=1):
         assert f"{i:02d}_{name}.npy" in names and f"{i:02d}_{name}.png" in names
     assert f"{len(DEFAULT_STAGES):02d}_jpeg.jpg" in names
-    assert np.load(stages / "04_demosaic.npy").shape == (384, 512, 3)
-    assert np.load(stages / "01_black_level.npy").dtype == np.float32
+    def saved(name):
+        return np.load(stages / f"{DEFAULT_STAGES.index(name) + 1:02d}_{name}.npy")
+
+    assert saved("demosaic").shape == (384, 512, 3)
+    assert saved("black_level").dtype == np.float32
     assert (stages / f"{len(DEFAULT_STAGES):02d}_jpeg.jpg").read_bytes() == out.read_bytes()
     assert "lens_shading" in stdout and "GainMap" in stdout
 

@@ -110,6 +110,11 @@ def test_natural_spline_interpolates_with_zero_end_curvature():
         right = (f(xk + 2 * h) - 2 * f(xk + h) + f(xk)) / h ** 2
         assert left == pytest.approx(right, abs=0.05)
     assert f(np.array([-0.5, 1.5])).tolist() == [0.0, 1.0]
+    # the same curve as scipy's natural cubic spline, an independent implementation
+    from scipy.interpolate import CubicSpline
+
+    x = np.linspace(0, 1, 1001)
+    np.testing.assert_allclose(f(x), CubicSpline(pts[:, 0], pts[:, 1], bc_type="natural")(x), atol=1e-12)
 
 
 @pytest.mark.property
