@@ -36,7 +36,6 @@ if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it
     _harness.pin_threads(2)
 
 import json  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 

@@ -78,7 +78,7 @@ from modules.common.dng_tone import (acr3_default_tone_curve, apply_lut16, expos
                                      exposure_ramp_levels, exposure_tone, lut16, natural_spline,
                                      rgb_tone_planes, table_lookup, tabulate)
 
-__all__ = ["DngRender", "RenderPlan", "render_plan", "render_prophoto"]
+__all__ = ["DngRender", "RenderPlan", "TONE_CURVES", "render", "render_plan", "render_prophoto"]
 
 #: Rows per strip: small enough for the temporaries of a 12 MP row band to
 #: stay in the cache hierarchy, large enough to amortise the per-call cost.
@@ -289,7 +289,8 @@ def _render_strip(src: np.ndarray, dst: np.ndarray, plan: RenderPlan) -> None:
     apply_lut16(s, plan.encode, out=dst)
 
 
-def render(rgb: np.ndarray, plan: RenderPlan, threads: int | None = None) -> np.ndarray:
+def render(rgb: np.ndarray, plan: RenderPlan, threads: int | None = None,
+           out: np.ndarray | None = None) -> np.ndarray:
     """Steps 1–7: balanced camera RGB → display sRGB in [0, 1].
 
     Parameters
@@ -298,6 +299,10 @@ def render(rgb: np.ndarray, plan: RenderPlan, threads: int | None = None) -> np.
     plan : RenderPlan
     threads : int, optional
         Strips processed at once; default OpenCV's thread count.
+    out : (H, W, 3) ndarray, float32, optional
+        Where to write; may be ``rgb`` itself (each strip is read whole
+        before it is written), which saves a frame of memory when the
+        caller no longer needs the input.
 
     Returns
     -------
@@ -308,7 +313,10 @@ def render(rgb: np.ndarray, plan: RenderPlan, threads: int | None = None) -> np.
     rgb = np.asarray(rgb, dtype=np.float32)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"expected (H, W, 3) camera RGB, got shape {rgb.shape}")
-    out = np.empty(rgb.shape, np.float32)
+    if out is None:
+        out = np.empty(rgb.shape, np.float32)
+    elif out.shape != rgb.shape or out.dtype != np.float32:
+        raise ValueError(f"out must be float32 of shape {rgb.shape}, got {out.dtype} {out.shape}")
     h = rgb.shape[0]
     starts = range(0, h, STRIP_ROWS)
     n = max(1, threads if threads is not None else cv2.getNumThreads())

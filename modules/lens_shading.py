@@ -153,15 +153,28 @@ def apply_vignette_radial(data: np.ndarray, op, origin: tuple[int, int],
 
 
 def apply_phase_maps(data: np.ndarray, maps, origin: tuple[int, int], full_size: tuple[int, int],
-                     strength: float = 1.0):
+                     strength: float = 1.0, out: np.ndarray | None = None):
     """Four per-CFA-phase GainMaps (one per phase, each covering the data) in
     one pass per row parity, or None if their point rows differ.
 
     The two maps of a row parity share their row weights, so their column
-    profiles interleave into one (points × W) matrix and the gains of all
-    those rows come from one matrix product, multiplied into contiguous
-    rows; no strided access (DNG SDK interpolation, see
-    :meth:`GainMap.evaluate`).
+    profiles interleave into one (points × W) matrix; each image row's
+    gains are then the blend of two of its rows (bilinear interpolation,
+    DNG SDK convention, see :meth:`GainMap.evaluate`), computed and
+    multiplied into the data a band of rows at a time, so that the gains
+    never exist at full size and every access is contiguous.
+
+    Parameters
+    ----------
+    data : (H, W) ndarray, float32
+        Linear mosaic.
+    maps : sequence of 4 GainMap
+    origin, full_size : (int, int)
+        ``data[0, 0]`` in active-area pixels; the active area's (H, W).
+    strength : float
+        Exponent on the gains.
+    out : (H, W) ndarray, float32, optional
+        Where to write (may be ``data`` itself); default a new array.
 
     Returns
     -------
@@ -177,21 +190,60 @@ def apply_phase_maps(data: np.ndarray, maps, origin: tuple[int, int], full_size:
         by_phase[(sl[0].start, sl[1].start)] = op
     if not all(by_phase[(r, 0)].same_rows(by_phase[(r, 1)]) for r in (0, 1)):
         return None
-    out = np.empty_like(data)
+    if out is None:
+        out = np.empty_like(data)
     ranges = {}
+    band = max(1, _BAND_VALUES // max(w, 1))
     for r in (0, 1):
-        rows = np.arange(r, h, 2)
+        src, dst = data[r::2], out[r::2]
         profile = np.empty((by_phase[(r, 0)].points_v, w), np.float32)
         for c in (0, 1):
             profile[:, c::2] = by_phase[(r, c)].column_profile(np.arange(c, w, 2) + ox, fw)
-        gains = by_phase[(r, 0)].row_weights(rows + oy, fh) @ profile
-        if strength != 1.0:
-            gains = np.power(gains, np.float32(strength))
-        np.multiply(data[r::2], gains, out=out[r::2])
+        i0, i1, w0, w1 = _two_point_rows(by_phase[(r, 0)].row_weights(np.arange(r, h, 2) + oy, fh))
+        gains = np.empty((min(band, len(i0)), w), np.float32)
+        second = np.empty_like(gains)
+
+        def blend(rows, g, g1):
+            np.take(profile, i0[rows], axis=0, out=g)
+            g *= w0[rows, None]
+            np.take(profile, i1[rows], axis=0, out=g1)
+            g1 *= w1[rows, None]
+            g += g1
+            if strength != 1.0:
+                np.power(g, np.float32(strength), out=g)
+            return g
+
+        for b0 in range(0, len(i0), band):
+            b1 = min(b0 + band, len(i0))
+            g = blend(slice(b0, b1), gains[:b1 - b0], second[:b1 - b0])
+            np.multiply(src[b0:b1], g, out=dst[b0:b1])
+        # between two map rows a column's gain moves monotonically from one
+        # point to the next: its extremes lie on the first and last image
+        # row of each map cell
+        ends = np.flatnonzero(np.diff(i0, prepend=-1, append=-1))
+        ends = np.unique(np.concatenate([ends[:-1], ends[1:] - 1]))
+        g = blend(ends, np.empty((len(ends), w), np.float32), np.empty((len(ends), w), np.float32))
         for c in (0, 1):
-            g = gains[:, c::2]
-            ranges[id(by_phase[(r, c)])] = (float(g.min()), float(g.max()))
+            ranges[id(by_phase[(r, c)])] = (float(g[:, c::2].min()), float(g[:, c::2].max()))
     return out, [ranges[id(op)] for op in maps]
+
+
+#: values per band of rows in :func:`apply_phase_maps` (256 KiB of float32:
+#: the band's gains and their second term stay in cache)
+_BAND_VALUES = 1 << 16
+
+
+def _two_point_rows(weights: np.ndarray):
+    """The two nonzero entries of each row of a bilinear weight matrix
+    ``(n, points)``: indices ``i0 ≤ i1`` and their float32 weights (``w1 = 0``
+    where one point holds the row, at the map's last point or on a point)."""
+    n, points = weights.shape
+    i0 = np.argmax(weights != 0, axis=1)
+    i1 = np.minimum(i0 + 1, points - 1)
+    k = np.arange(n)
+    w0 = weights[k, i0].astype(np.float32)
+    w1 = np.where(i1 != i0, weights[k, i1], 0).astype(np.float32)
+    return i0, i1, w0, w1
 
 
 def _tiles_by_phase(ops, origin, shape) -> bool:

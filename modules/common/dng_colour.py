@@ -119,17 +119,6 @@ import numpy as np
 from isp.errors import InputError
 from isp.meta import LIGHT_SOURCES, CameraMeta
 
-# Importing colour switches numpy to its 1.13 print style for the whole
-# process (colour/__init__.py); put numpy's options back as they were.
-_print_options = np.get_printoptions()
-from colour import XYZ_to_xy, xy_to_UCS_uv, xy_to_XYZ  # noqa: E402
-from colour.adaptation import matrix_chromatic_adaptation_VonKries  # noqa: E402
-from colour.models import RGB_COLOURSPACES, normalised_primary_matrix  # noqa: E402
-from colour.temperature import uv_to_CCT_Robertson1968  # noqa: E402
-
-np.set_printoptions(**_print_options)
-del _print_options
-
 __all__ = [
     "ILLUMINANT_CCT",
     "PCS_WHITE_XY",
@@ -152,6 +141,8 @@ __all__ = [
     "rgb_to_pcs_matrix",
     "xy_to_camera_neutral",
     "xy_to_cct",
+    "xy_to_xyz",
+    "xyz_to_xy",
 ]
 
 #: White of the profile connection space, CIE 1931 xy of D50 as the DNG SDK
@@ -175,6 +166,41 @@ PROPHOTO_TO_XYZ_D50 = ((0.7977, 0.1352, 0.0313),
 SRGB_TO_XYZ_D50 = ((0.4361, 0.3851, 0.1431),
                    (0.2225, 0.7169, 0.0606),
                    (0.0139, 0.0971, 0.7141))
+
+#: The Bradford cone-response matrix (Lam 1985, as Lindbloom publishes it
+#: and the SDK's ``MapWhiteMatrix`` uses it): XYZ → sharpened cone RGB.
+BRADFORD = ((0.8951, 0.2664, -0.1614),
+            (-0.7502, 1.7135, 0.0367),
+            (0.0389, -0.0685, 1.0296))
+
+#: sRGB primaries (red, green, blue) and white, CIE 1931 xy
+#: (IEC 61966-2-1:1999, clause 5.1; the white is D65).
+SRGB_PRIMARIES_XY = ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06))
+SRGB_WHITE_XY = (0.3127, 0.3290)
+
+# Robertson's (1968) isotemperature lines: reciprocal temperature (mired),
+# the Planckian point (u, v) in CIE 1960 UCS and the slope t of the line, as
+# Wyszecki & Stiles (1982) tabulate them. The 325-mired u is 0.24792, the
+# correction Lindbloom publishes of the table's misprinted 0.24702 (which
+# the SDK's ``dng_temperature`` keeps): the two differ only for whites
+# between the 300- and 350-mired lines, by up to 4.4 mired.
+_ROBERTSON = np.array((
+    (0, 0.18006, 0.26352, -0.24341), (10, 0.18066, 0.26589, -0.25479),
+    (20, 0.18133, 0.26846, -0.26876), (30, 0.18208, 0.27119, -0.28539),
+    (40, 0.18293, 0.27407, -0.30470), (50, 0.18388, 0.27709, -0.32675),
+    (60, 0.18494, 0.28021, -0.35156), (70, 0.18611, 0.28342, -0.37915),
+    (80, 0.18740, 0.28668, -0.40955), (90, 0.18880, 0.28997, -0.44278),
+    (100, 0.19032, 0.29326, -0.47888), (125, 0.19462, 0.30141, -0.58204),
+    (150, 0.19962, 0.30921, -0.70471), (175, 0.20525, 0.31647, -0.84901),
+    (200, 0.21142, 0.32312, -1.0182), (225, 0.21807, 0.32909, -1.2168),
+    (250, 0.22511, 0.33439, -1.4512), (275, 0.23247, 0.33904, -1.7298),
+    (300, 0.24010, 0.34308, -2.0637), (325, 0.24792, 0.34655, -2.4681),
+    (350, 0.25591, 0.34951, -2.9641), (375, 0.26400, 0.35200, -3.5814),
+    (400, 0.27218, 0.35407, -4.3633), (425, 0.28039, 0.35577, -5.3762),
+    (450, 0.28863, 0.35714, -6.7262), (475, 0.29685, 0.35823, -8.5955),
+    (500, 0.30505, 0.35907, -11.324), (525, 0.31320, 0.35968, -15.628),
+    (550, 0.32129, 0.36011, -23.325), (575, 0.32931, 0.36038, -40.770),
+    (600, 0.33724, 0.36051, -116.45)))
 
 #: Correlated colour temperature (K) of each EXIF LightSource code used by
 #: CalibrationIlluminant1/2, as ``dng_camera_profile::IlluminantToTemperature``
@@ -252,7 +278,70 @@ def _as_xy(xy, label: str) -> np.ndarray:
 
 
 def _pcs_xyz() -> np.ndarray:
-    return xy_to_XYZ(np.asarray(PCS_WHITE_XY))
+    return xy_to_xyz(PCS_WHITE_XY)
+
+
+def xy_to_xyz(xy) -> np.ndarray:
+    """CIE XYZ with ``Y = 1`` of a chromaticity.
+
+    Parameters
+    ----------
+    xy : (..., 2) array_like
+        CIE 1931 chromaticity, ``y > 0``.
+
+    Returns
+    -------
+    (..., 3) ndarray
+        ``(x / y, 1, (1 - x - y) / y)``, float64.
+
+    Examples
+    --------
+    >>> np.round(xy_to_xyz((0.3457, 0.3585)), 4).tolist()
+    [0.9643, 1.0, 0.8251]
+    """
+    a = np.asarray(xy, dtype=np.float64)
+    x, y = a[..., 0], a[..., 1]
+    return np.stack([x / y, np.ones_like(x), (1.0 - x - y) / y], axis=-1)
+
+
+def xyz_to_xy(xyz) -> np.ndarray:
+    """CIE 1931 chromaticity of a CIE XYZ value.
+
+    Parameters
+    ----------
+    xyz : (..., 3) array_like
+        CIE XYZ, any scale, ``X + Y + Z != 0``.
+
+    Returns
+    -------
+    (..., 2) ndarray
+        ``(X, Y) / (X + Y + Z)``, float64.
+
+    Examples
+    --------
+    >>> np.round(xyz_to_xy((0.95047, 1.0, 1.08883)), 4).tolist()
+    [0.3127, 0.329]
+    """
+    a = np.asarray(xyz, dtype=np.float64)
+    return a[..., :2] / a.sum(axis=-1, keepdims=True)
+
+
+def _robertson_cct(u: float, v: float) -> float:
+    """Robertson's (1968) method at one CIE 1960 (u, v): the CCT between
+    the first isotemperature line the point lies below and the one before,
+    weighted by the point's distances to the two (the SDK's
+    ``dng_temperature::Set_xy_coord``)."""
+    mired, lu, lv, slope = _ROBERTSON.T
+    norm = np.hypot(1.0, slope)
+    # signed distance of (u, v) from each line, along the line's normal
+    dist = -(u - lu) * (slope / norm) + (v - lv) * (1.0 / norm)
+    below = np.flatnonzero(dist[1:] <= 0.0)
+    i = int(below[0]) + 1 if below.size else len(mired) - 1
+    here = -min(dist[i], 0.0)
+    f = 0.0 if i == 1 else here / (dist[i - 1] + here)
+    r = mired[i - 1] * f + mired[i] * (1.0 - f)
+    with np.errstate(divide="ignore"):
+        return float(np.float64(1.0e6) / r)
 
 
 def _fmt(v, digits: int = 4) -> str:
@@ -286,18 +375,20 @@ def xy_to_cct(xy) -> float:
     The chromaticity goes to CIE 1960 UCS, ``u = 4x / (-2x + 12y + 3)``,
     ``v = 6y / (-2x + 12y + 3)``, and Robertson's method interpolates between
     the two of its 31 isotemperature lines that bracket ``(u, v)`` — the same
-    table and method as the SDK's ``dng_temperature``. colour-science does
-    the computation (``colour.temperature.uv_to_CCT_Robertson1968``).
+    method as the SDK's ``dng_temperature``, with the table's 325-mired
+    ``u`` as Lindbloom corrects it (0.24792; the SDK keeps the printed
+    0.24702, which moves whites between 2860 K and 3330 K by up to 4.4
+    mired). The tests check it against colour-science's
+    ``uv_to_CCT_Robertson1968``.
 
     Examples
     --------
     >>> round(xy_to_cct((0.3127, 0.3290)))
     6504
     """
-    uv = xy_to_UCS_uv(np.asarray(xy, dtype=np.float64))
-    with np.errstate(divide="ignore"):
-        cct = float(uv_to_CCT_Robertson1968(uv)[0])
-    return cct
+    x, y = np.asarray(xy, dtype=np.float64).reshape(2)
+    d = -2.0 * x + 12.0 * y + 3.0
+    return _robertson_cct(4.0 * x / d, 6.0 * y / d)
 
 
 def illuminant_to_cct(code: int | None, xy=None) -> float | None:
@@ -402,7 +493,7 @@ def normalize_color_matrix(m) -> np.ndarray:
     Examples
     --------
     >>> m = normalize_color_matrix(2 * np.eye(3))
-    >>> round(float((m @ xy_to_XYZ(np.array(PCS_WHITE_XY))).max()), 6)
+    >>> round(float((m @ xy_to_xyz(PCS_WHITE_XY)).max()), 6)
     1.0
     """
     m = _as_matrix(m, "ColorMatrix")
@@ -459,8 +550,9 @@ def bradford_matrix(xyz_source_white, xyz_target_white) -> np.ndarray:
     Notes
     -----
     ``M = B⁻¹ · diag(B·W_t / B·W_s) · B`` with the Bradford cone matrix ``B``
-    (Lam 1985; the SDK's ``MapWhiteMatrix``). colour-science computes it
-    (``matrix_chromatic_adaptation_VonKries(..., "Bradford")``). The SDK's
+    (Lam 1985; the SDK's ``MapWhiteMatrix``), as colour-science's
+    ``matrix_chromatic_adaptation_VonKries(..., "Bradford")`` (the tests
+    compare the two). The SDK's
     guard clamping cone ratios to [0.1, 10] is not applied; it only acts on
     whites far outside any physical light.
 
@@ -470,9 +562,9 @@ def bradford_matrix(xyz_source_white, xyz_target_white) -> np.ndarray:
     >>> np.round(bradford_matrix(d50, d65)[0], 4).tolist()
     [0.9556, -0.023, 0.0632]
     """
-    return matrix_chromatic_adaptation_VonKries(
-        np.asarray(xyz_source_white, dtype=np.float64),
-        np.asarray(xyz_target_white, dtype=np.float64), transform="Bradford")
+    b = np.asarray(BRADFORD, dtype=np.float64)
+    gain = (b @ np.asarray(xyz_target_white, dtype=np.float64)) / (b @ np.asarray(xyz_source_white, dtype=np.float64))
+    return np.linalg.inv(b) @ (gain[:, None] * b)
 
 
 def matrix_xyz_d50_to_linear_srgb() -> np.ndarray:
@@ -493,12 +585,13 @@ def matrix_xyz_d50_to_linear_srgb() -> np.ndarray:
     Examples
     --------
     >>> M = matrix_xyz_d50_to_linear_srgb()
-    >>> np.round(M @ xy_to_XYZ(np.array(PCS_WHITE_XY)), 6).tolist()
+    >>> np.round(M @ xy_to_xyz(PCS_WHITE_XY), 6).tolist()
     [1.0, 1.0, 1.0]
     """
-    srgb = RGB_COLOURSPACES["sRGB"]
-    npm = normalised_primary_matrix(srgb.primaries, srgb.whitepoint)
-    cat = bradford_matrix(_pcs_xyz(), xy_to_XYZ(np.asarray(srgb.whitepoint)))
+    primaries = xy_to_xyz(SRGB_PRIMARIES_XY).T          # columns: XYZ of each primary, Y = 1
+    white = xy_to_xyz(SRGB_WHITE_XY)
+    npm = primaries * np.linalg.solve(primaries, white)  # scale each primary so R = G = B = 1 is the white
+    cat = bradford_matrix(_pcs_xyz(), white)
     return np.linalg.inv(npm) @ cat
 
 
@@ -559,7 +652,7 @@ class _Spec:
         last = np.asarray(PCS_WHITE_XY, dtype=np.float64)
         for npass in range(_NEUTRAL_TO_XY_PASSES):
             m = self.find(last).xyz_to_camera
-            nxt = XYZ_to_xy(np.linalg.solve(m, neutral))
+            nxt = xyz_to_xy(np.linalg.solve(m, neutral))
             if np.abs(nxt - last).sum() < _NEUTRAL_TO_XY_TOLERANCE:
                 return nxt, None
             if npass == _NEUTRAL_TO_XY_PASSES - 1:
@@ -571,7 +664,7 @@ class _Spec:
     def camera_white(self, xy, found: _Interpolated | None = None) -> np.ndarray:
         """Camera neutral for white ``xy``, max 1, pinned to [0.001, 1]."""
         found = found or self.find(xy)
-        n = found.xyz_to_camera @ xy_to_XYZ(np.asarray(xy, dtype=np.float64))
+        n = found.xyz_to_camera @ xy_to_xyz(xy)
         return np.clip(n / n.max(), 0.001, 1.0)
 
     def camera_to_pcs(self, xy) -> tuple[np.ndarray, _Interpolated, bool]:
@@ -586,7 +679,7 @@ class _Spec:
             reference_white = individual_to_reference @ white
             m = found.forward_matrix @ np.diag(1.0 / reference_white) @ individual_to_reference
             return m, found, True
-        pcs_to_camera = found.xyz_to_camera @ bradford_matrix(_pcs_xyz(), xy_to_XYZ(xy))
+        pcs_to_camera = found.xyz_to_camera @ bradford_matrix(_pcs_xyz(), xy_to_xyz(xy))
         scale = float((pcs_to_camera @ _pcs_xyz()).max())
         if scale <= 0.0:
             scale = 1.0
@@ -696,7 +789,7 @@ def camera_neutral_to_xy(meta: CameraMeta, neutral, source: SourceName = "auto")
     Examples
     --------
     >>> meta = CameraMeta(color_matrix_1=np.eye(3))
-    >>> np.round(camera_neutral_to_xy(meta, xy_to_XYZ(np.array([0.31, 0.32]))), 6).tolist()
+    >>> np.round(camera_neutral_to_xy(meta, xy_to_xyz([0.31, 0.32])), 6).tolist()
     [0.31, 0.32]
     """
     spec = _build_spec(meta, source)
@@ -927,7 +1020,7 @@ def matrix_xyz_d50_to_prophoto() -> np.ndarray:
 
     Examples
     --------
-    >>> np.round(matrix_xyz_d50_to_prophoto() @ xy_to_XYZ(np.array(PCS_WHITE_XY)), 6).tolist()
+    >>> np.round(matrix_xyz_d50_to_prophoto() @ xy_to_xyz(PCS_WHITE_XY), 6).tolist()
     [1.0, 1.0, 1.0]
     """
     return np.linalg.inv(rgb_to_pcs_matrix(PROPHOTO_TO_XYZ_D50))

@@ -103,6 +103,16 @@ class HueSatMap:
         object.__setattr__(self, "deltas", d)
 
     @property
+    def planes(self) -> np.ndarray:
+        """(3, V·H·S) float32: hue shifts, saturation scales and value
+        scales as contiguous rows, indexed ``(v·H + h)·S + s``."""
+        cached = self.__dict__.get("_planes")
+        if cached is None:
+            cached = np.ascontiguousarray(self.deltas.reshape(-1, 3).T)
+            object.__setattr__(self, "_planes", cached)
+        return cached
+
+    @property
     def divisions(self) -> tuple[int, int, int]:
         """(hues, sats, vals), the order of ProfileHueSatMapDims."""
         v, h, s, _ = self.deltas.shape
@@ -265,26 +275,27 @@ def hsv_to_rgb(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
     -------
     (..., 3) ndarray, float32
 
+    Notes
+    -----
+    The sextant formula written without branches: channel ``n`` (5 for R,
+    3 for G, 1 for B) is ``v − v·s·clip(min(k, 4 − k), 0, 1)`` with
+    ``k = (n + h) mod 6``, equal to the SDK's ``p, q, t`` cases.
+
     Examples
     --------
     >>> hsv_to_rgb(np.float32(1.5), np.float32(1.0), np.float32(1.0)).tolist()
     [0.5, 1.0, 0.0]
     """
-    h = np.mod(np.asarray(h, dtype=np.float32), np.float32(6.0))
+    h = np.asarray(h, dtype=np.float32)
     s = np.asarray(s, dtype=np.float32)
     v = np.asarray(v, dtype=np.float32)
-    i = np.floor(h)
-    f = h - i
-    i = i.astype(np.int32) % 6
-    p = v * (1 - s)
-    q = v * (1 - s * f)
-    t = v * (1 - s * (1 - f))
-    r = np.choose(i, (v, q, p, p, t, v))
-    g = np.choose(i, (t, v, v, q, p, p))
-    b = np.choose(i, (p, p, t, v, v, q))
-    grey = s <= 0
-    out = np.stack([np.where(grey, v, r), np.where(grey, v, g), np.where(grey, v, b)], axis=-1)
-    return out.astype(np.float32)
+    vs = v * s
+    out = []
+    for n in (5.0, 3.0, 1.0):
+        k = np.mod(h + np.float32(n), np.float32(6.0))
+        w = np.clip(np.minimum(k, np.float32(4.0) - k), np.float32(0.0), np.float32(1.0))
+        out.append(v - w * vs)
+    return np.stack(out, axis=-1)
 
 
 @lru_cache(maxsize=1)
@@ -336,41 +347,48 @@ def apply_hue_sat_map(rgb: np.ndarray, table: HueSatMap, encoding: int = 0) -> n
     if encoding not in ENCODINGS:
         raise ValueError(f"unknown value encoding {encoding!r}; valid: 0 (linear), 1 (sRGB)")
     rgb = np.asarray(rgb, dtype=np.float32)
-    h, s, v = rgb_to_hsv(rgb)
+    shape = rgb.shape
+    h, s, v = rgb_to_hsv(rgb.reshape(-1, 3))
     hues, sats, vals = table.divisions
-    d = table.deltas
+    planes = table.planes
     h_scale = np.float32(hues / 6.0) if hues >= 2 else np.float32(0.0)
     hs = h * h_scale
     h0 = hs.astype(np.int32)
     ss = s * np.float32(sats - 1)
     s0 = np.minimum(ss.astype(np.int32), sats - 2)
-    h1 = h0 + 1
     wrap = h0 >= hues - 1
-    h0 = np.where(wrap, hues - 1, h0)
-    h1 = np.where(wrap, 0, h1)
-    fh = (hs - h0)[..., None]
-    fs = (ss - s0)[..., None]
+    h0[wrap] = hues - 1
+    fh = hs - h0.astype(np.float32)
+    fs = ss - s0.astype(np.float32)
+    # flat index of the (h0, s0) node and the step to the next hue node
+    # (back to hue 0 from the last division)
+    base = (h0 * sats + s0).astype(np.intp)
+    step_h = np.where(wrap, -(hues - 1) * sats, sats).astype(np.intp)
     tables = _srgb_tables() if encoding == 1 else None
     v_enc = v
-    if vals < 2:
-        lower = (1 - fh) * d[0, h0, s0] + fh * d[0, h1, s0]
-        upper = (1 - fh) * d[0, h0, s0 + 1] + fh * d[0, h1, s0 + 1]
-    else:
+    corners = [(base, (1 - fh) * (1 - fs)), (base + step_h, fh * (1 - fs)),
+               (base + 1, (1 - fh) * fs), (base + step_h + 1, fh * fs)]
+    if vals >= 2:
         if tables is not None:
             v_enc = table_lookup(tables[0], v)
-        vs = v_enc * np.float32(vals - 1)
-        v0 = np.minimum(vs.astype(np.int32), vals - 2)
-        fv = (vs - v0)[..., None]
-
-        def at(si):
-            a = (1 - fh) * d[v0, h0, si] + fh * d[v0, h1, si]
-            b = (1 - fh) * d[v0 + 1, h0, si] + fh * d[v0 + 1, h1, si]
-            return (1 - fv) * a + fv * b
-
-        lower, upper = at(s0), at(s0 + 1)
-    mod = (1 - fs) * lower + fs * upper
-    h = h + mod[..., 0] * np.float32(6.0 / 360.0)
-    s = np.minimum(s * mod[..., 1], np.float32(1.0))
-    v_enc = np.clip(v_enc * mod[..., 2], 0.0, 1.0)
+        vsc = v_enc * np.float32(vals - 1)
+        v0 = np.minimum(vsc.astype(np.int32), vals - 2)
+        fv = vsc - v0.astype(np.float32)
+        offset = v0.astype(np.intp) * (hues * sats)
+        plane = hues * sats
+        corners = [(i + offset, w * (1 - fv)) for i, w in corners] + \
+                  [(i + offset + plane, w * fv) for i, w in corners]
+    mod = []
+    tmp = np.empty_like(h)
+    for c in range(3):
+        acc = np.zeros_like(h)
+        for idx, w in corners:
+            np.take(planes[c], idx, out=tmp)
+            tmp *= w
+            acc += tmp
+        mod.append(acc)
+    h = h + mod[0] * np.float32(6.0 / 360.0)
+    s = np.minimum(s * mod[1], np.float32(1.0))
+    v_enc = np.clip(v_enc * mod[2], 0.0, 1.0)
     v = table_lookup(tables[1], v_enc) if tables is not None else v_enc
-    return hsv_to_rgb(h, s, v)
+    return hsv_to_rgb(h, s, v).reshape(shape)

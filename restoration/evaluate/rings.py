@@ -42,7 +42,8 @@ crop falls in one ring).
 
 Metrics
 -------
-On display sRGB: ``Process(x)`` = the pipeline's stages after the slot
+On display sRGB: ``Process(x)`` = the pipeline's stages after the slot in
+the ``linear`` look, on which the correction is trained
 (:func:`restoration.synth.colour.process_after_slot`, the pair's CCM and
 exposure, clipped to [0, 1] by the sRGB encoding) against the latent
 sRGB target, for ``x = J`` (uncorrected), ``Model(J)`` (corrected) and the

@@ -344,6 +344,9 @@ def test_threads_and_strips_do_not_change_the_result():
     np.testing.assert_array_equal(one, two)
     whole = render(np.concatenate([x] * 2, axis=0), plan, threads=2)
     np.testing.assert_array_equal(whole[:101], one)
+    in_place = x.copy()
+    assert render(in_place, plan, out=in_place) is in_place
+    np.testing.assert_array_equal(in_place, one)
 
 
 @pytest.mark.property

@@ -240,6 +240,39 @@ def test_published_xyz_d50_to_srgb_lindbloom():
     np.testing.assert_allclose(matrix_xyz_d50_to_linear_srgb(), lindbloom, atol=1e-3, rtol=0)
 
 
+@pytest.mark.property
+def test_property_conversions_agree_with_colour_science():
+    """parity: the module's own conversions (it imports no colour-science, so
+    that a render does not pay its import) equal colour-science's, an
+    independent implementation: Robertson CCT over the range of whites,
+    Bradford, xy ↔ XYZ and the sRGB normalised primary matrix, to float64
+    rounding."""
+    import colour
+    from colour.adaptation import matrix_chromatic_adaptation_VonKries
+    from colour.temperature import uv_to_CCT_Robertson1968
+
+    from modules.common.dng_colour import xy_to_xyz, xyz_to_xy
+
+    rng = np.random.default_rng(28)
+    whites = np.concatenate([rng.uniform([0.24, 0.24], [0.52, 0.44], (400, 2)),
+                             [v["xy"] for v in CIE.values()]])
+    for xy in whites:
+        ref = float(uv_to_CCT_Robertson1968(colour.xy_to_UCS_uv(xy))[0])
+        assert xy_to_cct(xy) == pytest.approx(ref, rel=1e-12), xy
+    np.testing.assert_allclose(xy_to_xyz(whites), colour.xy_to_XYZ(whites), rtol=1e-14)
+    xyz = rng.uniform(0.05, 1.5, (50, 3))
+    np.testing.assert_allclose(xyz_to_xy(xyz), colour.XYZ_to_xy(xyz), rtol=1e-14)
+    for src, dst in rng.uniform(0.5, 1.2, (20, 2, 3)):
+        np.testing.assert_allclose(bradford_matrix(src, dst),
+                                   matrix_chromatic_adaptation_VonKries(src, dst, "Bradford"), atol=1e-14)
+    srgb = colour.RGB_COLOURSPACES["sRGB"]
+    pcs = colour.xy_to_XYZ(np.array(DNG["pcs_white_xy"]))
+    npm = colour.models.normalised_primary_matrix(srgb.primaries, srgb.whitepoint)
+    ref = np.linalg.inv(npm) @ matrix_chromatic_adaptation_VonKries(
+        pcs, colour.xy_to_XYZ(srgb.whitepoint), "Bradford")
+    np.testing.assert_allclose(matrix_xyz_d50_to_linear_srgb(), ref, atol=1e-12)
+
+
 @pytest.mark.published
 def test_published_normalize_forward_matrix_maps_ones_to_pcs_white():
     """published: NormalizeForwardMatrix makes FM·(1, 1, 1) the PCS white,
