@@ -60,10 +60,11 @@ MIN_STD = 50.0
 def find_dng_validate() -> str | None:
     """Adobe's ``dng_validate``: ``$DNG_VALIDATE``, on the PATH, or where
     the build script puts it (``$ROOT/bin``, ROOT defaulting to
-    ``$TMPDIR/dngsdk``); None where absent."""
+    ``$TMPDIR/dngsdk``), or a ``dngsdk/bin`` beside the repository; None
+    where absent."""
     root = Path(os.environ.get("ROOT", Path(tempfile.gettempdir()) / "dngsdk"))
     for exe in (os.environ.get("DNG_VALIDATE"), shutil.which("dng_validate"),
-                root / "bin" / "dng_validate"):
+                root / "bin" / "dng_validate", _harness.ROOT.parent / "dngsdk" / "bin" / "dng_validate"):
         if exe and Path(exe).is_file() and os.access(exe, os.X_OK):
             return str(exe)
     return None

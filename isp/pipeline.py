@@ -56,9 +56,12 @@ LOOKS: dict[str, tuple[str, ...]] = {
 #: look demosaics as the Adobe DNG SDK does (bilinear, ``dng_mosaic_info``),
 #: so that its render matches Adobe's to a mean CIEDE2000 below 0.1 on the
 #: reference captures (``benchmarks/adobe_parity.py``); Malvar–He–Cutler
-#: (the stage's own default) moves edges by about 1 ΔE00 on average.
+#: (the stage's own default) moves edges by about 1 ΔE00 on average. Where
+#: a lens profile matches, ``"auto"`` takes the method its correction model
+#: was trained after instead (the profile's ``demosaic``), so that the
+#: correction sees the input it learnt from.
 LOOK_PARAMS: dict[str, dict[str, dict[str, Any]]] = {
-    "adobe": {"demosaic": {"method": "bilinear"}},
+    "adobe": {"demosaic": {"method": "auto"}},
     "linear": {},
 }
 

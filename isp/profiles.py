@@ -110,7 +110,7 @@ ORIGINS = ("packaged", "plug-in", "code", "user")
 #: profiles a no-match reason lists by name and identity
 LISTED = 5
 _GLOB = set("*?[")
-_FILE_KEYS = {"schema", "name", "description", "model", "match"}
+_FILE_KEYS = {"schema", "name", "description", "model", "match", "demosaic"}
 
 
 @dataclass(frozen=True)
@@ -130,6 +130,11 @@ class Profile:
         One line for people.
     source : str
         The file the profile was read from ("" for one made in code).
+    demosaic : str, optional
+        The demosaic method the model was trained after (a name of
+        :data:`modules.demosaic.METHODS`): the ``demosaic`` stage's
+        ``method="auto"`` uses it for this lens, so that the correction sees
+        the input it learnt from. None: the stage's own choice.
 
     Examples
     --------
@@ -147,6 +152,7 @@ class Profile:
     model: Path
     description: str = ""
     source: str = ""
+    demosaic: str | None = None
 
     def __post_init__(self):
         if not self.name or not isinstance(self.name, str):
@@ -259,8 +265,11 @@ def read_profile(path: str | os.PathLike) -> Profile:
     if not model_path.is_file():
         raise InputError(path, f"model file {str(model_path)!r} not found")
     try:
+        demosaic = doc.get("demosaic")
+        if demosaic is not None and (not isinstance(demosaic, str) or not demosaic):
+            raise InputError(path, f"'demosaic' must be a method name, got {demosaic!r}")
         return Profile(name=str(doc.get("name") or path.stem), match=doc["match"], model=model_path,
-                       description=str(doc.get("description", "")), source=str(path))
+                       description=str(doc.get("description", "")), source=str(path), demosaic=demosaic)
     except ConfigError as e:
         raise InputError(path, str(e)) from None
 
@@ -275,7 +284,8 @@ def _check_entry(name: str, obj: Any) -> Profile:
         obj = read_profile(obj)
     if not isinstance(obj, Profile):
         raise TypeError(f"{type(obj).__name__}, not an isp.profiles.Profile or a profile file")
-    return obj if obj.name == name else Profile(name, obj.match, obj.model, obj.description, obj.source)
+    return obj if obj.name == name else Profile(name, obj.match, obj.model, obj.description, obj.source,
+                                                obj.demosaic)
 
 
 #: every profile by name (packaged and plug-ins through entry points; user and code ones added)

@@ -6,8 +6,10 @@ the project: stages (``isp.stages``, here), commands (``isp.commands``,
 :mod:`isp.cli.commands`) and the loop's physical effects (``calib.effects``,
 :mod:`calibration.loop.effects`). Entries arrive two ways: registered in
 code (a decorator, a notebook, a test), or from the entry-point group of any
-installed distribution, loaded lazily the first time a name is looked up or
-the list is asked for. A plug-in that fails to load is recorded with the
+installed distribution, found the first time a name is looked up or the
+list is asked for, and imported one by one: looking up a name imports that
+entry point alone (``isp process`` imports the modules of its own stages,
+not every stage's), listing them imports them all. A plug-in that fails to load is recorded with the
 reason and never breaks the others; looking it up names the reason, and an
 unknown name lists the valid ones.
 
@@ -68,9 +70,10 @@ class Registry:
                  first: tuple[str, ...] = ()):
         self.kind, self.group, self._check, self._first = kind, group, check, tuple(first)
         self._entries: dict[str, Any] = {}
-        self._origin: dict[str, str] = {}
+        self._origin: dict[str, Any] = {}   # a string, or the entry point it came from
         self._errors: dict[str, str] = {}
         self._plugged: set[str] = set()     # names an entry point gave
+        self._pending: dict[str, Any] = {}  # entry points found but not imported yet, by name
         self._loaded = False
 
     def add(self, name: str, obj: Any, origin: str = "code") -> Any:
@@ -81,30 +84,45 @@ class Registry:
         self._entries[name] = obj
         self._origin[name] = origin
         self._errors.pop(name, None)
+        self._pending.pop(name, None)
         return obj
 
     def remove(self, name: str) -> None:
         """Forget ``name`` (no error if it is not registered)."""
         self._entries.pop(name, None)
         self._origin.pop(name, None)
+        self._pending.pop(name, None)
 
     def _load(self) -> None:
+        """Find the group's entry points (reading the installed
+        distributions' metadata, importing nothing)."""
         if self._loaded:
             return
         self._loaded = True
         for ep in metadata.entry_points(group=self.group):
-            if ep.name in self._entries:
-                continue
-            try:
-                obj = ep.load()
-                if self._check is not None:
-                    obj = self._check(ep.name, obj)
-            except Exception as e:  # a broken plug-in must not break the others
-                self._errors[ep.name] = f"{ep.value}: {type(e).__name__}: {e}"
-                continue
-            dist = getattr(ep, "dist", None)
-            self.add(ep.name, obj, f"{dist.name if dist else '?'} ({ep.value})")
-            self._plugged.add(ep.name)
+            if ep.name not in self._entries and ep.name not in self._pending:
+                self._pending[ep.name] = ep
+
+    def _resolve(self, name: str) -> None:
+        """Import the entry point ``name`` if it is still pending."""
+        self._load()
+        ep = self._pending.pop(name, None)
+        if ep is None:
+            return
+        try:
+            obj = ep.load()
+            if self._check is not None:
+                obj = self._check(ep.name, obj)
+        except Exception as e:  # a broken plug-in must not break the others
+            self._errors[ep.name] = f"{ep.value}: {type(e).__name__}: {e}"
+            return
+        self.add(ep.name, obj, ep)   # the origin's distribution name is read when asked for
+        self._plugged.add(ep.name)
+
+    def _resolve_all(self) -> None:
+        self._load()
+        for name in list(self._pending):
+            self._resolve(name)
 
     def reload(self) -> None:
         """Forget what entry points gave and read them again (after
@@ -113,12 +131,13 @@ class Registry:
         for k in self._plugged:
             self.remove(k)
         self._plugged.clear()
+        self._pending.clear()
         self._errors.clear()
         self._loaded = False
 
     def entries(self) -> dict[str, Any]:
         """Every entry by name: those named ``first``, then the others sorted."""
-        self._load()
+        self._resolve_all()
         order = [n for n in self._first if n in self._entries]
         order += sorted(n for n in self._entries if n not in self._first)
         return {n: self._entries[n] for n in order}
@@ -126,18 +145,22 @@ class Registry:
     def origin(self, name: str) -> str:
         """Where an entry came from: ``code`` (or the origin it was added
         with) or ``distribution (module:object)``."""
-        self._load()
-        return self._origin.get(name, "?")
+        self._resolve(name)
+        origin = self._origin.get(name, "?")
+        if isinstance(origin, metadata.EntryPoint):
+            dist = getattr(origin, "dist", None)
+            origin = self._origin[name] = f"{dist.name if dist else '?'} ({origin.value})"
+        return origin
 
     def broken(self) -> dict[str, str]:
         """Entry points that failed to load, with the reason."""
-        self._load()
+        self._resolve_all()
         return dict(self._errors)
 
     def get(self, name: str, label: str | None = None) -> Any:
         """The entry registered as ``name``; the error lists the valid names,
         or says why a plug-in of that name failed to load."""
-        self._load()
+        self._resolve(name)
         try:
             return self._entries[name]
         except KeyError:
@@ -148,7 +171,7 @@ class Registry:
             raise ConfigError(f"{where}unknown {self.kind} {name!r}; valid: {valid}") from None
 
     def __contains__(self, name: str) -> bool:
-        self._load()
+        self._resolve(name)
         return name in self._entries
 
     def copy(self) -> "Registry":
@@ -156,7 +179,7 @@ class Registry:
         other = Registry(self.kind, self.group, check=self._check, first=self._first)
         other._entries, other._origin = dict(self._entries), dict(self._origin)
         other._errors, other._loaded = dict(self._errors), self._loaded
-        other._plugged = set(self._plugged)
+        other._plugged, other._pending = set(self._plugged), dict(self._pending)
         return other
 
 

@@ -92,6 +92,11 @@ __all__ = [
 
 Method = Literal["bilinear", "malvar2004", "menon2007", "opencv_ea", "opencv_vng"]
 
+#: ``method`` value that lets the lens profile choose (:meth:`Demosaic.method_for`)
+AUTO = "auto"
+#: what the stage's ``method`` accepts: a method, or :data:`AUTO`
+StageMethod = Literal["bilinear", "malvar2004", "menon2007", "opencv_ea", "opencv_vng", "auto"]
+
 #: mirror about the edge pixel: keeps the CFA phase outside the frame
 _BORDER = cv2.BORDER_REFLECT_101
 
@@ -133,6 +138,35 @@ def _filter(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     """Correlation of ``x`` with ``kernel`` (all kernels here are symmetric
     under a half turn, so it equals convolution), reflect-101 border."""
     return cv2.filter2D(x, cv2.CV_32F, kernel, borderType=_BORDER)
+
+
+def _by_bands(m: np.ndarray, radius: int, planes) -> np.ndarray:
+    """``cv2.merge(planes(m))``, computed a band of rows at a time.
+
+    ``planes(strip)`` returns the three (rows, W) float32 planes of a
+    filter of at most ``radius`` rows either side. Each band is filtered
+    with ``radius`` rows of its neighbours above and below (an even count,
+    so the strip starts on the mosaic's own CFA phase) and only its own rows
+    are kept; at the mosaic's top and bottom the strip ends where the
+    mosaic does, so the border extension is the mosaic's own. Every output
+    value is the one the whole-mosaic filter gives, while the temporary
+    planes stay small (cache-resident) and the only full-size array is the
+    (H, W, 3) result.
+    """
+    h, w = m.shape
+    halo = radius + radius % 2
+    band = max(2, (_BAND_VALUES // max(w, 1)) & ~1)
+    out = np.empty((h, w, 3), np.float32)
+    for b0 in range(0, h, band):
+        b1 = min(b0 + band, h)
+        s0, s1 = max(b0 - halo, 0), min(b1 + halo, h)
+        cv2.merge([p[b0 - s0:b1 - s0] for p in planes(m[s0:s1])], dst=out[b0:b1])
+    return out
+
+
+#: mosaic values per band of :func:`_by_bands` (512 KiB of float32 per
+#: plane: a band's temporaries stay in cache)
+_BAND_VALUES = 1 << 17
 
 
 # --------------------------------------------------------------------------
@@ -179,10 +213,10 @@ def demosaic_bilinear(mosaic, cfa: CFA | str) -> np.ndarray:
     """
     m = _as_mosaic(mosaic)
     red, blue, g_r, g_b = _sites(CFA.parse(cfa))
-    return cv2.merge([
-        _filter(_sparse(m, red), _K_RB),
-        _filter(_sparse(m, g_r, g_b), _K_G),
-        _filter(_sparse(m, blue), _K_RB),
+    return _by_bands(m, 1, lambda s: [
+        _filter(_sparse(s, red), _K_RB),
+        _filter(_sparse(s, g_r, g_b), _K_G),
+        _filter(_sparse(s, blue), _K_RB),
     ])
 
 
@@ -245,8 +279,9 @@ def demosaic_malvar2004(mosaic, cfa: CFA | str) -> np.ndarray:
 
     with gains α = 1/2, β = 5/8, γ = 3/4 folded into the four 5×5 filters of
     fig. 2 of [2]_ (each sums to 1, so a constant colour is exact). Each
-    filter runs once over the whole mosaic with :func:`cv2.filter2D` and
-    the planes take its result at the sites where it applies.
+    filter runs over the mosaic with :func:`cv2.filter2D` (a band of rows
+    at a time) and the planes take its result at the sites where it
+    applies.
 
     Examples
     --------
@@ -255,8 +290,11 @@ def demosaic_malvar2004(mosaic, cfa: CFA | str) -> np.ndarray:
     [0.25, 0.5, 0.75]
     """
     m = _as_mosaic(mosaic)
-    red, blue, g_r, g_b = _sites(CFA.parse(cfa))
+    return _by_bands(m, 2, lambda s: _malvar_planes(s, *_sites(CFA.parse(cfa))))
 
+
+def _malvar_planes(m: np.ndarray, red, blue, g_r, g_b) -> list[np.ndarray]:
+    """The R, G, B planes of :func:`demosaic_malvar2004` for mosaic ``m``."""
     green = _filter(m, _K_MALVAR_G)
     _put(green, m, g_r)
     _put(green, m, g_b)
@@ -276,7 +314,7 @@ def demosaic_malvar2004(mosaic, cfa: CFA | str) -> np.ndarray:
     _put(blue_plane, diag, red)
     _put(red_plane, m, red)
     _put(blue_plane, m, blue)
-    return cv2.merge([red_plane, green, blue_plane])
+    return [red_plane, green, blue_plane]
 
 
 # --------------------------------------------------------------------------
@@ -486,7 +524,10 @@ class Demosaic(StageBase):
     Parameters
     ----------
     method : str
-        A key of :data:`METHODS`.
+        A key of :data:`METHODS`, or ``"auto"``: the method the profile of
+        the frame's lens names (:class:`isp.profiles.Profile`'s
+        ``demosaic``: what its correction model was trained after), else
+        bilinear, as the Adobe DNG SDK's render demosaics (``dng_mosaic_info``).
 
     Notes
     -----
@@ -509,10 +550,23 @@ class Demosaic(StageBase):
     consumes: ClassVar[tuple[Domain, ...]] = (Domain.RAW_LINEAR,)
     produces: ClassVar[Domain] = Domain.CAMERA_RGB
 
-    method: Method = "malvar2004"
+    method: StageMethod = "malvar2004"
 
     def __post_init__(self):
-        _check_method(self.method)
+        if self.method != AUTO:
+            _check_method(self.method)
+
+    def method_for(self, meta) -> tuple[str, str]:
+        """The method this stage uses on a capture with ``meta``, and why."""
+        if self.method != AUTO:
+            return self.method, self.method
+        from isp.profiles import match_profile
+
+        profile = match_profile(meta).profile
+        if profile is not None and profile.demosaic:
+            _check_method(profile.demosaic)
+            return profile.demosaic, f"{profile.demosaic} (auto: lens profile {profile.name!r})"
+        return "bilinear", "bilinear (auto: as Adobe's SDK; no lens profile names a method)"
 
     def process(self, frame: Frame) -> Frame:
         data = frame.data
@@ -524,8 +578,9 @@ class Demosaic(StageBase):
                              f"demosaic expects an (H, W) mosaic or (H, W, 3) data, got shape {data.shape}")
         if frame.meta.cfa is None:
             raise InputError(frame.meta.path, "mosaic without a CFA pattern")
+        method, note = self.method_for(frame.meta)
         try:
-            rgb = demosaic(data, frame.meta.cfa, self.method)
+            rgb = demosaic(data, frame.meta.cfa, method)
         except ValueError as e:  # data the method cannot take (too small, non-finite)
-            raise InputError(frame.meta.path, f"demosaic {self.method}: {e}") from None
-        return frame.evolve(rgb, domain=Domain.CAMERA_RGB, stage=self.name, note=f"{self.method}")
+            raise InputError(frame.meta.path, f"demosaic {method}: {e}") from None
+        return frame.evolve(rgb, domain=Domain.CAMERA_RGB, stage=self.name, note=note)

@@ -127,10 +127,11 @@ def encode_jpeg(rgb: np.ndarray, quality: int = 95, subsampling: str = "420",
     """
     import cv2
 
-    if rgb.dtype != np.uint8:
-        # rounds and saturates to 0..255 in one multithreaded pass
-        rgb = cv2.convertScaleAbs(np.ascontiguousarray(rgb), alpha=255.0)
-    bgr = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)
+    rgb = _to_uint8(rgb)
+    if rgb.flags.c_contiguous:
+        bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    else:   # a view (turned upright): one copy that also reverses the channels
+        bgr = np.ascontiguousarray(rgb[..., ::-1])
     h, w = bgr.shape[:2]
     mcu_h, mcu_w = _SAMPLING[subsampling]
     mcu_rows = -(-h // mcu_h)
@@ -168,6 +169,16 @@ def encode_jpeg(rgb: np.ndarray, quality: int = 95, subsampling: str = "420",
         rows_before += -(-(cuts[k + 1] - cuts[k]) // mcu_h)
     out += b"\xff\xd9"
     return bytes(out)
+
+
+def _to_uint8(rgb: np.ndarray) -> np.ndarray:
+    """Display values 0..1 as uint8 (``round(255 |v|)``, saturated) in one
+    multithreaded pass; uint8 as it is."""
+    if rgb.dtype == np.uint8:
+        return rgb
+    import cv2
+
+    return cv2.convertScaleAbs(np.ascontiguousarray(rgb), alpha=255.0)
 
 
 def _renumber_restarts(scan: bytes, offset: int) -> bytes:
@@ -218,7 +229,8 @@ class Jpeg(StageBase):
             raise ValueError(f"threads must be 1..64, got {self.threads}")
 
     def process(self, frame: Frame) -> Frame:
-        img = apply_orientation(frame.data, frame.meta.orientation)
+        # to 8 bits first: turning the image upright is then a copy of a quarter of the float data
+        img = apply_orientation(_to_uint8(frame.data), frame.meta.orientation)
         data = encode_jpeg(img, self.quality, self.subsampling, self.threads)
         if self.exif:
             data = insert_exif(data, exif_bytes(frame.meta))

@@ -156,7 +156,9 @@ class Png(StageBase):
             raise ValueError(f"threads must be 1..64, got {self.threads}")
 
     def process(self, frame: Frame) -> Frame:
-        img = to_integer(apply_orientation(frame.data, frame.meta.orientation), self.bits)
+        # to integers first: turning the image upright is then a copy of a quarter (8-bit) or
+        # half (16-bit) of the float data
+        img = apply_orientation(to_integer(frame.data, self.bits), frame.meta.orientation)
         data = encode_png(img, icc=srgb_icc_profile(), exif=exif_bytes(frame.meta) if self.exif else None,
                           level=self.level, threads=self.threads)
         note = f"{self.bits}-bit, sRGB profile, {len(data) / 1e6:.2f} MB"

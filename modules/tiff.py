@@ -169,12 +169,11 @@ class Tiff(StageBase):
 
     def process(self, frame: Frame) -> Frame:
         self.check(frame.domain)
-        img = apply_orientation(frame.data, frame.meta.orientation)
         linear = frame.domain is Domain.LINEAR_RGB
         if self.bits == 32:
-            img = np.ascontiguousarray(img, dtype=np.float32)
-        else:
-            img = to_integer(img, self.bits)
+            img = np.ascontiguousarray(apply_orientation(frame.data, frame.meta.orientation), dtype=np.float32)
+        else:   # to integers first: turning them upright copies half the bytes of the floats
+            img = apply_orientation(to_integer(frame.data, self.bits), frame.meta.orientation)
         icc = linear_srgb_icc_profile() if linear else srgb_icc_profile()
         data = encode_tiff(img, icc=icc, meta=frame.meta if self.exif else None,
                            compression=self.compression, threads=self.threads)

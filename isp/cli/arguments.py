@@ -169,14 +169,15 @@ def choose_encoder(config: dict, output: str, overrides: list[tuple[str, str, ob
     return {**config, "stage": stages}
 
 
-def pipeline_from_args(args: argparse.Namespace, output: str | None = None):
+def pipeline_from_args(args: argparse.Namespace, output: str | None = None, *, build: bool = True):
     """``(config, pipeline)`` of the ``--config``, ``--set`` and
     ``--correction`` options, the pipeline built (and so checked) before
     any pixel is read; a config error names the ``--config`` file.
     ``--correction`` sets the model of every correction stage (ConfigError
     when the pipeline has none). With ``output`` (a file name, or just its
     extension), the pipeline ends in that format's encoding stage
-    (:func:`choose_encoder`)."""
+    (:func:`choose_encoder`). With ``build=False`` the pipeline is None:
+    the config alone, no stage module imported."""
     from isp.io.files import ENCODERS
     from isp.pipeline import Pipeline, pipeline_config
 
@@ -193,6 +194,8 @@ def pipeline_from_args(args: argparse.Namespace, output: str | None = None):
             raise ConfigError(f"--correction {forced}: the pipeline has no correction stage")
         for e in slots:
             e["model"] = forced
+    if not build:
+        return config, None
     try:
         return config, Pipeline.from_config(config)
     except ConfigError as e:

@@ -59,11 +59,22 @@ def run(args: argparse.Namespace) -> int:
 def _correction(args, meta) -> list[dict] | dict:
     """The correction model(s) the pipeline of ``--config``/``--set``/
     ``--correction`` would run on this file: by default the model of the
-    lens profile matching ``meta``, or none and why (:mod:`isp.profiles`)."""
-    _, pipeline = pipeline_from_args(args)
-    stages = [s for s in pipeline.stages if s.name == "correction"]
-    if not stages:
+    lens profile matching ``meta``, or none and why (:mod:`isp.profiles`).
+    Only the correction stages are built: the others' modules stay
+    unimported."""
+    from isp.errors import ConfigError
+    from isp.registry import create_stage
+
+    config, _ = pipeline_from_args(args, build=False)
+    entries = [e for e in config.get("stage", []) if isinstance(e, dict) and e.get("name") == "correction"]
+    if not entries:
         return {"model": None, "note": "the pipeline has no correction stage"}
+    try:
+        stages = [create_stage("correction", **{k: v for k, v in e.items() if k != "name"}) for e in entries]
+    except ConfigError as e:
+        if args.config:
+            raise ConfigError(f"{args.config}: {e}") from None
+        raise
 
     def summary(stage):
         if not hasattr(stage, "summary"):

@@ -71,6 +71,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     frame = read_raw(args.input, headerless=headerless(args))
     t_read = time.perf_counter() - t0
+    read_line = f"read {args.input}: {frame.shape} {frame.meta.cfa.value if frame.meta.cfa else 'linear'} " \
+                f"({t_read * 1000:.0f} ms)"
+    notes = frame.meta.notes
     timings = []
 
     def on_step(i, stage, fr, dt):
@@ -79,15 +82,18 @@ def run(args: argparse.Namespace) -> int:
         if args.save_stages:
             save_stage(args.save_stages, i + 1, "input" if stage is None else stage.name, fr)
 
-    result = pipeline.run(frame, on_step=on_step)
+    # the pipeline holds the only reference to the raw frame, so that its
+    # data is freed once the first stages have replaced it
+    inputs = [frame]
+    del frame
+    result = pipeline.run(inputs.pop(), on_step=on_step)
     write_output(result, out)
     total = time.perf_counter() - t0
     if args.verbose:
-        print(f"read {args.input}: {frame.shape} {frame.meta.cfa.value if frame.meta.cfa else 'linear'} "
-              f"({t_read * 1000:.0f} ms)")
+        print(read_line)
         for step, (name, dt) in zip(result.history, timings):
             print(f"  {name:<14s} {dt * 1000:7.0f} ms  {step.note}")
-        for note in frame.meta.notes:
+        for note in notes:
             print(f"  note: {note}")
     print(f"wrote {out} ({total:.2f} s)")
     return 0

@@ -69,7 +69,6 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 
@@ -226,6 +225,8 @@ def _gather(a: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     rr, cr = _reflected_run(rows, a.shape[0]), _reflected_run(cols, a.shape[1])
     if rr is not None and cr is not None and (rr[2:] != (0, 0) or cr[2:] != (0, 0)) \
             and a.dtype in (np.float32, np.float64, np.uint8, np.uint16) and a.ndim == 3 and a.shape[2] <= 4:
+        import cv2   # here, not at the top: `isp info` reads a correction stage without pixels
+
         inner = a[rr[0]:rr[1], cr[0]:cr[1]]
         return cv2.copyMakeBorder(inner, rr[2], rr[3], cr[2], cr[3], cv2.BORDER_REFLECT_101)
     box = a[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
@@ -271,6 +272,8 @@ def _split(src: np.ndarray, planes: np.ndarray) -> None:
     """``planes[k] = src[..., k]``."""
     c = src.shape[2]
     if _cv2_planes(src.dtype, planes.dtype, c):
+        import cv2
+
         # OpenCV's SIMD de-interleave straight into the planes: 3.2× faster than numpy's
         # strided plane copies on a 1,072² × 3 float32 window (8.0 → 2.5 ms)
         cv2.split(src, [planes[k] for k in range(c)])
@@ -307,6 +310,8 @@ def write_planes(dst: np.ndarray, planes: np.ndarray, packing: int = 1) -> None:
                 write_planes(cols, p[dx * c:(dx + 1) * c, :nr, :cols.shape[1]])
         return
     if _cv2_planes(dst.dtype, planes.dtype, c) and dst.strides[1:] == (c * dst.itemsize, dst.itemsize):
+        import cv2
+
         r = cv2.merge([planes[k] for k in range(c)], dst=dst)
         if r is dst or np.shares_memory(r, dst):   # written in place (OpenCV reallocates otherwise)
             return

@@ -47,8 +47,9 @@ def test_looks_share_the_stages_before_the_render():
     assert adobe[slot + 1:] == ("highlights", "dng_render", "jpeg")
     assert linear[slot + 1:] == ("luminance", "ccm", "gamma", "jpeg")
     assert DEFAULT_STAGES == adobe
-    # the adobe look demosaics as Adobe's SDK does; an override still wins
-    assert Pipeline.default().stages[adobe.index("demosaic")].params()["method"] == "bilinear"
+    # the adobe look demosaics as Adobe's SDK does unless a lens profile names
+    # its model's method; an override still wins
+    assert Pipeline.default().stages[adobe.index("demosaic")].params()["method"] == "auto"
     p = Pipeline.default(demosaic={"method": "menon2007"})
     assert p.stages[adobe.index("demosaic")].params()["method"] == "menon2007"
     assert Pipeline.default("linear").stages[linear.index("demosaic")].params()["method"] == "malvar2004"

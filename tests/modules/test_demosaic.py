@@ -346,7 +346,7 @@ def test_method_names_are_one_list():
     # property: the stage's Literal and the METHODS mapping agree.
     assert typing.get_args(Method) == tuple(METHODS)
     hints = typing.get_type_hints(Demosaic)
-    assert typing.get_args(hints["method"]) == tuple(METHODS)
+    assert typing.get_args(hints["method"]) == tuple(METHODS) + ("auto",)
 
 
 @pytest.mark.property
@@ -407,3 +407,34 @@ if __name__ == "__main__":  # regenerates the CPSNR table above
     for name, f in METHODS.items():
         values = [cpsnr(f(mosaic_of(image, cfa), cfa), image) for cfa in CFA]
         print(f"{name:11s}", " ".join(f"{v:.2f}" for v in values))
+
+
+@pytest.mark.property
+@pytest.mark.parametrize("shape", [(37, 23), (64, 50), (9, 101)])
+@pytest.mark.parametrize("cfa", list(CFA))
+@pytest.mark.parametrize("method", ["bilinear", "malvar2004"])
+def test_banded_filtering_equals_whole_mosaic(monkeypatch, method, cfa, shape):
+    """The filters run a band of rows at a time; bands of 2 to 6 rows give
+    exactly the values of one band over the whole mosaic (halo rows and the
+    border extension as the whole-mosaic filter has them)."""
+    import modules.demosaic as dm
+
+    m = np.random.default_rng(3).normal(0.5, 0.3, shape).astype(np.float32)
+    monkeypatch.setattr(dm, "_BAND_VALUES", 1 << 30)
+    whole = demosaic(m, cfa, method)
+    for rows in (2, 4, 6):
+        monkeypatch.setattr(dm, "_BAND_VALUES", rows * shape[1])
+        np.testing.assert_array_equal(demosaic(m, cfa, method), whole)
+
+
+@pytest.mark.property
+def test_auto_takes_the_profile_method_else_bilinear():
+    """``method="auto"``: the demosaic a matching lens profile names (what its
+    correction model was trained after), else bilinear (Adobe's SDK)."""
+    from isp import CameraMeta
+    from modules.demosaic import Demosaic
+
+    stage = Demosaic(method="auto")
+    assert stage.method_for(CameraMeta(lens="US-12210142-B2-e9"))[0] == "malvar2004"
+    assert stage.method_for(CameraMeta(lens="GoPro fisheye"))[0] == "bilinear"
+    assert Demosaic(method="menon2007").method_for(CameraMeta(lens="US-12210142-B2-e9"))[0] == "menon2007"

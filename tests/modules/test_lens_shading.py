@@ -61,3 +61,26 @@ def test_cell_centred_sampling_moves_map_points():
     # pixel centres at 1/8, 3/8, 5/8, 7/8 of the width
     assert np.allclose(dng, 1 + 2 * np.array([1, 3, 5, 7]) / 8)
     assert np.allclose(cc, [1.0, 1.5, 2.5, 3.0])   # points at 1/4 and 3/4
+
+
+@pytest.mark.parametrize("shape, strength", [((61, 83), 1.0), ((40, 30), 0.6)])
+def test_four_phase_maps_equal_each_maps_own_evaluation(shape, strength):
+    """Four per-CFA-phase GainMaps (the DngCreator layout, taken in one banded
+    pass) give each site its own map's gain (GainMap.evaluate, the dense
+    interpolation) to float32 rounding, odd sizes included; the notes
+    report each map's gain range."""
+    h, w = shape
+    rng = np.random.default_rng(7)
+    maps = tuple(GainMap.spanning_image(rng.uniform(1.0, 2.5, (5, 7)).astype(np.float32),
+                                        area=AreaSpec(r, c, h, w, 0, 1, 2, 2))
+                 for r in (0, 1) for c in (0, 1))
+    data = rng.uniform(0.0, 1.0, shape).astype(np.float32)
+    f = make_frame(data, Domain.RAW_LINEAR, cfa=CFA.RGGB, opcodes={2: maps}, raw_size=shape)
+    out = create_stage("lens_shading", strength=strength)(f)
+    notes = []
+    for op in maps:
+        r, c = op.area.top, op.area.left
+        g = op.evaluate(np.arange(r, h, 2), np.arange(c, w, 2), h, w) ** np.float32(strength)
+        np.testing.assert_allclose(out.data[r::2, c::2], data[r::2, c::2] * g, rtol=2e-6)
+        notes.append(f"gains {g.min():.3f}-{g.max():.3f}")
+    assert [n.split("GainMap ")[1] for n in out.history[-1].note.split("; ")] == notes

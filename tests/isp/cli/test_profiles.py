@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -76,6 +77,8 @@ def test_the_demo_capture_is_corrected(cli, tmp_path, user_folder):
     assert code == 0, err
     note = correction_note(out)
     assert f"profile 'e9' (LensModel '{DEMO_LENS}'): e9_default.int8.onnx" in note
+    # the correction sees the demosaic its model was trained after, not the look's bilinear
+    assert re.search(r"demosaic +\d+ ms +malvar2004 \(auto: lens profile 'e9'\)", out), out
     code, _, err = cli("process", dng, "-o", tmp_path / "off.jpg", "--correction", "none")
     assert code == 0, err
     assert (tmp_path / "on.jpg").read_bytes() != (tmp_path / "off.jpg").read_bytes()
