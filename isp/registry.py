@@ -104,7 +104,10 @@ class Registry:
                 self._pending[ep.name] = ep
 
     def _resolve(self, name: str) -> None:
-        """Import the entry point ``name`` if it is still pending."""
+        """Import the entry point ``name`` if it is still pending (a name
+        registered in code needs no look at the entry points: it wins)."""
+        if name in self._entries:
+            return
         self._load()
         ep = self._pending.pop(name, None)
         if ep is None:

@@ -196,5 +196,5 @@ def _apply_value_map(data: np.ndarray, op, origin) -> np.ndarray:
 
 
 def _fmt(v) -> str:
-    a = np.unique(np.round(np.asarray(v, dtype=np.float64), 3))
-    return f"{a[0]:g}" if a.size == 1 else "/".join(f"{x:g}" for x in a)
+    a = sorted(set(np.round(np.asarray(v, dtype=np.float64), 3).ravel().tolist()))   # np.unique imports numpy.ma
+    return f"{a[0]:g}" if len(a) == 1 else "/".join(f"{x:g}" for x in a)

@@ -221,7 +221,7 @@ def apply_phase_maps(data: np.ndarray, maps, origin: tuple[int, int], full_size:
         # point to the next: its extremes lie on the first and last image
         # row of each map cell
         ends = np.flatnonzero(np.diff(i0, prepend=-1, append=-1))
-        ends = np.unique(np.concatenate([ends[:-1], ends[1:] - 1]))
+        ends = np.array(sorted({*ends[:-1].tolist(), *(ends[1:] - 1).tolist()}), np.intp)  # np.unique imports numpy.ma
         g = blend(ends, np.empty((len(ends), w), np.float32), np.empty((len(ends), w), np.float32))
         for c in (0, 1):
             ranges[id(by_phase[(r, c)])] = (float(g[:, c::2].min()), float(g[:, c::2].max()))

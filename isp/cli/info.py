@@ -31,9 +31,7 @@ def run(args: argparse.Namespace) -> int:
     """Print the file's metadata, opcode plan and correction model as JSON."""
     from isp.io.opcode_plan import opcode_plan
     from isp.io.read import read_raw
-    from isp.runtime.threads import tune_allocator
 
-    tune_allocator()
     frame = read_raw(args.input, headerless=headerless(args))
     meta = frame.meta
     plan = opcode_plan(meta)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from isp.cli.commands import list_commands
+from isp.cli.commands import BUILTIN, get_command, list_commands
 from isp.cli.run import BAD_INPUT, run_command
 
 
@@ -42,7 +42,9 @@ def make_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     sub = p.add_subparsers(dest="isp_command", metavar="COMMAND")
-    for name, cmd in list_commands().items():
+    # one of the ISP's own commands needs no other: the plug-ins' entry points stay unread
+    own = command is not None and command in {c.name for c in BUILTIN}
+    for name, cmd in ({command: get_command(command)} if own else list_commands()).items():
         sp = sub.add_parser(name, help=cmd.help, description=cmd.help)
         if name == command:
             add_arguments, run = cmd.load()

@@ -20,14 +20,21 @@ _GAIN_MAP_HEADER = struct.Struct(">II4dI")
 # --------------------------------------------------------------------------
 # gain map
 
+def _interp_points(pos: np.ndarray, origin: float, spacing: float, points: int):
+    """The map samples either side of relative positions ``pos`` and the
+    weight of the second: ``(i0, i1, frac)``, the value at ``pos`` being
+    ``(1 − frac)·v[i0] + frac·v[i1]``; clamped to the first/last sample
+    outside the map (``i0 = i1`` there)."""
+    index = np.clip((pos - origin) / spacing, 0.0, points - 1)
+    i0 = np.floor(index).astype(np.int64)
+    return i0, np.minimum(i0 + 1, points - 1), index - i0
+
+
 def _interp_weights(pos: np.ndarray, origin: float, spacing: float, points: int) -> np.ndarray:
     """(len(pos), points) linear-interpolation weights of map samples at
     relative positions ``pos``, clamped to the first/last sample outside
     the map (no extrapolation), as ``dng_gain_map_interpolator`` does."""
-    index = np.clip((pos - origin) / spacing, 0.0, points - 1)
-    i0 = np.floor(index).astype(np.int64)
-    frac = index - i0
-    i1 = np.minimum(i0 + 1, points - 1)
+    i0, i1, frac = _interp_points(pos, origin, spacing, points)
     w = np.zeros((pos.size, points), dtype=np.float64)
     k = np.arange(pos.size)
     w[k, i0] = 1.0 - frac
@@ -224,8 +231,12 @@ class GainMap(Opcode):
         matrix product."""
         c = np.asarray(cols, dtype=np.float64)
         sh, oh = self.map_spacing[1], self.map_origin[1]
-        wc = _interp_weights((c + 0.5) / int(image_width), oh, sh, self.points_h)
-        return (self.gains[:, :, int(map_plane)].astype(np.float64) @ wc.T).astype(np.float32)
+        i0, i1, frac = _interp_points((c + 0.5) / int(image_width), oh, sh, self.points_h)
+        # the two map points either side of each column, blended (the product with the
+        # (cols × points) weight matrix, whose rows hold these two weights, without a
+        # matrix product: a multithreaded BLAS call costs more in start-up than it computes)
+        g = self.gains[:, :, int(map_plane)].astype(np.float64)
+        return (g[:, i0] * (1.0 - frac) + g[:, i1] * frac).astype(np.float32)
 
     def apply(self, data: np.ndarray, ctx: OpcodeContext) -> np.ndarray:
         """Multiply the area's pixels by the interpolated gains, in place

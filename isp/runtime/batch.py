@@ -32,8 +32,8 @@ def process_file(src: str, dst: str, config: dict, headerless=None) -> tuple[str
 
     try:
         pipeline = Pipeline.from_config(config)
-        frame = read_raw(src, headerless=headerless)
-        write_output(pipeline.run(frame), dst)
+        # no name holds the raw frame: the pipeline frees it once its first stages replace it
+        write_output(pipeline.run(read_raw(src, headerless=headerless)), dst)
         return src, None
     except IspError as e:
         return src, str(e)

@@ -23,8 +23,9 @@ with ``map``, ``as_completed`` and ``close`` (:class:`Backend`), built from
 the executor's settings. Tasks written for ``processes`` (picklable, no
 shared state beyond the payload) run on it unchanged.
 
-Process workers start under one policy: BLAS on one thread
-(:func:`isp.runtime.threads.one_blas_thread`: the pool already uses the
+Process workers start under one policy: BLAS and OpenCV on one thread
+(:func:`isp.runtime.threads.one_blas_thread`,
+:func:`~isp.runtime.threads.one_opencv_thread`: the pool already uses the
 cores), the allocator settings (:func:`isp.runtime.threads.tune_allocator`),
 and an optional read-only ``payload`` (a PSF map, a lens and its
 observations) sent to each worker once, not with every task; a ``setup``
@@ -175,12 +176,13 @@ def _set_thread_payload(value) -> None:
 def _start_worker(method: str, payload, setup) -> None:
     """The initializer of every worker process (the module docstring's policy)."""
     global _process_payload
-    from isp.runtime.threads import one_blas_thread, tune_allocator
+    from isp.runtime.threads import one_blas_thread, one_opencv_thread, tune_allocator
 
     # what started this process, where libraries ask (rawpy warns when it reads "fork"; a
     # forkserver child otherwise inherits the parent's default, "fork" on Linux)
     mp.set_start_method(method, force=True)
     one_blas_thread()
+    one_opencv_thread()
     tune_allocator()
     if payload is not _UNSET or setup is not None:
         value = None if payload is _UNSET else payload

@@ -6,8 +6,13 @@ allocation above 32 MB with a fresh ``mmap``, so each stage pays for the
 kernel zeroing its output pages again (at 16 MP, 64–192 MB per array); run
 times then vary by 2× with the machine's memory state. Raising glibc's mmap
 and trim thresholds keeps freed memory in the heap for the next stage: the
-same peak memory, no repeated page faults, steady timings (measured by
-``benchmarks/pipeline.py``: 0.61–1.18 s → 0.48–0.59 s).
+same live memory, no repeated page faults, steady timings (measured by
+``benchmarks/pipeline.py``: 0.61–1.18 s → 0.48–0.59 s). That pays where
+one process runs the pipeline again and again (batch workers, in-process
+benchmarks); a process that renders one frame (``isp process``) has
+nothing to reuse, and the kept arrays' fragments would count in its peak
+resident memory (455 MB against 370 MB for a 12 MP frame), so it leaves
+the allocator as it is.
 """
 
 from __future__ import annotations
@@ -59,3 +64,23 @@ def one_blas_thread() -> None:
 
     threadpool_limits(limits=1, user_api="blas")
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
+
+
+def one_opencv_thread() -> None:
+    """Hold OpenCV's thread pool to one thread in the worker processes that
+    load it from now on: run as every worker process starts
+    (:mod:`isp.runtime.executor`), where the pool of processes already uses
+    the cores.
+
+    OpenCV's worker threads wait actively between parallel calls, so each
+    process's extra threads take CPU from the other processes' work
+    (``isp batch`` of eight 12 MP files, two workers on a busy 2-core
+    machine, median of 4: 5.2 s with one OpenCV thread each, 5.5 s with
+    two). OpenCV reads ``OPENCV_FOR_THREADS_NUM`` when its pool is first
+    used, and that is all this sets: a worker whose OpenCV has not run in
+    parallel yet (a forkserver or spawn child, as ``isp batch`` starts)
+    runs it on one thread. A forked child of a process whose OpenCV pool
+    had started keeps that pool's setting: reconfiguring the pool there
+    would wait for threads the fork did not copy.
+    """
+    os.environ["OPENCV_FOR_THREADS_NUM"] = "1"

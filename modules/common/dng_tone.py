@@ -516,10 +516,16 @@ def apply_lut16(x: np.ndarray, lut: np.ndarray, out: np.ndarray | None = None) -
     x = np.ascontiguousarray(x, dtype=np.float32)
     flat = x.reshape(x.shape[0], -1) if x.ndim >= 2 else x.reshape(1, -1)
     idx = cv2.multiply(flat, 65535.0, dtype=cv2.CV_16U)
+    # the table's values go straight into ``out`` where it is a contiguous float32 array
+    # of x's shape (no second pass copying them there)
+    direct = out is not None and out.dtype == np.float32 and out.flags.c_contiguous and out.shape == shape
+    dst = out.reshape(idx.shape) if direct else None
     try:  # OpenCV >= 5 looks up 16-bit indices (multithreaded)
-        y = cv2.LUT(idx, lut)
+        y = cv2.LUT(idx, lut) if dst is None else cv2.LUT(idx, lut, dst=dst)
     except cv2.error:  # older OpenCV: numpy's gather
-        y = lut[idx]
+        y = np.take(lut, idx) if dst is None else np.take(lut, idx, out=dst)
+    if direct and np.shares_memory(y, out):
+        return out
     y = y.reshape(shape)
     if out is not None:
         out[...] = y
