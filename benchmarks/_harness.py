@@ -60,10 +60,12 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import shlex
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -415,3 +417,106 @@ def read(name: str, directory: str | os.PathLike | None = None) -> dict | None:
     if not path.is_file():
         return None
     return json.loads(path.read_text())
+
+
+# -- whole-process timing of commands (ours and a peer's), each a fresh child ------------------------
+
+class ChildFailed(RuntimeError):
+    """A command run by :func:`run_child` exited with an error."""
+
+
+@dataclass(frozen=True)
+class Child:
+    """One finished child process."""
+
+    wall_s: float
+    cpu_s: float     # user + system
+    peak_mb: float   # its peak resident set (ru_maxrss)
+
+
+#: a small process that starts the measured command and reports on it: its
+#: wall time (fork to exit), CPU time (user + system, seconds), peak RSS (kB)
+#: and exit code. Linux carries a process's peak RSS through exec and into a
+#: child forked from it, so a command started straight from this script
+#: would report at least this script's own peak; started from the launcher
+#: (about 10 MB), it reports its own.
+_LAUNCHER = r"""
+import os, sys, time
+t0 = time.perf_counter()
+pid = os.fork()
+if pid == 0:
+    os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+    try:
+        os.execvp(sys.argv[1], sys.argv[1:])
+    finally:
+        os._exit(127)
+_, status, ru = os.wait4(pid, 0)
+print(time.perf_counter() - t0, ru.ru_utime + ru.ru_stime, ru.ru_maxrss, os.waitstatus_to_exitcode(status))
+"""
+
+
+def run_child(cmd: list[str], env: dict | None = None) -> Child:
+    """Run ``cmd`` to its end (through :data:`_LAUNCHER`); its wall time,
+    CPU time and peak RSS. ChildFailed (with the end of its stderr) if it fails."""
+    with tempfile.TemporaryFile() as err:
+        out = subprocess.run([sys.executable, "-c", _LAUNCHER, *map(str, cmd)], stdout=subprocess.PIPE,
+                             stderr=err, env=env, text=True)
+        fields = out.stdout.split()
+        code = int(fields[3]) if len(fields) == 4 else out.returncode
+        if out.returncode != 0 or code != 0:
+            err.seek(0)
+            tail = err.read().decode(errors="replace").strip().splitlines()[-3:]
+            raise ChildFailed(f"{' '.join(map(str, cmd))}: exit {code}: {' / '.join(tail)}")
+    return Child(float(fields[0]), float(fields[1]), int(fields[2]) / 1024.0)
+
+
+def isp_command() -> list[str]:
+    """The ``isp`` console script of this interpreter (no shell shim in
+    between), else ``python -m isp``."""
+    script = Path(sys.executable).with_name("isp")
+    return [str(script)] if script.is_file() and os.access(script, os.X_OK) else [sys.executable, "-m", "isp"]
+
+
+def child_env() -> dict:
+    """The children's environment: this one (threads pinned) with bytecode writing allowed."""
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
+class Recorder:
+    """Commands timed by :func:`_harness.interleaved`, each run's CPU time
+    and peak RSS kept (the warm-up runs dropped)."""
+
+    def __init__(self, env: dict, warmup: int):
+        self.env, self.warmup, self.runs = env, warmup, {}
+
+    def task(self, name: str, *cmds: list[str], env: dict | None = None):
+        """A callable running ``cmds`` one after the other (one timed unit),
+        with ``env`` added to the environment."""
+        self.runs[name] = []
+        full = {**self.env, **(env or {})}
+
+        def run():
+            children = [run_child(c, full) for c in cmds]
+            self.runs[name].append(children)
+        return run
+
+    def wall(self, name: str) -> Spread:
+        return spread(sum(c.wall_s for c in r) for r in self.runs[name][self.warmup:])
+
+    def cpu(self, name: str) -> Spread:
+        return spread(sum(c.cpu_s for c in r) for r in self.runs[name][self.warmup:])
+
+    def peak_mb(self, name: str) -> float:
+        return max(c.peak_mb for r in self.runs[name][self.warmup:] for c in r)
+
+
+def find_tool(name: str, env: str, *candidates: str | os.PathLike) -> str | None:
+    """A peer's executable: ``$ENV``, else ``name`` on the PATH, else the
+    first of ``candidates`` (where its build script puts it) that exists;
+    None where absent, for the benchmark to say so and skip the peer."""
+    for exe in (os.environ.get(env), shutil.which(name), *candidates):
+        if exe and Path(exe).is_file() and os.access(exe, os.X_OK):
+            return str(exe)
+    return None

@@ -50,15 +50,11 @@ from benchmarks import _harness
 if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
     _harness.pin_threads(2)
 
-import os  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from benchmarks.opcode_geometry import find_dng_validate  # noqa: E402
-from isp.errors import IspError  # noqa: E402
 
 RAW = _harness.ROOT.parent / "shared" / "data" / "raw"
 #: the 12 MP capture both programs render (no lens profile matches it)
@@ -67,93 +63,6 @@ DEFAULT_FILE = RAW / "gopro_HERO6_GOPR0024.dng"
 INFO_FILES = (RAW / "skia_sample_1mp.dng", RAW / "SYNTHETIC_phone_S6meta_512x384.dng")
 #: the issue's targets
 TARGETS = {"single_ratio": 1.0, "batch_ratio": 0.5, "peak_mb": 400.0, "info_s": 0.3, "correction_s": 2.0}
-
-
-@dataclass(frozen=True)
-class Child:
-    """One finished child process."""
-
-    wall_s: float
-    cpu_s: float     # user + system
-    peak_mb: float   # its peak resident set (ru_maxrss)
-
-
-#: a small process that starts the measured command and reports on it: its
-#: wall time (fork to exit), CPU time (user + system, seconds), peak RSS (kB)
-#: and exit code. Linux carries a process's peak RSS through exec and into a
-#: child forked from it, so a command started straight from this script
-#: would report at least this script's own peak; started from the launcher
-#: (about 10 MB), it reports its own.
-_LAUNCHER = r"""
-import os, sys, time
-t0 = time.perf_counter()
-pid = os.fork()
-if pid == 0:
-    os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
-    try:
-        os.execvp(sys.argv[1], sys.argv[1:])
-    finally:
-        os._exit(127)
-_, status, ru = os.wait4(pid, 0)
-print(time.perf_counter() - t0, ru.ru_utime + ru.ru_stime, ru.ru_maxrss, os.waitstatus_to_exitcode(status))
-"""
-
-
-def run_child(cmd: list[str], env: dict | None = None) -> Child:
-    """Run ``cmd`` to its end (through :data:`_LAUNCHER`); its wall time,
-    CPU time and peak RSS. IspError (with the end of its stderr) if it fails."""
-    with tempfile.TemporaryFile() as err:
-        out = subprocess.run([sys.executable, "-c", _LAUNCHER, *map(str, cmd)], stdout=subprocess.PIPE,
-                             stderr=err, env=env, text=True)
-        fields = out.stdout.split()
-        code = int(fields[3]) if len(fields) == 4 else out.returncode
-        if out.returncode != 0 or code != 0:
-            err.seek(0)
-            tail = err.read().decode(errors="replace").strip().splitlines()[-3:]
-            raise IspError(f"{' '.join(map(str, cmd))}: exit {code}: {' / '.join(tail)}")
-    return Child(float(fields[0]), float(fields[1]), int(fields[2]) / 1024.0)
-
-
-def isp_command() -> list[str]:
-    """The ``isp`` console script of this interpreter (no shell shim in
-    between), else ``python -m isp``."""
-    script = Path(sys.executable).with_name("isp")
-    return [str(script)] if script.is_file() and os.access(script, os.X_OK) else [sys.executable, "-m", "isp"]
-
-
-def child_env() -> dict:
-    """The children's environment: this one (threads pinned) with bytecode writing allowed."""
-    env = dict(os.environ)
-    env.pop("PYTHONDONTWRITEBYTECODE", None)
-    return env
-
-
-class Recorder:
-    """Commands timed by :func:`_harness.interleaved`, each run's CPU time
-    and peak RSS kept (the warm-up runs dropped)."""
-
-    def __init__(self, env: dict, warmup: int):
-        self.env, self.warmup, self.runs = env, warmup, {}
-
-    def task(self, name: str, *cmds: list[str], env: dict | None = None):
-        """A callable running ``cmds`` one after the other (one timed unit),
-        with ``env`` added to the environment."""
-        self.runs[name] = []
-        full = {**self.env, **(env or {})}
-
-        def run():
-            children = [run_child(c, full) for c in cmds]
-            self.runs[name].append(children)
-        return run
-
-    def wall(self, name: str) -> _harness.Spread:
-        return _harness.spread(sum(c.wall_s for c in r) for r in self.runs[name][self.warmup:])
-
-    def cpu(self, name: str) -> _harness.Spread:
-        return _harness.spread(sum(c.cpu_s for c in r) for r in self.runs[name][self.warmup:])
-
-    def peak_mb(self, name: str) -> float:
-        return max(c.peak_mb for r in self.runs[name][self.warmup:] for c in r)
 
 
 def megapixels(path: Path) -> float:
@@ -178,8 +87,8 @@ def main(argv=None) -> dict:
     if adobe is None:
         print("dng_validate not found ($DNG_VALIDATE, PATH, $TMPDIR/dngsdk/bin, ../dngsdk/bin): Adobe's "
               "half is skipped; build it with ../shared/tools/dngsdk/build_dng_validate.sh", file=sys.stderr)
-    isp = isp_command()
-    rec = Recorder(child_env(), warmup=1)
+    isp = _harness.isp_command()
+    rec = _harness.Recorder(_harness.child_env(), warmup=1)
     results: dict = {"file": args.file.name, "megapixels": round(megapixels(args.file), 2),
                      "dng_validate": adobe, "isp": " ".join(isp), "targets": TARGETS}
     with tempfile.TemporaryDirectory(prefix="adobe_speed_") as tmp:

@@ -41,7 +41,6 @@ if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it
     _harness.pin_threads(2)
 
 import os  # noqa: E402
-import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -63,11 +62,8 @@ def find_dng_validate() -> str | None:
     ``$TMPDIR/dngsdk``), or a ``dngsdk/bin`` beside the repository; None
     where absent."""
     root = Path(os.environ.get("ROOT", Path(tempfile.gettempdir()) / "dngsdk"))
-    for exe in (os.environ.get("DNG_VALIDATE"), shutil.which("dng_validate"),
-                root / "bin" / "dng_validate", _harness.ROOT.parent / "dngsdk" / "bin" / "dng_validate"):
-        if exe and Path(exe).is_file() and os.access(exe, os.X_OK):
-            return str(exe)
-    return None
+    return _harness.find_tool("dng_validate", "DNG_VALIDATE", root / "bin" / "dng_validate",
+                              _harness.ROOT.parent / "dngsdk" / "bin" / "dng_validate")
 
 
 # --------------------------------------------------------------------------

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from calibration.sfr.esfr import DEFAULT_METHOD
 from isp.errors import ConfigError
 from isp.runtime.executor import create_executor
 
@@ -168,7 +169,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--channel", help="R, G, B, L (luminance of an RGB image) or all (default G; grey images: L)")
     p.add_argument("--encoding", choices=("linear", "srgb"), default="linear",
                    help="how an image's codes relate to light (default linear; JPEGs are usually srgb)")
-    p.add_argument("--method", choices=("iso", "accurate"), default="iso", help="SFR method (isp calib sfr)")
+    p.add_argument("--method", choices=("accurate", "iso"), default=DEFAULT_METHOD,
+                   help=f"SFR method (isp calib sfr; default {DEFAULT_METHOD})")
     p.add_argument("--min-edge", type=float, default=40.0, metavar="PX",
                    help="shortest chart edge used, pixels (default 40; shorter edges are noisier)")
     p.add_argument("--f-number", default="fit", metavar="N|fit",

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 
+from calibration.sfr.esfr import DEFAULT_METHOD
 from isp.cli.arguments import numbers
 from isp.errors import ConfigError, InputError
 from isp.runtime.executor import create_executor
@@ -33,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--encoding", choices=("linear", "srgb"), default="linear",
                    help="how the image's codes relate to light (default linear)")
     p.add_argument("--edge-fit-order", type=int, default=1, help="polynomial order of the edge fit (1-5)")
-    p.add_argument("--method", choices=("iso", "accurate"), default="iso",
+    p.add_argument("--method", choices=("accurate", "iso"), default=DEFAULT_METHOD,
                    help="iso: ISO 12233 / sfrmat5 exactly; accurate: with the binning and derivative "
                         "corrections, an adaptive LSF window and a refined edge (less bias and noise)")
     p.add_argument("--pixel-pitch", type=float, metavar="UM", help="pixel pitch in µm (adds lp/mm)")

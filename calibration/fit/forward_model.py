@@ -492,8 +492,10 @@ def _trace_nodes(pl: PerturbedLens, fields, wavelengths, samples: int, z_pupil: 
 
 
 def measure_like(obs: Observations, i: int):
-    """The ISO 12233 measurement observation ``i`` had, as a function of an
-    ROI image: :func:`calibration.sfr.esfr.measure_sfr` on an image
+    """The e-SFR measurement observation ``i`` had, as a function of an
+    ROI image, with the method it was measured by (``obs.meta["sfr_method"]``;
+    a set that names none was measured by the standard's, "iso"):
+    :func:`calibration.sfr.esfr.measure_sfr` on an image
     (``obs.meta["measure"]`` "image", the default), or
     :func:`calibration.sfr.esfr.measure_sfr_bayer` on the plane of one channel of
     a mosaic ("bayer:<channel>"; "raw": each edge on its own channel's
@@ -509,12 +511,13 @@ def measure_like(obs: Observations, i: int):
     from calibration.sfr.esfr import measure_sfr, measure_sfr_bayer
 
     how = str(obs.meta.get("measure", "image"))
+    method = str(obs.meta.get("sfr_method", "iso"))
     if how == "raw":
         how = f"bayer:{obs.channel[i]}"
     if how.startswith("bayer:"):
         cfa, channel = str(obs.meta.get("cfa", "RGGB")), how.split(":", 1)[1]
-        return lambda img: measure_sfr_bayer(img, cfa, channel=channel)
-    return measure_sfr
+        return lambda img: measure_sfr_bayer(img, cfa, channel=channel, method=method)
+    return lambda img: measure_sfr(img, method=method)
 
 
 def _roi_shape(obs: Observations, i: int) -> tuple[int, int]:

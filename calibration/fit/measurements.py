@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.sfr.esfr import DEFAULT_METHOD
 from calibration.sfr.images import load_image
 from isp.errors import ConfigError, InputError, IspError
 
@@ -188,7 +189,7 @@ def _measure_rois(rois, measure, executor) -> tuple[list, list]:
 
 
 def observations_from_capture(img, kind: str, meta=None, *, path: str = "", channel: str | None = None,
-                              encoding: str = "linear", pixel_um: float | None = None, method: str = "iso",
+                              encoding: str = "linear", pixel_um: float | None = None, method: str = DEFAULT_METHOD,
                               min_edge: float = 40.0, bootstrap: int = 0, executor=None):
     """Observations measured on a capture, and notes on how.
 
@@ -291,7 +292,7 @@ def observations_from_capture(img, kind: str, meta=None, *, path: str = "", chan
         parts.append(_with_rois(o, [(roi.x, roi.y, roi.w, roi.h) for roi, _ in ok]))
     if not parts:
         raise InputError(path, "no edge could be measured")
-    meta_out = {"measure": kind, "encoding": encoding, "channels": chans}
+    meta_out = {"measure": kind, "encoding": encoding, "channels": chans, "sfr_method": method}
     if kind == "raw":
         meta_out["cfa"] = meta.cfa.value if hasattr(meta.cfa, "value") else str(meta.cfa)
         if getattr(meta, "pixel_pitch_um", None):
@@ -367,11 +368,11 @@ def observations_from_sfr_json(doc: dict, path: str, pixel_um: float | None = No
     obs = Observations(np.array(cols["x"]), np.array(cols["y"]), np.array(cols["n"]), np.array(cols["ch"]),
                        np.array(cols["o"]), np.array(cols["a"]), np.array(cols["sd"]), noise,
                        np.where(np.isfinite(step), step, 1.0), FREQ.copy(), np.array(cols["sfr"]),
-                       _sensor(w, h, pixel_um), source=str(path), meta={"measure": "sfr-json"})
+                       _sensor(w, h, pixel_um), source=str(path), meta={"measure": "sfr-json", "sfr_method": str(doc.get("method", "iso"))})
     return obs, notes
 
 
-def load_measured(path: str, *, channel=None, encoding="linear", pixel_um=None, method="iso", min_edge=40.0,
+def load_measured(path: str, *, channel=None, encoding="linear", pixel_um=None, method=DEFAULT_METHOD, min_edge=40.0,
                   bootstrap: int = 0, executor=None):
     """(Observations, notes) from a capture, an SFR JSON or an observations
     JSON (module docstring); bad input raises

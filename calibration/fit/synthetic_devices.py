@@ -110,7 +110,7 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
                            image_ops: Sequence[Callable[[np.ndarray, float, float], np.ndarray]] = (),
                            psf_ops: Sequence[Callable] = (), low: float = 0.2, high: float = 0.8,
                            angle_deg: float = EDGE_ANGLE_DEG, rng=0, return_edges: bool = False,
-                           executor=None):
+                           executor=None, method: str | None = None):
     """Observations of the lens whose PSF map is ``psfmap``: one vertical
     and one horizontal edge at every region centre of the map's grid.
 
@@ -137,6 +137,10 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
     executor : isp.runtime.executor.Executor, optional
         Where its progress bar counts the regions (the edges are rendered
         here, in order: they draw from one ``rng``).
+    method : {"accurate", "iso"}, optional
+        The SFR method (:func:`calibration.sfr.esfr.measure_sfr`; default
+        :data:`calibration.sfr.esfr.DEFAULT_METHOD`), recorded in the
+        observations' ``meta["sfr_method"]`` for the fit's forward model.
 
     Returns
     -------
@@ -147,7 +151,9 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
     from types import SimpleNamespace
 
     from calibration.simulate.capture import render_slanted_edge
-    from calibration.sfr.esfr import SfrError, measure_sfr
+    from calibration.sfr.esfr import DEFAULT_METHOD, SfrError, measure_sfr
+
+    method = DEFAULT_METHOD if method is None else method
 
     rng = np.random.default_rng(rng)
     sensor = psfmap.sensor
@@ -178,7 +184,7 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
                 clean = img
                 img = img + rng.normal(0.0, sigma, img.shape)
                 try:
-                    res = measure_sfr(img)
+                    res = measure_sfr(img, method=method)
                 except SfrError:
                     continue
                 t = math.radians(angle_deg)
@@ -196,5 +202,5 @@ def synthetic_observations(psfmap, *, roi: tuple[int, int] = (64, 96), noise: fl
     if bar is not None:
         bar.close()
     obs = Observations.from_sfr_results(items, sensor, grid=grid, source="synthetic")
-    obs = obs.with_fields(channel=np.array(chans), roi=np.array(rois), meta={"measure": "image"})
+    obs = obs.with_fields(channel=np.array(chans), roi=np.array(rois), meta={"measure": "image", "sfr_method": method})
     return (obs, edges) if return_edges else obs

@@ -31,14 +31,15 @@ it estimates ``exp(−2π²σ²f²)·|sinc(f cos θ)·sinc(f sin θ)|`` (see
 
 Two methods
 -----------
-``method="iso"`` (the default) is ISO 12233:2023 Annex D as sfrmat5 computes
-it, to rounding. Its derivative correction compensates the 3-tap derivative
+``method="iso"`` is ISO 12233:2023 Annex D as sfrmat5 computes it, to
+rounding. Its derivative correction compensates the 3-tap derivative
 only; the ¼-px binning stays in, as in sfrmat. On exact Gaussian edges the
 binning (a ``sinc(f·Δ)`` factor) lowers MTF50 by 0.75 % at σ = 0.5 px and
 0.24 % at σ = 1 px, and the LSF window raises it by about
 0.3 % · (σ / 2 px)² · (128 px / W)² for a ROI W px across the edge.
 
-``method="accurate"`` makes four departures from the standard, each also
+``method="accurate"``, the default (:data:`DEFAULT_METHOD`), measures the
+same edge with less bias and less noise: four departures from the standard, each also
 available on its own (an explicit option overrides the preset):
 
 =========================== ===================================================
@@ -137,6 +138,7 @@ from isp.errors import IspError
 
 from calibration.sfr import edge as core
 __all__ = [
+    "DEFAULT_METHOD",
     "LUMINANCE_WEIGHTS",
     "SfrError",
     "SfrResult",
@@ -342,6 +344,9 @@ METHODS = {
     },
 }
 DERIVATIVE_CORRECTIONS = ("sfrmat", "exact")
+#: the method every measurement uses unless told otherwise: the one with the least error
+#: against analytic truth (``benchmarks/sfr_chart.py``); "iso" reproduces the standard
+DEFAULT_METHOD = "accurate"
 
 
 def _is_int(v) -> bool:
@@ -373,7 +378,7 @@ class _Options:
         }
 
     @classmethod
-    def make(cls, order, window, oversampling, bootstrap, method="iso", **departures) -> _Options:
+    def make(cls, order, window, oversampling, bootstrap, method=DEFAULT_METHOD, **departures) -> _Options:
         if not _is_int(order) or not 1 <= order <= 5:
             raise SfrError(f"edge_fit_order must be an integer 1–5, got {order!r}")
         if window not in core.WINDOWS:
@@ -862,13 +867,13 @@ def measure_sfr(
     rng=None,
     box=None,
     saturation: float | None = None,
-    method: str = "iso",
+    method: str = DEFAULT_METHOD,
     bin_correction: bool | None = None,
     lsf_window: str | None = None,
     derivative_correction: str | None = None,
     refine_edge: bool | None = None,
 ) -> SfrResult:
-    """ISO 12233 e-SFR of one slanted-edge ROI (sfrmat5 algorithm).
+    """e-SFR of one slanted-edge ROI: ISO 12233 (the sfrmat5 algorithm), by default with the departures that make it accurate (``method``).
 
     Parameters
     ----------
@@ -902,11 +907,12 @@ def measure_sfr(
     saturation : float, optional
         Code at which the sensor clips (default: the integer dtype's
         maximum; none for float input) — for the clipped-plateau warning.
-    method : {"iso", "accurate"}
-        Preset of the four options below: ``"iso"`` (default) is ISO 12233
-        / sfrmat5 (none of them); ``"accurate"`` turns on all four (see the
-        module docstring for what each buys). An option passed explicitly
-        overrides the preset (``settings["method"]`` is then "custom").
+    method : {"accurate", "iso"}
+        Preset of the four options below: ``"accurate"`` (the default)
+        turns on all four (see the module docstring for what each buys);
+        ``"iso"`` is ISO 12233 / sfrmat5 (none of them). An option passed
+        explicitly overrides the preset (``settings["method"]`` is then
+        "custom").
     bin_correction : bool, optional
         Divide the SFR by the transfer function of the ¼-px binning
         (≈ ``sinc(f·Δ)``, see :func:`calibration.sfr.edge.binning_transfer`),
@@ -1054,7 +1060,7 @@ def measure_sfr_bayer(
     rng=None,
     box=None,
     saturation: float | None = None,
-    method: str = "iso",
+    method: str = DEFAULT_METHOD,
     bin_correction: bool | None = None,
     lsf_window: str | None = None,
     derivative_correction: str | None = None,

@@ -40,10 +40,12 @@ Optical and Electro-Optical Systems*, SPIE 2001, ch. 2).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.special import ndtr
 
-__all__ = ["edge_mtf", "mtf50_of", "render_slanted_edge"]
+__all__ = ["ChartEdge", "SquareChart", "edge_mtf", "mtf50_of", "render_slanted_edge", "render_square_chart"]
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
@@ -168,3 +170,172 @@ def mtf50_of(sigma_px: float, angle_deg: float = 0.0, *, pixel_aperture: bool = 
         else:
             hi = mid
     return 0.5 * (lo + hi)
+
+
+@dataclass(frozen=True)
+class ChartEdge:
+    """One side of a square of :func:`render_square_chart`.
+
+    Attributes
+    ----------
+    centre : (x, y)
+        The side's midpoint, pixels (pixel centres at integers).
+    angle_deg : float
+        Its angle from the nearest pixel axis, degrees, in [0, 45].
+    orientation : {"vertical", "horizontal"}
+        The pixel axis it is near.
+    length : float
+        Side length, pixels.
+    mtf50 : float
+        True MTF50 along its normal, cycles/pixel (:func:`mtf50_of`).
+    square : int
+        Index of its square.
+    """
+
+    centre: tuple[float, float]
+    angle_deg: float
+    orientation: str
+    length: float
+    mtf50: float
+    square: int
+
+
+@dataclass(frozen=True)
+class SquareChart:
+    """A rendered chart: the image and every square side with its truth."""
+
+    image: np.ndarray
+    edges: tuple[ChartEdge, ...]
+    sigma_px: float
+    pixel_aperture: bool
+
+
+def render_square_chart(
+    shape: tuple[int, int],
+    grid: tuple[int, int] = (9, 13),
+    *,
+    sigma_px: float = 1.2,
+    angles_deg=(5.0,),
+    side: float = 0.55,
+    low: float = 0.2,
+    high: float = 0.8,
+    pixel_aperture: bool = True,
+    nodes: int = 6,
+) -> SquareChart:
+    """A chart of dark slanted squares on a light ground, rendered exactly:
+    the analytic oracle for chart tools (edge finding and per-edge SFR).
+
+    Each square, rotated by its angle about its centre, is blurred by an
+    isotropic Gaussian PSF of ``sigma_px``. In the square's own frame
+    ``(u, v)`` the Gaussian's mass inside it is separable,
+
+    .. math::
+
+        P(u, v) = [\\Phi(\\tfrac{a-u}{\\sigma}) - \\Phi(\\tfrac{-a-u}{\\sigma})]
+                  [\\Phi(\\tfrac{a-v}{\\sigma}) - \\Phi(\\tfrac{-a-v}{\\sigma})]
+
+    (``a`` the half side), corners included. With ``pixel_aperture`` each
+    pixel is the mean of ``P`` over its square (a ``nodes × nodes``
+    Gauss–Legendre rule; 6 nodes are exact to ~1e-9 of the step for
+    σ ≥ 0.6 px), without it ``P`` at the pixel centre (a point-sampled
+    image, the form many chart generators write). Squares do not overlap:
+    each owns its grid cell, and a pixel takes the mass of every square
+    within 8σ of it.
+
+    Parameters
+    ----------
+    shape : (H, W)
+        Image size, pixels.
+    grid : (rows, cols)
+        One square per cell.
+    sigma_px : float
+        Gaussian PSF standard deviation, pixels, > 0.
+    angles_deg : sequence of float
+        Rotation of each square in turn (cycled), degrees; its sides are
+        that far from the pixel axes (modulo 90°).
+    side : float
+        Square side as a fraction of the smaller cell dimension, (0, 0.8].
+    low, high : float
+        Level of the squares and of the ground.
+    pixel_aperture : bool
+        Integrate over each pixel (a 100 % fill-factor sensor) or sample
+        at its centre.
+    nodes : int
+        Gauss–Legendre nodes per pixel axis (with ``pixel_aperture``).
+
+    Returns
+    -------
+    SquareChart
+        ``image`` (H, W) float64 between ``low`` and ``high``; ``edges``
+        the four sides of every square with their true MTF50
+        (:func:`mtf50_of` at the side's angle, with or without the pixel
+        aperture).
+
+    Examples
+    --------
+    >>> ch = render_square_chart((120, 160), (1, 1), sigma_px=1.0, angles_deg=(5.0,))
+    >>> len(ch.edges), round(ch.edges[0].mtf50, 5), ch.edges[0].orientation
+    (4, 0.17996, 'vertical')
+    >>> float(ch.image[0, 0]), round(float(ch.image[60, 80]), 6)
+    (0.8, 0.2)
+    """
+    from scipy.special import ndtr
+
+    h, w = int(shape[0]), int(shape[1])
+    rows, cols = int(grid[0]), int(grid[1])
+    if sigma_px <= 0:
+        raise ValueError(f"sigma_px must be > 0, got {sigma_px}")
+    if rows < 1 or cols < 1 or not 0 < side <= 0.8:
+        raise ValueError(f"need a grid of at least 1 × 1 and 0 < side ≤ 0.8; got {grid!r}, {side!r}")
+    angles = [float(a) for a in np.atleast_1d(angles_deg)]
+    cw, ch = w / cols, h / rows
+    half = 0.5 * side * min(cw, ch)
+    if half < 4 * sigma_px:
+        raise ValueError(f"squares of {2 * half:.1f} px are too small for σ = {sigma_px} px")
+    if pixel_aperture:
+        gx, gw = np.polynomial.legendre.leggauss(int(nodes))
+        offs, wts = 0.5 * gx, 0.5 * gw
+    else:
+        offs, wts = np.zeros(1), np.ones(1)
+    img = np.full((h, w), float(high))
+    reach = 8.0 * sigma_px
+    edges = []
+    k = 0
+    for r in range(rows):
+        for c in range(cols):
+            cx, cy = (c + 0.5) * cw - 0.5, (r + 0.5) * ch - 0.5
+            ang = angles[k % len(angles)]
+            th = np.deg2rad(ang)
+            co, si = np.cos(th), np.sin(th)
+            ext = half * (abs(co) + abs(si)) + reach + 1
+            y0, y1 = max(0, int(np.floor(cy - ext))), min(h, int(np.ceil(cy + ext)) + 1)
+            x0, x1 = max(0, int(np.floor(cx - ext))), min(w, int(np.ceil(cx + ext)) + 1)
+            ys = np.arange(y0, y1, dtype=np.float64)[:, None] - cy
+            xs = np.arange(x0, x1, dtype=np.float64)[None, :] - cx
+            u = xs * co + ys * si
+            v = -xs * si + ys * co
+            du, dv = np.abs(u) - half, np.abs(v) - half
+            near = (np.maximum(du, dv) > -reach - 1) & (np.maximum(du, dv) < reach + 1)
+            inside = np.maximum(du, dv) <= 0
+            mass = np.where(inside, 1.0, 0.0)
+            py, px = np.nonzero(near)
+            if py.size:
+                yy = ys[py, 0][:, None, None] + offs[None, :, None]
+                xx = xs[0, px][:, None, None] + offs[None, None, :]
+                uu = (xx * co + yy * si) / sigma_px
+                vv = (-xx * si + yy * co) / sigma_px
+                a = half / sigma_px
+                p = (ndtr(a - uu) - ndtr(-a - uu)) * (ndtr(a - vv) - ndtr(-a - vv))
+                mass[py, px] = np.einsum("nij,i,j->n", p, wts, wts)
+            img[y0:y1, x0:x1] -= (high - low) * mass
+            m50 = mtf50_of(sigma_px, ang, pixel_aperture=pixel_aperture)
+            fold = abs((ang + 45.0) % 90.0 - 45.0)
+            for sx, sy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+                ex = cx + half * (sx * co - sy * si)
+                ey = cy + half * (sx * si + sy * co)
+                # a side whose normal is near x runs near the y axis: a vertical edge
+                nx = abs(sx * co - sy * si)
+                orient = "vertical" if nx > 0.7071 else "horizontal"
+                edges.append(ChartEdge((float(ex), float(ey)), float(fold), orient, 2 * half, float(m50), k))
+            k += 1
+    return SquareChart(img, tuple(edges), float(sigma_px), bool(pixel_aperture))

@@ -93,3 +93,14 @@ def test_every_script_runs_through_the_harness():
         assert "_harness.parser(" in text, f"{path.name}: its own argument parser"
         assert "sys.path" not in text, f"{path.name}: edits sys.path"
         assert "_NUM_THREADS" not in text, f"{path.name}: pins threads itself"
+
+
+def test_a_childs_peak_memory_and_failure_are_its_own():
+    """150 MiB held by the child show in its peak; this process's own
+    memory does not; a failing child raises with its exit code and stderr."""
+    big = _harness.run_child([sys.executable, "-c", "b = bytearray(150 * 2**20); b[::4096] = b'x' * len(b[::4096])"])
+    small = _harness.run_child([sys.executable, "-c", "pass"])
+    assert big.peak_mb >= 150 > small.peak_mb
+    assert big.wall_s > 0 and big.cpu_s > 0
+    with pytest.raises(_harness.ChildFailed, match=r"exit 3: .*boom"):
+        _harness.run_child([sys.executable, "-c", "import sys; sys.stderr.write('boom'); sys.exit(3)"])

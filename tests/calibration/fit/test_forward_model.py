@@ -211,7 +211,22 @@ def test_measure_like_takes_the_mosaic_plane_of_a_raw_observation(make_observati
     from calibration.sfr.synthetic import render_slanted_edge
 
     img = 0.2 + 0.6 * render_slanted_edge((96, 64), 5.0, 1.0)
-    raw = measure_like(make_observations(1, {"measure": "raw", "cfa": "GRBG"}), 0)(img)
-    assert raw.sfra == measure_sfr_bayer(img, "GRBG", channel="G").sfra
-    assert measure_like(make_observations(1, {"measure": "image"}), 0)(img).sfra == measure_sfr(img).sfra
+    raw = measure_like(make_observations(1, {"measure": "raw", "cfa": "GRBG", "sfr_method": "accurate"}), 0)(img)
+    assert raw.sfra == measure_sfr_bayer(img, "GRBG", channel="G", method="accurate").sfra
+    image = make_observations(1, {"measure": "image", "sfr_method": "accurate"})
+    assert measure_like(image, 0)(img).sfra == measure_sfr(img, method="accurate").sfra
     assert raw.sfra != pytest.approx(measure_sfr(img).sfra, abs=1e-6)
+
+
+def test_measure_like_uses_the_method_the_observations_were_measured_with(make_observations):
+    """A set that names its SFR method is modelled with it; one that names
+    none was measured by the standard's ("iso")."""
+    from calibration.sfr.synthetic import render_slanted_edge
+
+    img = 0.2 + 0.6 * render_slanted_edge((96, 64), 5.0, 1.0)
+    iso, accurate = measure_sfr(img, method="iso").sfra, measure_sfr(img, method="accurate").sfra
+    assert iso != pytest.approx(accurate, abs=1e-5)
+    assert measure_like(make_observations(1, {"measure": "image"}), 0)(img).sfra == iso
+    assert measure_like(make_observations(1, {"measure": "image", "sfr_method": "iso"}), 0)(img).sfra == iso
+    raw = make_observations(1, {"measure": "raw", "cfa": "RGGB", "sfr_method": "iso"})
+    assert measure_like(raw, 0)(img).sfra == measure_sfr_bayer(img, "RGGB", channel="G", method="iso").sfra

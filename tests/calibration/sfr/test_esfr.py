@@ -341,7 +341,7 @@ def test_reference_sfrmat5_reproduced_exactly(name):
     image as ROI, Tukey window, its edge-fit order); SFRA to 1e-6 (the stored
     value interpolates the end point at 0.5 cy/px a little differently)."""
     img, ref = _reference(name)
-    r = measure_sfr(img, edge_fit_order=SFRMAT5_ORDER[name])
+    r = measure_sfr(img, edge_fit_order=SFRMAT5_ORDER[name], method="iso")
     t = ref["sfrmat5"]
     assert r.freq.size == len(t["freq_cy_per_px"])
     np.testing.assert_allclose(r.freq, t["freq_cy_per_px"], rtol=0, atol=1e-9)
@@ -358,7 +358,7 @@ def test_reference_tools_order5(name, capsys):
     MTF Mapper (which differ from sfrmat5 by up to 1 % and 1.2 % here) within
     the 3.5 % the tools differ by on real edges."""
     img, ref = _reference(name)
-    r = measure_sfr(img, edge_fit_order=5)
+    r = measure_sfr(img, edge_fit_order=5, method="iso")
     lines = []
     for tool, lim in (("sfrmat5", 0.02), ("sfrmat3", 0.02), ("mtf_mapper_linear", 0.035)):
         t = ref[tool]
@@ -571,11 +571,12 @@ def test_bootstrap_is_reproducible_with_a_seed():
 
 @pytest.mark.property
 def test_method_presets_and_overrides():
-    """property: the default is ISO 12233 (sfrmat5); ``method="accurate"``
-    turns on the four departures; an option passed explicitly overrides the
-    preset and the settings then say "custom"."""
+    """property: the default is ``method="accurate"``, the four departures on;
+    ``method="iso"`` is ISO 12233 (sfrmat5); an option passed explicitly
+    overrides the preset and the settings then say "custom"."""
     img = edge(1.0, 5.0)
-    iso = measure_sfr(img).settings
+    assert measure_sfr(img).settings == measure_sfr(img, method="accurate").settings
+    iso = measure_sfr(img, method="iso").settings
     assert iso["method"] == "iso" and iso["bin_correction"] is False and iso["lsf_window"] == "full"
     assert iso["derivative_correction"] == "sfrmat" and iso["refine_edge"] is False
     acc = measure_sfr(img, method="accurate").settings

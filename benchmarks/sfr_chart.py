@@ -1,0 +1,270 @@
+"""Slanted-square charts with analytic truth: per-edge MTF50 accuracy, edges
+found, wall time and peak memory, ours against MTF Mapper in the same run.
+
+Each chart is rendered exactly (:func:`calibration.sfr.synthetic.render_square_chart`:
+dark squares on a light ground, Gaussian PSF of σ px, with or without the
+square pixel aperture, every square at its own angle), given additive white
+Gaussian noise of σₙ (fraction of the 0..1 range; the step is 0.6, so
+**SNR = 0.6/σₙ**), quantised to 8 or 16 bits and written as a linear PNG
+(8-bit) or TIFF (16-bit). Both tools read the file as linear codes and find
+the edges themselves:
+
+* **ours**: ``isp calib sfr FILE --chart --json OUT`` (``--method`` as given;
+  each method a separate run);
+* **MTF Mapper** 0.7.38 (``mtf_mapper FILE OUTDIR -q --linear``; its
+  per-edge MTF50 from ``edge_mtf_values.txt``; values of 0 or ≥ 1 are its
+  "not measured"). Built by ``../shared/tools/mtfmapper/build_mtf_mapper.sh``
+  and found at ``$MTF_MAPPER``, on the PATH, or in ``mtfmapper/build/bin``
+  beside the repository or under ``$TMPDIR``; where absent its half is
+  skipped with a message.
+
+A measured edge is matched to the nearest true square side (within a
+quarter of the side's length); its error is ``MTF50 / truth − 1``, the
+truth :func:`calibration.sfr.synthetic.mtf50_of` at the side's angle. Per
+chart and tool: edges found and matched, median, 95th percentile and worst
+of ``|error|`` (%), the mean error (the bias), and whole-process wall time
+and peak RSS (one run each, after one warm-up of each tool).
+
+Charts:
+
+* ``headline``: 4000 × 3000, 9 × 13 squares (468 edges), σ 1.2 px, 5°,
+  σₙ 0.3 % (SNR 200), 16 bit, with and without the pixel aperture;
+* ``--sweep``: 2000 × 1500, 6 × 8 squares (192 edges) at angles cycling
+  through 2–40° (clear of 14.04° and 26.57°), for every σ in 0.6, 1, 1.5,
+  2 px, noise 0, 0.25, 0.5, 1 % (SNR ∞, 240, 120, 60), 8 and 16 bit, with
+  and without the aperture (64 charts). Pooled over SNR ≥ 100 and at
+  each noise level.
+
+Usage::
+
+    python -m benchmarks.sfr_chart [--sweep] [--methods accurate iso] [--no-peer]
+"""
+
+from __future__ import annotations
+
+from benchmarks import _harness
+
+if __name__ == "__main__":   # before numpy: BLAS reads its thread count when it loads
+    _harness.pin_threads(2)
+
+import itertools  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from calibration.sfr.synthetic import render_square_chart  # noqa: E402
+
+#: squares' angles in the sweep, degrees: 2–40°, clear of 14.04° and 26.57° (few distinct phases)
+SWEEP_ANGLES = (2.0, 3.5, 5.0, 7.0, 9.0, 11.0, 12.5, 16.0, 19.0, 22.0, 24.5, 29.0, 32.0, 35.0, 38.0, 40.0)
+SWEEP_SIGMAS = (0.6, 1.0, 1.5, 2.0)
+SWEEP_NOISE = (0.0, 0.0025, 0.005, 0.01)
+STEP = 0.6
+#: issue targets at SNR ≥ 100, per-edge |ΔMTF50| %
+TARGETS = {"median": 0.06, "p95": 0.25, "worst": 0.41}
+
+
+@dataclass(frozen=True)
+class ChartCase:
+    """One chart of the benchmark."""
+
+    name: str
+    shape: tuple
+    grid: tuple
+    sigma: float
+    angles: tuple
+    noise: float
+    bits: int
+    aperture: bool
+
+    @property
+    def snr(self) -> float:
+        return STEP / self.noise if self.noise > 0 else float("inf")
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "size": [self.shape[1], self.shape[0]], "grid": list(self.grid),
+                "sigma_px": self.sigma, "noise": self.noise, "snr": None if self.noise == 0 else round(self.snr, 1),
+                "bits": self.bits, "pixel_aperture": self.aperture,
+                "angles_deg": [self.angles[0]] if len(set(self.angles)) == 1 else list(self.angles)}
+
+
+def headline_cases() -> list[ChartCase]:
+    return [ChartCase(f"headline_{'aperture' if ap else 'point'}", (3000, 4000), (9, 13), 1.2, (5.0,), 0.003, 16, ap)
+            for ap in (False, True)]
+
+
+def sweep_cases() -> list[ChartCase]:
+    out = []
+    for sigma, noise, bits, ap in itertools.product(SWEEP_SIGMAS, SWEEP_NOISE, (16, 8), (True, False)):
+        out.append(ChartCase(f"s{sigma:g}_n{noise * 100:g}_b{bits}_{'ap' if ap else 'pt'}", (1500, 2000), (6, 8),
+                             sigma, SWEEP_ANGLES, noise, bits, ap))
+    return out
+
+
+def write_chart(case: ChartCase, folder: Path, seed: int) -> tuple[Path, list]:
+    """Render, add noise, quantise and write ``case``; the file and its true edges."""
+    ch = render_square_chart(case.shape, case.grid, sigma_px=case.sigma, angles_deg=case.angles,
+                             pixel_aperture=case.aperture, low=0.2, high=0.8)
+    img = ch.image
+    if case.noise > 0:
+        img = img + np.random.default_rng(seed).normal(0.0, case.noise, img.shape)
+    top = 2 ** case.bits - 1
+    codes = np.round(np.clip(img, 0.0, 1.0) * top).astype(np.uint16 if case.bits == 16 else np.uint8)
+    if case.bits == 16:
+        import tifffile
+
+        path = folder / f"{case.name}.tif"
+        tifffile.imwrite(path, codes)
+    else:
+        import cv2
+
+        path = folder / f"{case.name}.png"
+        cv2.imwrite(str(path), codes)
+    return path, list(ch.edges)
+
+
+def match(measured: list[tuple[float, float, float]], truth: list) -> list[tuple[float, float]]:
+    """``(mtf50, truth)`` for every measured ``(x, y, mtf50)`` that lies
+    within a quarter side of a true edge's midpoint (the nearest one)."""
+    centres = np.array([e.centre for e in truth])
+    out = []
+    for x, y, m in measured:
+        d = np.hypot(centres[:, 0] - x, centres[:, 1] - y)
+        i = int(np.argmin(d))
+        if d[i] <= 0.25 * truth[i].length:
+            out.append((m, truth[i].mtf50))
+    return out
+
+
+def errors_pct(pairs: list[tuple[float, float]]) -> list[float]:
+    """``MTF50/truth − 1`` of each matched edge, %."""
+    return [round((m / t - 1.0) * 100.0, 4) for m, t in pairs]
+
+
+def error_stats(errors: list[float]) -> dict:
+    """Median, p95, worst |error| and the mean signed error (the bias), % ."""
+    if not errors:
+        return {"n": 0}
+    e = np.asarray(errors, dtype=np.float64)
+    a = np.abs(e)
+    return {"n": int(e.size), "median": round(float(np.median(a)), 4), "p95": round(float(np.percentile(a, 95)), 4),
+            "worst": round(float(a.max()), 4), "bias": round(float(e.mean()), 4)}
+
+
+def run_ours(path: Path, out: Path, method: str) -> tuple[list, dict, _harness.Child]:
+    cmd = [*_harness.isp_command(), "calib", "sfr", str(path), "--chart", "--method", method, "--json", str(out)]
+    child = _harness.run_child(cmd, _harness.child_env())
+    d = json.loads(out.read_text())
+    measured = [(e["roi"][0] + e["roi"][2] / 2.0, e["roi"][1] + e["roi"][3] / 2.0, e["mtf50"]) for e in d["edges"]
+                if e["mtf50"] is not None and np.isfinite(e["mtf50"])]
+    return measured, {"found": len(d["edges"]) + len(d["skipped"]), "skipped": len(d["skipped"])}, child
+
+
+def find_mtf_mapper() -> str | None:
+    return _harness.find_tool("mtf_mapper", "MTF_MAPPER",
+                              _harness.ROOT.parent / "mtfmapper" / "build" / "bin" / "mtf_mapper",
+                              Path(tempfile.gettempdir()) / "mtfmapper" / "build" / "bin" / "mtf_mapper")
+
+
+def read_mtf_mapper(folder: Path) -> tuple[list, int]:
+    """``(x, y, mtf50)`` of every edge MTF Mapper measured, and how many it
+    listed (0 or ≥ 1 cy/px: its mark for an edge it could not measure)."""
+    rows = []
+    listed = 0
+    for line in (folder / "edge_mtf_values.txt").read_text().splitlines():
+        if not line.strip() or line.startswith("#"):
+            continue
+        f = line.split()
+        listed += 1
+        x, y, m = float(f[1]), float(f[2]), float(f[3])
+        if 0.0 < m < 1.0:
+            rows.append((x, y, m))
+    return rows, listed
+
+
+def run_mtf_mapper(exe: str, path: Path, folder: Path) -> tuple[list, dict, _harness.Child]:
+    folder.mkdir(exist_ok=True)
+    child = _harness.run_child([exe, str(path), str(folder), "-q", "--linear"], _harness.child_env())
+    measured, listed = read_mtf_mapper(folder)
+    return measured, {"found": listed, "skipped": listed - len(measured)}, child
+
+
+def run_case(case: ChartCase, tmp: Path, methods, peer: str | None, seed: int) -> dict:
+    path, truth = write_chart(case, tmp, seed)
+    row = {"chart": case.as_dict(), "edges_true": len(truth), "tools": {}}
+    tools = [(f"ours_{m}", lambda p, o, m=m: run_ours(p, o / "ours.json", m)) for m in methods]
+    if peer:
+        tools.append(("mtf_mapper", lambda p, o: run_mtf_mapper(peer, p, o / "mm")))
+    for name, fn in tools:
+        out = tmp / f"{case.name}_{name}"
+        out.mkdir(exist_ok=True)
+        measured, counts, child = fn(path, out)
+        pairs = match(measured, truth)
+        errors = errors_pct(pairs)
+        row["tools"][name] = {**counts, "matched": len(pairs), **error_stats(errors),
+                              "wall_s": round(child.wall_s, 3), "cpu_s": round(child.cpu_s, 3),
+                              "peak_mb": round(child.peak_mb, 1), "errors_pct": errors}
+    return row
+
+
+def pooled(rows: list[dict], tool: str, keep) -> dict:
+    return error_stats([e for r in rows if keep(r) and tool in r["tools"] for e in r["tools"][tool]["errors_pct"]])
+
+
+def print_rows(rows: list[dict]) -> None:
+    print(f"{'chart':<22} {'tool':<14} {'found':>6} {'matched':>7} {'median %':>9} {'p95 %':>7} {'worst %':>8} "
+          f"{'bias %':>7} {'wall s':>7} {'peak MB':>8}")
+    for r in rows:
+        for name, t in r["tools"].items():
+            if not t.get("n"):
+                print(f"{r['chart']['name']:<22} {name:<14} {t['found']:>6} {t['matched']:>7}")
+                continue
+            print(f"{r['chart']['name']:<22} {name:<14} {t['found']:>6} {t['matched']:>7} {t['median']:>9.3f} "
+                  f"{t['p95']:>7.3f} {t['worst']:>8.3f} {t['bias']:>+7.3f} {t['wall_s']:>7.2f} {t['peak_mb']:>8.0f}")
+
+
+def main(argv=None) -> dict:
+    ap = _harness.parser(__doc__)
+    ap.add_argument("--sweep", action="store_true", help="also the 64-chart accuracy sweep")
+    ap.add_argument("--methods", nargs="+", default=["accurate", "iso"], help="our SFR methods to run")
+    ap.add_argument("--no-peer", action="store_true", help="leave MTF Mapper out")
+    ap.add_argument("--seed", type=int, default=1, help="noise seed")
+    args = ap.parse_args(argv)
+    peer = None if args.no_peer else find_mtf_mapper()
+    if peer is None and not args.no_peer:
+        print("mtf_mapper not found ($MTF_MAPPER, PATH, mtfmapper/build/bin beside the repository or in $TMPDIR): "
+              "its half is skipped; build it with ../shared/tools/mtfmapper/build_mtf_mapper.sh", file=sys.stderr)
+    cases = headline_cases() + (sweep_cases() if args.sweep else [])
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="sfr_chart_") as tmp:
+        tmp = Path(tmp)
+        warm = ChartCase("warmup", (300, 400), (2, 2), 1.0, (5.0,), 0.0, 16, True)
+        run_case(warm, tmp, args.methods, peer, args.seed)   # bytecode compiled, caches warm
+        for i, case in enumerate(cases):
+            print(f"[{i + 1}/{len(cases)}] {case.name}", file=sys.stderr, flush=True)
+            rows.append(run_case(case, tmp, args.methods, peer, args.seed + i))
+    print_rows(rows)
+    tools = sorted({t for r in rows for t in r["tools"]})
+    summary = {}
+    if args.sweep:
+        sweep = [r for r in rows if not r["chart"]["name"].startswith("headline")]
+        for tool in tools:
+            summary[tool] = {"snr_100_up": pooled(sweep, tool, lambda r: r["chart"]["noise"] <= STEP / 100),
+                             **{f"noise_{n * 100:g}%": pooled(sweep, tool, lambda r, n=n: r["chart"]["noise"] == n)
+                                for n in SWEEP_NOISE}}
+        print("\nsweep, pooled: median / p95 / worst |ΔMTF50| %, bias %")
+        for tool, s in summary.items():
+            for k, v in s.items():
+                if v.get("n"):
+                    print(f"  {tool:<14} {k:<12} n {v['n']:>5}  {v['median']:.3f} / {v['p95']:.3f} / "
+                          f"{v['worst']:.3f}  bias {v['bias']:+.3f}")
+    result = {"mtf_mapper": peer, "methods": args.methods, "targets_snr_100_up": TARGETS, "charts": rows,
+              "sweep_summary": summary}
+    return _harness.publish("sfr_chart", result, args, argv)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,48 @@
+"""benchmarks/sfr_chart.py (kind: property): a chart case is written as
+the linear file both tools read, ours is measured against its truth edge
+by edge, MTF Mapper's table is read with its "not measured" marks left
+out, and its absence leaves its half out."""
+
+import numpy as np
+import pytest
+
+from benchmarks import sfr_chart
+
+pytestmark = pytest.mark.property
+
+
+def test_a_small_chart_is_measured_against_its_truth(tmp_path, monkeypatch):
+    case = sfr_chart.ChartCase("small", (600, 800), (3, 4), 1.0, (5.0, 9.0), 0.0, 16, True)
+    row = sfr_chart.run_case(case, tmp_path, ["accurate"], None, seed=1)
+    ours = row["tools"]["ours_accurate"]
+    assert row["edges_true"] == 48 and ours["found"] == ours["matched"] == 48
+    assert ours["worst"] < 0.1 and abs(ours["bias"]) < 0.1    # noise-free: the method's own bias only
+    assert "mtf_mapper" not in row["tools"]
+
+
+def test_eight_bit_charts_are_png_and_noise_is_seeded(tmp_path):
+    case = sfr_chart.ChartCase("b8", (200, 300), (1, 1), 1.0, (5.0,), 0.01, 8, False)
+    a, truth = sfr_chart.write_chart(case, tmp_path, seed=3)
+    import cv2
+
+    img = cv2.imread(str(a), cv2.IMREAD_UNCHANGED)
+    assert a.suffix == ".png" and img.dtype == np.uint8 and len(truth) == 4
+    b, _ = sfr_chart.write_chart(case, tmp_path / ".." / tmp_path.name, seed=3)
+    assert np.array_equal(img, cv2.imread(str(b), cv2.IMREAD_UNCHANGED))
+
+
+def test_mtf_mappers_table_and_the_matching(tmp_path):
+    (tmp_path / "edge_mtf_values.txt").write_text(
+        "# MTF Mapper MTF summary\n0 100.0 50.0 0.150000 1 1\n0 300.0 50.0 0.000000 1 1\n1 100.5 150.2 1.000000 1 1\n"
+        "2 500.0 500.0 0.2 1 1\n")
+    rows, listed = sfr_chart.read_mtf_mapper(tmp_path)
+    assert listed == 4 and rows == [(100.0, 50.0, 0.15), (500.0, 500.0, 0.2)]
+
+    class E:
+        def __init__(self, c, m):
+            self.centre, self.mtf50, self.length = c, m, 100.0
+
+    pairs = sfr_chart.match(rows, [E((101.0, 52.0), 0.151), E((900.0, 900.0), 0.2)])
+    assert pairs == [(0.15, 0.151)]                        # the edge at (500, 500) matches no true side
+    s = sfr_chart.error_stats(sfr_chart.errors_pct(pairs))
+    assert s["n"] == 1 and s["bias"] == pytest.approx(-0.6623, abs=1e-3)
