@@ -34,9 +34,12 @@ from __future__ import annotations
 import dataclasses
 import enum
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:   # for the annotation only: isp.meta is heavier than a frame needs
+    from isp.meta import CameraMeta
 
 
 class Domain(enum.Enum):

@@ -411,7 +411,6 @@ def reconstruct_opposed(rgb: np.ndarray, clip: ClipLevels, *, ring: int = RING
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"rgb must be (H, W, 3), got shape {rgb.shape}")
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
-    w = rgb.shape[1]
     idx, m, lv = clipped_pixels(rgb, clip)
     info = {"pixels": int(idx.size), "clipped": [int(v) for v in m.sum(axis=0)],
             "chroma": [0.0, 0.0, 0.0]}

@@ -16,7 +16,6 @@ import pytest
 import isp.cli.commands as commands
 import isp.registry
 from isp.cli.commands import Command, get_command, list_commands, register_command
-from isp.cli.main import main
 from isp.errors import ConfigError
 
 pytestmark = pytest.mark.property
