@@ -9,6 +9,9 @@ both DNGs are measured as ``isp calib loop``/``fit`` measure a capture
 
 * **noise repeat**: RMS over the edges both captures hold of the SFRA
   difference, over √2: what one edge's SFRA scatters by from noise alone;
+  for each SFR method of ``--methods`` (the same two captures measured
+  each way; the first method's figures are also the top-level ones, and
+  the fits use it);
 * **the device's own lens** through :class:`calibration.fit.forward_model.SfrModel`
   (measurement bias included): SFRA RMS error against the first capture.
   No fit can be expected to beat it by much;
@@ -20,7 +23,7 @@ both DNGs are measured as ``isp calib loop``/``fit`` measure a capture
 
 Prints a line per figure and one JSON object as the LAST line. Usage::
 
-    python -m benchmarks.capture_roundtrip [--seed 3] [--size 2000 1500] [--fit 12 24]
+    python -m benchmarks.capture_roundtrip [--seed 3] [--size 2000 1500] [--methods accurate iso] [--fit 12 24]
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from calibration.fit.measurements import load_measured, match_sensor  # noqa: E4
 from calibration.fit.proxy import ProxyFitSettings, fit_proxy, residual_bias  # noqa: E402
 from isp.runtime.executor import pool_executor  # noqa: E402
 from calibration.fit.forward_model import FAST_JACOBIAN, SfrModel  # noqa: E402
+from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
 
 LENS = ROOT.parent / "shared" / "data" / "lenses" / "phone" / "US-12210142-B2-e9.zmx"
 
@@ -63,6 +67,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--exposure", type=float, default=0.8, help="chart white level (isp calib simulate's default)")
     ap.add_argument("--fit", type=int, nargs="*", default=[], metavar="N",
                     help="fit_proxy over the loop base's N screened perturbations, for each N")
+    ap.add_argument("--methods", nargs="+", default=[DEFAULT_METHOD, "iso"], choices=("accurate", "iso"),
+                    help="SFR methods to measure the captures with (the first is the fits')")
     args = ap.parse_args(argv)
 
     def log(msg):
@@ -74,33 +80,39 @@ def main(argv=None) -> dict:
                                       width_px=w, height_px=h))
     device, what = device_lens(lens, "random", seed=args.seed)
     chart = slanted_square_chart(h, w)
-    obs = []
+    obs = {m: [] for m in args.methods}
     with tempfile.TemporaryDirectory() as tmp:
         for noise_seed in (args.seed, args.seed + 1000):
             log(f"capture, noise seed {noise_seed} ...")
             dng = write_capture(Path(tmp) / f"c{noise_seed}.dng",
                                 capture=simulate_capture(device, chart, exposure=args.exposure, rng=noise_seed))
-            o, _ = load_measured(str(dng))
-            nominal, o = match_sensor(read_lens(args.lens), o)
-            obs.append(o)
-    out = {"lens": Path(args.lens).stem, "device": what, "size": [w, h],
-           "pixel_pitch_um": round(float(obs[0].sensor.pixel_pitch_um), 4), "edges": len(obs[0])}
+            for m in args.methods:
+                o, _ = load_measured(str(dng), method=m)
+                nominal, o = match_sensor(read_lens(args.lens), o)
+                obs[m].append(o)
 
     def key(o):
         return {(round(x), round(y), round(n)): i for i, (x, y, n) in enumerate(zip(o.x_px, o.y_px, o.normal_deg))}
 
-    k0, k1 = key(obs[0]), key(obs[1])
-    both = sorted(set(k0) & set(k1))
-    d = obs[0].sfra[[k0[c] for c in both]] - obs[1].sfra[[k1[c] for c in both]]
-    out["noise_repeat_sfra"] = float(np.sqrt(np.mean(d ** 2) / 2))
-    out["edges_in_both"] = len(both)
-    log(f"noise repeat: SFRA {out['noise_repeat_sfra']:.4f} per edge over {len(both)} edges")
-
-    model = SfrModel(nominal, obs[0])
-    with pool_executor(2) as ex:
-        pred = model.predict(device).sfra + residual_bias(model, device, "sfra", ex).sfra
-    out["device_lens_sfra_rms"] = sfra_rms(obs[0], pred)
-    log(f"the device's own lens: SFRA RMS {out['device_lens_sfra_rms']:.4f}")
+    by_method = {}
+    for m in args.methods:
+        pair = obs[m]
+        k0, k1 = key(pair[0]), key(pair[1])
+        both = sorted(set(k0) & set(k1))
+        d = pair[0].sfra[[k0[c] for c in both]] - pair[1].sfra[[k1[c] for c in both]]
+        rec = {"edges": len(pair[0]), "edges_in_both": len(both), "noise_repeat_sfra": float(np.sqrt(np.mean(d ** 2) / 2))}
+        log(f"{m}: noise repeat SFRA {rec['noise_repeat_sfra']:.4f} per edge over {len(both)} edges")
+        model = SfrModel(nominal, pair[0])
+        with pool_executor(2) as ex:
+            pred = model.predict(device).sfra + residual_bias(model, device, "sfra", ex).sfra
+        rec["device_lens_sfra_rms"] = sfra_rms(pair[0], pred)
+        log(f"{m}: the device's own lens: SFRA RMS {rec['device_lens_sfra_rms']:.4f}")
+        by_method[m] = rec
+    first = args.methods[0]
+    obs = obs[first]
+    out = {"lens": Path(args.lens).stem, "device": what, "size": [w, h],
+           "pixel_pitch_um": round(float(obs[0].sensor.pixel_pitch_um), 4), "method": first, **by_method[first],
+           "by_method": by_method}
 
     out["fits"] = []
     for n in args.fit:

@@ -58,9 +58,9 @@ def one_edge(runs: int) -> tuple[_harness.Spread, _harness.Spread]:
     """Milliseconds per measurement of one ROI, without and with ``bootstrap=50``."""
     rng = np.random.default_rng(0)
     roi = to_codes(render_slanted_edge((100, 200), 5.0, 1.0), rng)
-    plain = _harness.measure(lambda: measure_sfr(roi), runs=runs, warmup=3)
+    plain = _harness.measure(lambda: measure_sfr(roi, method="iso"), runs=runs, warmup=3)
     seeds = iter(range(10 ** 6))
-    boot = _harness.measure(lambda: measure_sfr(roi, bootstrap=50, rng=next(seeds)), runs=max(3, runs // 10),
+    boot = _harness.measure(lambda: measure_sfr(roi, method="iso", bootstrap=50, rng=next(seeds)), runs=max(3, runs // 10),
                             warmup=0)
     return plain.map(lambda s: 1e3 * s), boot.map(lambda s: 1e3 * s)
 
@@ -95,7 +95,7 @@ _CHART = None  # the image, shared with forked workers
 
 
 def _measure_box(box):
-    return measure_sfr(_CHART, box=box).mtf50
+    return measure_sfr(_CHART, box=box, method="iso").mtf50
 
 
 def chart(n_edges: int) -> dict:
@@ -103,7 +103,7 @@ def chart(n_edges: int) -> dict:
     t0 = time.perf_counter()
     _CHART, boxes, truths = make_chart(n_edges)
     print(f"chart {CHART[1]}×{CHART[0]} with {len(boxes)} edges rendered in {time.perf_counter() - t0:.1f} s")
-    measure_sfr(_CHART, box=boxes[0])
+    measure_sfr(_CHART, box=boxes[0], method="iso")
 
     t0 = time.perf_counter()
     serial = [_measure_box(b) for b in boxes]
@@ -152,9 +152,9 @@ def detected_chart(grid=(6, 8), sigma=1.2, seed=2) -> dict:
             cv2.fillConvexPoly(img, np.round(box * 16).astype(np.int32), 0.2, lineType=cv2.LINE_AA, shift=4)
     img = cv2.GaussianBlur(img, (0, 0), sigma)
     img = to_codes(img.astype(np.float64), rng)
-    measure_chart(img[:600, :800])  # warm-up (imports)
+    measure_chart(img[:600, :800], method="iso")  # warm-up (imports)
     t0 = time.perf_counter()
-    res = measure_chart(img)
+    res = measure_chart(img, method="iso")
     dt = time.perf_counter() - t0
     return {"detected_chart_squares": rows * cols, "detected_chart_edges": len(res.edges),
             "detected_chart_skipped": len(res.skipped), "detected_chart_s": round(dt, 3),

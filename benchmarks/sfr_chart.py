@@ -261,6 +261,9 @@ def main(argv=None) -> dict:
                 if v.get("n"):
                     print(f"  {tool:<14} {k:<12} n {v['n']:>5}  {v['median']:.3f} / {v['p95']:.3f} / "
                           f"{v['worst']:.3f}  bias {v['bias']:+.3f}")
+    for r in rows:   # the pooled figures are computed; the per-edge lists stay out of the record
+        for t in r["tools"].values():
+            t.pop("errors_pct", None)
     result = {"mtf_mapper": peer, "methods": args.methods, "targets_snr_100_up": TARGETS, "charts": rows,
               "sweep_summary": summary}
     return _harness.publish("sfr_chart", result, args, argv)

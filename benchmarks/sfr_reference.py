@@ -42,7 +42,7 @@ def compare(image: Path, ref: dict) -> dict:
     img = tifffile.imread(image)
     out = {"image": image.name}
     for order in (5, 1):
-        r = measure_sfr(img, edge_fit_order=order)
+        r = measure_sfr(img, edge_fit_order=order, method="iso")
         row = {"mtf50": r.mtf50, "sfra": r.sfra}
         for tool in TOOLS:
             t = ref[tool]

@@ -153,7 +153,7 @@ def classify_orientation(edge_dx: float, edge_dy: float, radius: float, field_an
 
 def find_edges(image, *, channel=None, encoding: str = "linear", min_length: float = 40.0,
                centre: tuple[float, float] | None = None, max_slant_deg: float = 40.0,
-               min_slant_deg: float = 2.0) -> list[EdgeROI]:
+               min_slant_deg: float = 1.0) -> list[EdgeROI]:
     """Find slanted edges of dark shapes on a chart image.
 
     Parameters
@@ -167,7 +167,8 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
     centre : (x, y), optional
         Optical centre in pixels (default: the image centre).
     min_slant_deg, max_slant_deg : float
-        Accepted slant from the nearest axis.
+        Accepted slant from the nearest axis (the measurement warns below
+        2° and above 40°, where few phases are sampled, but measures).
 
     Returns
     -------
