@@ -31,20 +31,22 @@ from isp.io.files import write_bytes_atomic
 __all__ = ["check_output_folder", "publish_folder", "save_figure", "staged_folder", "write_json"]
 
 
-def save_figure(fig, path) -> None:
-    """Save a matplotlib figure atomically (PNG/PDF/SVG by suffix, 120 dpi)
-    and close it.
+def save_figure(fig, path, *, dpi: int = 120) -> None:
+    """Save a matplotlib figure atomically (PNG/PDF/SVG by suffix) and close it.
 
     Parameters
     ----------
     fig : matplotlib.figure.Figure
     path : str or Path
         The file; its suffix picks the format (none: PNG).
+    dpi : int
+        Resolution of raster formats (an annotated chart of hundreds of
+        edges wants more than a plot of curves).
     """
     import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
-    fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=120, bbox_inches="tight")
+    fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     write_bytes_atomic(path, buf.getvalue())
 

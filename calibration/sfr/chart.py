@@ -432,25 +432,136 @@ def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane",
     return res
 
 
+#: skip reasons as chart labels: (pattern of the measurement's message, label)
+_REASON_LABELS = (
+    (r"less than one whole phase cycle|untilted", "edge untilted (under one phase cycle)"),
+    (r"quarter-pixel bins filled", "angle samples too few phases"),
+    (r"^uniform ROI", "uniform ROI"),
+    (r"^no edge found", "no edge found"),
+    (r"^not a straight edge", "not a straight edge"),
+    (r"plateau too narrow|from the ROI border", "edge at the ROI border"),
+    (r"^edge too short", "edge too short"),
+    (r"^ROI too narrow", "ROI too narrow"),
+)
+
+
+def short_reason(reason: str) -> str:
+    """A skip reason as a label for the annotated chart: its kind, without
+    the numbers of the case (the JSON keeps the whole message).
+
+    >>> short_reason("uniform ROI: every pixel is 0.2; no edge to measure")
+    'uniform ROI'
+    >>> short_reason("edge angle 0.36° gives less than one whole phase cycle over 51 rows (needs ≥ 3 rows)")
+    'edge untilted (under one phase cycle)'
+    """
+    for pattern, label in _REASON_LABELS:
+        if re.search(pattern, reason):
+            return label
+    first = re.split(r"[:;(]", reason, maxsplit=1)[0]
+    return re.sub(r"\s+", " ", re.sub(r"[-+]?\d[\d.,]*\s*[°%]?", "", first)).strip()
+
+
+def _edge_segment(roi: EdgeROI, res) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted edge across its ROI, in image pixels: (x, y) arrays."""
+    q = np.asarray(res.edge_fit_linear, dtype=np.float64)
+    if res.orientation == "vertical":          # col = q(row)
+        rows = np.array([roi.y, roi.y + roi.h - 1], dtype=np.float64)
+        return np.polynomial.polynomial.polyval(rows, q), rows
+    cols = np.array([roi.x, roi.x + roi.w - 1], dtype=np.float64)
+    return cols, np.polynomial.polynomial.polyval(cols, q)
+
+
+def annotate_chart(result: ChartResult, image, *, value: str = "mtf50", ax=None, labels: bool = True):
+    """The chart with every measured edge drawn on it, coloured by its
+    ``value`` ("mtf50" or "sfra", cycles/pixel) and labelled with it, and
+    every skipped candidate boxed with its reason: what chart tools show.
+    The colour scale ("turbo") spans the 2nd to 98th percentile of the
+    values, so that one outlier does not flatten the rest.
+
+    Skip reasons are numbered in a legend (the box carries the number), so
+    that a crowded chart stays readable; each measured edge is the fitted
+    line across its ROI.
+
+    Parameters
+    ----------
+    result : ChartResult
+    image : (H, W) or (H, W, 3) array_like
+        The chart the result was measured on (drawn in grey, linear codes
+        stretched between the 1st and 99th percentiles).
+    value : {"mtf50", "sfra"}
+    ax : matplotlib Axes, optional
+        Where to draw (default: a new figure sized to the image).
+    labels : bool
+        Print each edge's value beside it.
+
+    Returns
+    -------
+    matplotlib Figure
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import Normalize
+
+    g = _gray(np.asarray(image), None, "linear")
+    h, w = g.shape
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(12.0, 12.0 * h / w + 0.8))
+    else:
+        fig = ax.figure
+    lo, hi = np.percentile(g[::4, ::4], [1, 99])
+    ax.imshow(g, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1)
+    vals = np.array([getattr(res, value) for _, res in result.edges], dtype=np.float64)
+    ok = np.isfinite(vals)
+    vmin, vmax = (np.percentile(vals[ok], [2, 98]) if ok.any() else (0.0, 1.0))
+    norm = Normalize(vmin, vmax if vmax > vmin else vmin + 1e-6)
+    cmap = plt.get_cmap("turbo")
+    font = float(np.clip(1100.0 / max(np.sqrt(max(len(result.edges), 1)) * 40.0, 1.0), 3.0, 8.0))
+    for (roi, res), v in zip(result.edges, vals):
+        colour = cmap(norm(v)) if np.isfinite(v) else (1.0, 0.0, 1.0, 1.0)
+        x, y = _edge_segment(roi, res)
+        ax.plot(x, y, color=colour, lw=2.0, solid_capstyle="butt")
+        if labels:
+            cx, cy = roi.centre
+            ax.text(cx, cy, "–" if not np.isfinite(v) else f"{v:.3f}", fontsize=font, color="black",
+                    ha="center", va="center",
+                    bbox=dict(boxstyle="round,pad=0.15", fc=colour, ec="none", alpha=0.85))
+    reasons: dict[str, int] = {}
+    for roi, why in result.skipped:
+        key = short_reason(why)
+        k = reasons.setdefault(key, len(reasons) + 1)
+        ax.add_patch(plt.Rectangle((roi.x, roi.y), roi.w, roi.h, fill=False, lw=0.9, ls="--", color="red"))
+        ax.text(roi.x + roi.w / 2, roi.y + roi.h / 2, str(k), fontsize=font, color="white", ha="center",
+                va="center", bbox=dict(boxstyle="circle,pad=0.15", fc="red", ec="none", alpha=0.85))
+    sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
+    fig.colorbar(sm, ax=ax, fraction=0.035, pad=0.01, label=f"{value} (cycles/pixel)")
+    if reasons:
+        counts = {key: sum(short_reason(r) == key for _, r in result.skipped) for key in reasons}
+        ax.legend(handles=[plt.Line2D([], [], ls="none", marker="o", color="red", label=f"{k}: {key} ({counts[key]})")
+                           for key, k in reasons.items()],
+                  loc="upper left", fontsize=7, title="skipped", title_fontsize=7, framealpha=0.85)
+    ax.set_title(f"{len(result.edges)} edges measured ({result.method}), {len(result.skipped)} skipped; "
+                 f"{value} from {vmin:.3f} to {vmax:.3f}")
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.axis("off")
+    return fig
+
+
 def plot_chart(result: ChartResult, image=None, *, value: str = "mtf50"):
-    """A figure: detected ROIs on the image (if given), SFR curves coloured by
-    field radius, and the ``value`` map over the 15 × 20 field grid."""
+    """A figure: with the image, the annotated chart on top
+    (:func:`annotate_chart`); below, the SFR curves coloured by field radius
+    and the ``value`` map over the field grid."""
     import matplotlib.pyplot as plt
 
-    panels = 3 if image is not None else 2
-    fig, axes = plt.subplots(1, panels, figsize=(5.2 * panels, 4.2))
-    i = 0
     if image is not None:
-        ax = axes[0]
-        g = _gray(np.asarray(image), None, "linear")
-        ax.imshow(g, cmap="gray")
-        for roi, _ in result.edges:
-            ax.add_patch(plt.Rectangle((roi.x, roi.y), roi.w, roi.h, fill=False, lw=0.8,
-                                       color="tab:orange" if roi.orientation == "sagittal" else "tab:cyan"))
-        ax.set_title(f"{len(result.edges)} edges ({len(result.skipped)} skipped)")
-        ax.axis("off")
-        i = 1
-    ax = axes[i]
+        h, w = np.asarray(image).shape[:2]
+        top = 10.4 * h / w
+        fig = plt.figure(figsize=(10.4, top + 4.2))
+        grid = fig.add_gridspec(2, 2, height_ratios=[top, 4.2])
+        annotate_chart(result, image, value=value, ax=fig.add_subplot(grid[0, :]))
+        axes = [fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[1, 1])]
+    else:
+        fig, axes = plt.subplots(1, 2, figsize=(10.4, 4.2))
+    ax = axes[0]
     cmap = plt.get_cmap("viridis")
     for roi, res in result.edges:
         ax.plot(res.freq, res.sfr, color=cmap(min(roi.radius, 1.0)), lw=0.7, alpha=0.8)
@@ -460,7 +571,7 @@ def plot_chart(result: ChartResult, image=None, *, value: str = "mtf50"):
     ax.set_ylabel("SFR")
     ax.set_title("SFR (colour: field radius)")
     ax.grid(alpha=0.3)
-    ax = axes[i + 1]
+    ax = axes[1]
     m = result.field_map(value)
     im = ax.imshow(m, cmap="magma", origin="upper")
     fig.colorbar(im, ax=ax, label=f"{value} ({'cy/px' if value == 'mtf50' else 'cy/px area'})")

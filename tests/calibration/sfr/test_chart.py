@@ -128,3 +128,44 @@ def test_each_side_is_measured_whole_and_recovers_its_truth():
         along = roi.h if roi.direction == "vertical" else roi.w
         assert along >= 0.85 * truth.length * math.cos(math.radians(truth.angle_deg))
         assert r.mtf50 == pytest.approx(truth.mtf50, rel=1e-3)
+
+
+@pytest.mark.property
+def test_the_annotated_chart_draws_each_edge_and_each_skip_with_its_reason():
+    """One line per measured edge, along its fitted edge and coloured by its
+    MTF50 on the colour bar's scale, its value printed; each skipped
+    candidate boxed with the number of its reason's kind in the legend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.colors import to_rgba
+
+    from calibration.sfr.chart import annotate_chart, short_reason
+    from calibration.sfr.synthetic import render_square_chart
+
+    ch = render_square_chart((600, 800), (3, 4), sigma_px=1.0, angles_deg=(5.0, 9.0), side=0.5)
+    res = measure_chart(ch.image)
+    assert len(res.edges) == 48
+    # two candidates the measurement refused, of two kinds
+    from calibration.sfr.chart import EdgeROI
+
+    res.skipped = [(EdgeROI(10, 10, 20, 20, 5.0, "vertical", 0.9, 135.0, "sagittal", 0), "uniform ROI: every pixel is 0.8"),
+                   (EdgeROI(40, 10, 20, 20, 5.0, "vertical", 0.9, 135.0, "sagittal", 0),
+                    "edge angle 0.30° gives less than one whole phase cycle over 20 rows (needs ≥ 10 rows)")]
+    fig = annotate_chart(res, ch.image)
+    ax = fig.axes[0]
+    lines = [ln for ln in ax.lines if ln.get_linewidth() == 2.0]
+    assert len(lines) == 48
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import Normalize
+
+    vals = [r.mtf50 for _, r in res.edges]
+    norm, cmap = Normalize(*np.percentile(vals, [2, 98])), plt.get_cmap("turbo")
+    for ln, (roi, r) in zip(lines, res.edges):
+        assert to_rgba(ln.get_color()) == pytest.approx(cmap(norm(r.mtf50)))
+        x, y = ln.get_data()
+        assert roi.x - 1 <= np.mean(x) <= roi.x + roi.w + 1 and roi.y - 1 <= np.mean(y) <= roi.y + roi.h + 1
+    texts = {t.get_text() for t in ax.texts}
+    assert {f"{r.mtf50:.3f}" for _, r in res.edges} <= texts and {"1", "2"} <= texts
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert legend == [f"1: {short_reason(res.skipped[0][1])} (1)", "2: edge untilted (under one phase cycle) (1)"]
