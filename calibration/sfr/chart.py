@@ -153,8 +153,21 @@ def classify_orientation(edge_dx: float, edge_dy: float, radius: float, field_an
 
 def find_edges(image, *, channel=None, encoding: str = "linear", min_length: float = 40.0,
                centre: tuple[float, float] | None = None, max_slant_deg: float = 40.0,
-               min_slant_deg: float = 1.0) -> list[EdgeROI]:
-    """Find slanted edges of dark shapes on a chart image.
+               min_slant_deg: float = 1.0, rejected: list | None = None) -> list[EdgeROI]:
+    """Find the slanted edges of a chart image, whatever the shapes: the
+    sides of squares and bars, the straight pieces of curved (distorted)
+    edges.
+
+    Straight edge segments are found by the LSD line-segment detector
+    (Grompone von Gioi et al., *LSD: a Line Segment Detector*, IPOL 2012;
+    OpenCV's), on the image reduced to :data:`DETECT_MAX_SIDE` px at most;
+    collinear pieces of one edge are joined (:func:`_join_collinear`). A
+    curved edge comes out as the straight pieces LSD finds along it, each
+    measured on its own, as ISO 12233 allows for a curved edge. Each piece
+    slanted ``min_slant_deg``–``max_slant_deg`` from an axis and at least
+    ``min_length`` long gets the largest axis-aligned ROI that holds it
+    alone (:func:`_edge_roi`): the whole piece but its ends, ±40 px across,
+    narrower where other edges crowd; a piece no ROI isolates is left out.
 
     Parameters
     ----------
@@ -163,19 +176,23 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
         As :func:`calibration.sfr.esfr.measure_sfr` (detection only needs the
         luminance; the default for colour input).
     min_length : float
-        Shortest polygon side used, pixels.
+        Shortest edge piece used, pixels.
     centre : (x, y), optional
         Optical centre in pixels (default: the image centre).
     min_slant_deg, max_slant_deg : float
         Accepted slant from the nearest axis (the measurement warns below
         2° and above 40°, where few phases are sampled, but measures).
+    rejected : list, optional
+        Receives ``(EdgeROI, reason)`` for every piece at least
+        ``min_length`` long that is not used: slanted outside the range,
+        too faint, or with no ROI that holds it alone (the box is then the
+        piece's middle).
 
     Returns
     -------
-    list of EdgeROI, sorted top-to-bottom, left-to-right.
+    list of EdgeROI, sorted top-to-bottom, left-to-right; ``shape`` is the
+    index of the edge piece.
     """
-    import cv2
-
     g = _gray(image, channel, encoding)
     if not np.all(np.isfinite(g)):
         raise SfrError("chart image has NaN or inf pixels")
@@ -184,72 +201,165 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
     if hi - lo <= 1e-9:
         raise SfrError("chart image is uniform: no edges to find")
     u8 = np.clip((g - lo) / (hi - lo) * 255.0, 0, 255).astype(np.uint8)
-    blur = cv2.GaussianBlur(u8, (0, 0), 1.2)
-    # dark relative to the local surround (a block ~1/8 of the image), so that
-    # grey shapes on grey charts with black borders separate as well
-    block = max(31, (min(h, w) // 8) | 1)
-    dark = cv2.adaptiveThreshold(blur, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 8)
-    contours, _ = cv2.findContours(dark, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    pieces = _join_collinear(_line_segments(u8))
     cx, cy = centre if centre is not None else (w / 2.0, h / 2.0)
     half_diag = 0.5 * math.hypot(w, h)
     found: list[EdgeROI] = []
-    for k, c in enumerate(contours):
-        if cv2.contourArea(c) < 0.5 * min_length ** 2:
+    refused: list = []
+    for k, (p, q) in enumerate(pieces):
+        roi, why = _edge_roi(p, q, g, min_length, min_slant_deg, max_slant_deg, contrast=0.1 * (hi - lo))
+        if roi is None:
             continue
-        peri = cv2.arcLength(c, True)
-        poly = cv2.approxPolyDP(c, max(1.5, 0.01 * peri), True).reshape(-1, 2).astype(np.float64)
-        if len(poly) < 3 or len(poly) > 24:
-            continue
-        for i in range(len(poly)):
-            p, q = poly[i], poly[(i + 1) % len(poly)]
-            roi = _edge_roi(p, q, dark, min_length, min_slant_deg, max_slant_deg)
-            if roi is None:
-                continue
-            x, y, rw, rh, slant, direction = roi
-            radius, fang = field_position(x + rw / 2, y + rh / 2, (cx, cy), half_diag)
-            orient = classify_orientation(q[0] - p[0], q[1] - p[1], radius, fang)
-            found.append(EdgeROI(x, y, rw, rh, slant, direction, radius, fang, orient, k))
+        x, y, rw, rh, slant, direction = roi
+        radius, fang = field_position(x + rw / 2, y + rh / 2, (cx, cy), half_diag)
+        orient = classify_orientation(q[0] - p[0], q[1] - p[1], radius, fang)
+        e = EdgeROI(x, y, rw, rh, slant, direction, radius, fang, orient, k)
+        if why:
+            refused.append((e, why))
+        else:
+            found.append(e)
     found = _deduplicate(found)
+    if rejected is not None:
+        kept = [e.centre for e in found]
+        rejected += [(e, why) for e, why in refused
+                     if not any(abs(e.centre[0] - x) < 4 and abs(e.centre[1] - y) < 4 for x, y in kept)]
     return sorted(found, key=lambda e: (round(e.centre[1] / 8), e.centre[0]))
 
 
-def _edge_roi(p, q, dark, min_length, min_slant, max_slant):
-    """Axis-aligned ROI around the middle of side p→q, or None."""
-    h, w = dark.shape
+#: the longest side of the image the segment detector works on: a 12 MP
+#: chart is halved (0.13 s instead of 0.64 s; the pieces are only located
+#: there, the SFR is measured at full resolution)
+DETECT_MAX_SIDE = 2048
+
+
+def _line_segments(u8: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) straight edge segments ``[[x0, y0], [x1, y1]]`` in the
+    image's pixels (centres at integers), found by OpenCV's LSD."""
+    import cv2
+
+    h, w = u8.shape
+    s = min(1.0, DETECT_MAX_SIDE / max(h, w))
+    work = u8 if s >= 1.0 else cv2.resize(u8, (max(1, round(w * s)), max(1, round(h * s))),
+                                          interpolation=cv2.INTER_AREA)
+    lines = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(work)[0]
+    if lines is None:
+        return np.zeros((0, 2, 2))
+    seg = lines.reshape(-1, 2, 2).astype(np.float64)
+    sx, sy = work.shape[1] / w, work.shape[0] / h
+    seg[..., 0] = (seg[..., 0] + 0.5) / sx - 0.5
+    seg[..., 1] = (seg[..., 1] + 0.5) / sy - 0.5
+    return seg
+
+
+def _join_collinear(seg: np.ndarray, angle_tol_deg: float = 1.5, offset_px: float = 1.5,
+                    gap_px: float = 6.0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Join pieces of one straight edge: segments within ``angle_tol_deg``
+    of each other, each end within ``offset_px`` of the other's line, and
+    at most ``gap_px`` apart along it (LSD breaks an edge where noise or a
+    mark interrupts it). Returns ``(p, q)`` end points, longest first."""
+    n = len(seg)
+    if n == 0:
+        return []
+    d = seg[:, 1] - seg[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(length, 1e-9)[:, None]
+    parent = list(range(n))
+
+    def root(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    cos_tol = math.cos(math.radians(angle_tol_deg))
+    for i in range(n):
+        dots = np.abs(u[i + 1:] @ u[i])
+        cand = np.flatnonzero(dots >= cos_tol) + i + 1
+        for j in cand:
+            # ends of j off i's line, and the gap between the two along it
+            rel = seg[j] - seg[i, 0]
+            off = np.abs(rel[:, 0] * u[i, 1] - rel[:, 1] * u[i, 0])
+            if off.max() > offset_px:
+                continue
+            t = rel @ u[i]
+            lo, hi = t.min(), t.max()
+            if lo > length[i] + gap_px or hi < -gap_px:
+                continue
+            parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    out = []
+    for members in groups.values():
+        pts = seg[members].reshape(-1, 2)
+        k = members[int(np.argmax(length[members]))]
+        t = (pts - seg[k, 0]) @ u[k]
+        out.append((seg[k, 0] + t.min() * u[k], seg[k, 0] + t.max() * u[k]))
+    out.sort(key=lambda pq: -float(np.hypot(*(pq[1] - pq[0]))))
+    return out
+
+
+def _edge_roi(p, q, g, min_length, min_slant, max_slant, contrast):
+    """Axis-aligned ROI around the middle of the edge piece p→q that holds
+    it alone: ``((x, y, w, h, slant, direction), "")``; for a piece long
+    enough but unusable, its middle's box and the reason; ``(None, "")``
+    for one shorter than ``min_length`` or reaching out of the image."""
+    h, w = g.shape
     d = q - p
     length = float(np.hypot(*d))
     if length < min_length:
-        return None
+        return None, ""
     ang = math.degrees(math.atan2(abs(d[1]), abs(d[0])))   # 0 horizontal, 90 vertical
     vertical = ang > 45.0
     slant = 90.0 - ang if vertical else ang
-    if not (min_slant <= slant <= max_slant):
-        return None
+    direction = "vertical" if vertical else "horizontal"
     mid = (p + q) / 2.0
     t = math.tan(math.radians(slant))
     cos = math.cos(math.radians(slant))
-    # the largest ROI that holds this edge alone: the whole side but its
-    # corners (CORNER_MARGIN of the side and CORNER_MARGIN_PX at each end,
-    # where the neighbouring sides' blur reaches), ±40 px across; narrower
-    # and shorter ones where shapes crowd. The SFR's noise falls as the
-    # square root of the rows measured (benchmarks/sfr_chart.py: the middle
-    # 60 % of each side gave a median |ΔMTF50| of 0.13 %, the whole side
-    # 0.10 %, on the same chart).
-    whole = max(length - 2.0 * (CORNER_MARGIN * length + CORNER_MARGIN_PX), 0.4 * length)
-    for along, across in ((whole, 40.0), (whole, 28.0), (0.5 * length, 20.0), (0.4 * length, 14.0)):
-        across = min(across, max(10.0, 0.22 * length))
+
+    def box(along, across):
         if vertical:
             rh = int(round(along * cos))
             rw = int(round(2 * across + rh * t))
         else:
             rw = int(round(along * cos))
             rh = int(round(2 * across + rw * t))
-        x, y = int(round(mid[0] - rw / 2)), int(round(mid[1] - rh / 2))
+        return int(round(mid[0] - rw / 2)), int(round(mid[1] - rh / 2)), rw, rh
+
+    def middle():
+        x, y, rw, rh = box(0.5 * length, 10.0)
+        x, y = max(x, 0), max(y, 0)
+        rw, rh = min(rw, w - x), min(rh, h - y)
+        return (x, y, rw, rh, slant, direction) if rw > 0 and rh > 0 else None
+
+    if not (min_slant <= slant <= max_slant):
+        return middle(), (f"edge slanted {slant:.1f}° from the {'vertical' if vertical else 'horizontal'} axis, "
+                          f"outside {min_slant:g}–{max_slant:g}° (too few phases near 0° and 45°)")
+    # the largest ROI that holds this edge alone: the whole piece but its
+    # ends (CORNER_MARGIN of it and CORNER_MARGIN_PX at each end, where a
+    # square's neighbouring sides' blur reaches), ±40 px across; narrower
+    # and shorter ones where edges crowd. The SFR's noise falls as the
+    # square root of the rows measured (benchmarks/sfr_chart.py: the middle
+    # 60 % of each side gave a median |ΔMTF50| of 0.13 %, the whole side
+    # 0.10 %, on the same chart).
+    whole = max(length - 2.0 * (CORNER_MARGIN * length + CORNER_MARGIN_PX), 0.4 * length)
+    inside = False
+    for along, across in ((whole, 40.0), (whole, 28.0), (0.5 * length, 20.0), (0.4 * length, 14.0),
+                          (0.4 * length, 10.0)):
+        across = min(across, max(10.0, 0.22 * length))
+        x, y, rw, rh = box(along, across)
         if x < 0 or y < 0 or x + rw > w or y + rh > h or min(rw, rh) < 8:
             continue
-        if _one_edge(dark[y:y + rh, x:x + rw]):
-            return x, y, rw, rh, slant, "vertical" if vertical else "horizontal"
-    return None
+        inside = True
+        patch = g[y:y + rh, x:x + rw]
+        lo, hi = np.percentile(patch, [5, 95])
+        if hi - lo < contrast:
+            return middle(), f"faint edge: step {hi - lo:.3g} below {contrast:.3g}, a tenth of the chart's range"
+        if _one_edge(patch < 0.5 * (lo + hi)):
+            return (x, y, rw, rh, slant, direction), ""
+    if not inside:
+        return None, ""
+    return middle(), "no ROI holds this edge alone: another edge within 10 px across it"
 
 
 def _one_edge(patch: np.ndarray) -> bool:
@@ -345,17 +455,20 @@ def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None,
 
     Parameters are those of :func:`find_edges` and
     :func:`calibration.sfr.esfr.measure_sfr`; ``executor`` measures the edges
-    (:func:`measure_rois`). Edges the measurement refuses are listed in
+    (:func:`measure_rois`). Edges the measurement refuses, and the edge pieces the search found
+    but could not use (:func:`find_edges`, ``rejected``), are listed in
     ``skipped`` with the reason, not dropped.
     """
     a = np.asarray(image)
     g = _gray(a, channel, encoding)
     h, w = g.shape
-    rois = find_edges(g, centre=centre, min_length=min_length)
+    rejected: list = []
+    rois = find_edges(g, centre=centre, min_length=min_length, rejected=rejected)
     res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid, method=method)
     res.edges, res.skipped = measure_rois(
         rois, lambda box: measure_sfr(g, box=box, edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um,
                                       method=method), executor=executor)
+    res.skipped += rejected
     return res
 
 
@@ -442,6 +555,9 @@ _REASON_LABELS = (
     (r"plateau too narrow|from the ROI border", "edge at the ROI border"),
     (r"^edge too short", "edge too short"),
     (r"^ROI too narrow", "ROI too narrow"),
+    (r"^edge slanted", "slant outside 1–40°"),
+    (r"^faint edge", "faint edge"),
+    (r"^no ROI holds this edge alone", "another edge too close"),
 )
 
 
