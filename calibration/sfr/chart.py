@@ -152,7 +152,7 @@ def classify_orientation(edge_dx: float, edge_dy: float, radius: float, field_an
 
 
 def find_edges(image, *, channel=None, encoding: str = "linear", min_length: float = 40.0,
-               centre: tuple[float, float] | None = None, max_slant_deg: float = 40.0,
+               centre: tuple[float, float] | None = None, max_slant_deg: float = 44.0,
                min_slant_deg: float = 1.0, rejected: list | None = None) -> list[EdgeROI]:
     """Find the slanted edges of a chart image, whatever the shapes: the
     sides of squares and bars, the straight pieces of curved (distorted)
@@ -180,8 +180,10 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
     centre : (x, y), optional
         Optical centre in pixels (default: the image centre).
     min_slant_deg, max_slant_deg : float
-        Accepted slant from the nearest axis (the measurement warns below
-        2° and above 40°, where few phases are sampled, but measures).
+        Accepted slant from the nearest axis: up to 44° (as MTF Mapper), so
+        that a 40° edge read a little high is kept; the measurement warns
+        below 2° and above 40°, and refuses an edge whose angle samples too
+        few phases (near 45°).
     rejected : list, optional
         Receives ``(EdgeROI, reason)`` for every piece at least
         ``min_length`` long that is not used: slanted outside the range,
@@ -555,7 +557,7 @@ _REASON_LABELS = (
     (r"plateau too narrow|from the ROI border", "edge at the ROI border"),
     (r"^edge too short", "edge too short"),
     (r"^ROI too narrow", "ROI too narrow"),
-    (r"^edge slanted", "slant outside 1–40°"),
+    (r"^edge slanted", "slant out of range"),
     (r"^faint edge", "faint edge"),
     (r"^no ROI holds this edge alone", "another edge too close"),
 )

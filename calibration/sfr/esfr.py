@@ -272,7 +272,9 @@ class SfrResult:
             return x if math.isfinite(x) else None
 
         def arr(a):
-            return [num(v) for v in np.asarray(a, dtype=np.float64)]
+            a = np.asarray(a, dtype=np.float64)
+            ok = np.isfinite(a)
+            return a.tolist() if ok.all() else [v if f else None for v, f in zip(a.tolist(), ok.tolist())]
 
         d = {
             "freq_cy_per_px": arr(self.freq),
