@@ -39,6 +39,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "corrections, an adaptive LSF window and a refined edge (less bias and noise)")
     p.add_argument("--pixel-pitch", type=float, metavar="UM", help="pixel pitch in µm (adds lp/mm)")
     p.add_argument("--bootstrap", type=int, default=0, help="resamples for MTF50/SFRA uncertainty")
+    p.add_argument("--workers", type=int, default=2, metavar="N",
+                   help="--chart: processes measuring the edges (default 2; 1 measures in this process)")
     p.add_argument("--json", metavar="OUT.json", help="write the results as JSON")
     p.add_argument("--plot", metavar="OUT.png",
                    help="write a figure: the SFR; with --chart the chart annotated (each edge coloured and labelled "
@@ -69,9 +71,11 @@ def run(args: argparse.Namespace) -> int:
                                           edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
                                           method=args.method, executor=create_executor("serial", progress=True))
             else:
-                res = measure_chart(img, channel=_channel(args, img), encoding=args.encoding,
-                                    edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
-                                    method=args.method, executor=create_executor("serial", progress=True))
+                kind_ = "processes" if args.workers > 1 else "serial"
+                with create_executor(kind_, workers=args.workers, progress=True) as ex:
+                    res = measure_chart(img, channel=_channel(args, img), encoding=args.encoding,
+                                        edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
+                                        method=args.method, executor=ex)
             out = res.to_dict()
             fig = plot_chart(res, img if kind == "image" else None) if args.plot else None
             summary = f"{len(res.edges)} edges measured, {len(res.skipped)} skipped"

@@ -467,31 +467,41 @@ def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None,
     rejected: list = []
     rois = find_edges(g, centre=centre, min_length=min_length, rejected=rejected)
     res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid, method=method)
-    res.edges, res.skipped = measure_rois(
-        rois, lambda box: measure_sfr(g, box=box, edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um,
-                                      method=method), executor=executor)
+    settings = dict(edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um, method=method)
+    res.edges, res.skipped = measure_rois(rois, _measure_image_box, executor=executor, payload=(g, settings))
     res.skipped += rejected
     return res
 
 
-def measure_rois(rois, measure, *, executor: Executor | None = None) -> tuple[list, list]:
+def measure_rois(rois, measure, *, executor: Executor | None = None, payload=None) -> tuple[list, list]:
     """``measure(box)`` (an SfrResult for ``box = (x, y, w, h)``) on every
     ROI: ``(edges, skipped)``, edges as (roi, result) and skipped as (roi,
     reason) — refused measurements and results that are not a clean edge
     are listed with the reason, never dropped. ``executor`` runs the
-    measurements ("serial" or "threads": ``measure`` may be a closure;
-    default "serial"); its progress bar counts edges."""
+    measurements (default "serial"); its progress bar counts edges.
+
+    Without ``payload``, ``measure`` may be a closure ("serial" or
+    "threads" executors). With one, ``measure(payload, box)`` is called
+    instead: a module-level function, and the payload (the image and the
+    settings) goes to each worker once, so a "processes" executor can
+    measure a chart's edges on every core."""
     rois = list(rois)
     ex = create_executor("serial") if executor is None else executor
+    boxes = [(roi.x, roi.y, roi.w, roi.h) for roi in rois]
+    if payload is None:
+        def one(box):
+            try:
+                return measure(box), None
+            except SfrError as e:
+                return None, str(e)
 
-    def one(roi):
-        try:
-            return measure((roi.x, roi.y, roi.w, roi.h)), None
-        except SfrError as e:
-            return None, str(e)
+        results = ex.map(one, boxes, desc="SFR", unit="edge")
+    else:
+        with ex.bind(payload) as bound:
+            results = bound.map(_measure_with_payload, [(measure, b) for b in boxes], desc="SFR", unit="edge")
 
     edges, skipped = [], []
-    for roi, (r, err) in zip(rois, ex.map(one, rois, desc="SFR", unit="edge")):
+    for roi, (r, err) in zip(rois, results):
         if err is not None:
             skipped.append((roi, err))
             continue
@@ -501,6 +511,25 @@ def measure_rois(rois, measure, *, executor: Executor | None = None) -> tuple[li
             continue
         edges.append((roi, r))
     return edges, skipped
+
+
+def _measure_with_payload(task):
+    """A worker's task of :func:`measure_rois`: ``(result, None)`` or
+    ``(None, reason)``."""
+    from isp.runtime.executor import worker_payload
+
+    measure, box = task
+    try:
+        return measure(worker_payload(), box), None
+    except SfrError as e:
+        return None, str(e)
+
+
+def _measure_image_box(payload, box):
+    """:func:`calibration.sfr.esfr.measure_sfr` of one ROI of a chart image
+    (``payload = (image, settings)``)."""
+    image, settings = payload
+    return measure_sfr(image, box=box, **settings)
 
 
 _RESIDUAL = re.compile(r"edge-fit residual ([0-9.]+) px")
