@@ -25,6 +25,10 @@ chart and tool: edges found and matched, median, 95th percentile and worst
 of ``|error|`` (%), the mean error (the bias), and whole-process wall time
 and peak RSS (one run each, after one warm-up of each tool).
 
+A single-ROI run is timed too (``--roi-runs``, interleaved, median):
+``isp calib sfr ROI.tif`` against ``mtf_mapper ROI.tif OUT -q --linear
+--single-roi`` on a 150 × 100 px edge (σ 1.2 px, 5°, 16 bit).
+
 Charts:
 
 * ``headline``: 4000 × 3000, 9 × 13 squares (468 edges), σ 1.2 px, 5°,
@@ -210,6 +214,25 @@ def run_case(case: ChartCase, tmp: Path, methods, peer: str | None, seed: int) -
     return row
 
 
+def time_single_roi(tmp: Path, peer: str | None, runs: int) -> dict:
+    """Whole-process seconds of one ROI measured by each tool (interleaved runs, one warm-up)."""
+    import tifffile
+
+    from calibration.sfr.synthetic import render_slanted_edge
+
+    roi = tmp / "roi.tif"
+    img = render_slanted_edge((150, 100), 5.0, 1.2, low=0.2, high=0.8)
+    tifffile.imwrite(roi, np.round(img * 65535).astype(np.uint16))
+    rec = _harness.Recorder(_harness.child_env(), warmup=1)
+    fns = {"ours": rec.task("ours", [*_harness.isp_command(), "calib", "sfr", str(roi)])}
+    if peer:
+        (tmp / "mm_roi").mkdir(exist_ok=True)
+        fns["mtf_mapper"] = rec.task("mtf_mapper", [peer, str(roi), str(tmp / "mm_roi"), "-q", "--linear",
+                                                    "--single-roi"])
+    _harness.interleaved(fns, runs=runs, warmup=1, log=False)
+    return {k: rec.wall(k) for k in fns}
+
+
 def pooled(rows: list[dict], tool: str, keep) -> dict:
     return error_stats([e for r in rows if keep(r) and tool in r["tools"] for e in r["tools"][tool]["errors_pct"]])
 
@@ -232,6 +255,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--methods", nargs="+", default=["accurate", "iso"], help="our SFR methods to run")
     ap.add_argument("--no-peer", action="store_true", help="leave MTF Mapper out")
     ap.add_argument("--seed", type=int, default=1, help="noise seed")
+    ap.add_argument("--roi-runs", type=int, default=5, help="timed single-ROI runs of each tool (0: none)")
     args = ap.parse_args(argv)
     peer = None if args.no_peer else find_mtf_mapper()
     if peer is None and not args.no_peer:
@@ -246,7 +270,10 @@ def main(argv=None) -> dict:
         for i, case in enumerate(cases):
             print(f"[{i + 1}/{len(cases)}] {case.name}", file=sys.stderr, flush=True)
             rows.append(run_case(case, tmp, args.methods, peer, args.seed + i))
+        single = time_single_roi(tmp, peer, args.roi_runs) if args.roi_runs > 0 else None
     print_rows(rows)
+    if single:
+        print("\nsingle ROI, whole process: " + ", ".join(f"{k} {v}" for k, v in single.items()))
     tools = sorted({t for r in rows for t in r["tools"]})
     summary = {}
     if args.sweep:
@@ -265,7 +292,8 @@ def main(argv=None) -> dict:
         for t in r["tools"].values():
             t.pop("errors_pct", None)
     result = {"mtf_mapper": peer, "methods": args.methods, "targets_snr_100_up": TARGETS, "charts": rows,
-              "sweep_summary": summary}
+              "sweep_summary": summary,
+              "single_roi_s": {k: v.as_dict(3) for k, v in single.items()} if single else None}
     return _harness.publish("sfr_chart", result, args, argv)
 
 

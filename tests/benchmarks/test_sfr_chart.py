@@ -46,3 +46,8 @@ def test_mtf_mappers_table_and_the_matching(tmp_path):
     assert pairs == [(0.15, 0.151)]                        # the edge at (500, 500) matches no true side
     s = sfr_chart.error_stats(sfr_chart.errors_pct(pairs))
     assert s["n"] == 1 and s["bias"] == pytest.approx(-0.6623, abs=1e-3)
+
+
+def test_the_single_roi_run_is_timed_whole_process(tmp_path):
+    t = sfr_chart.time_single_roi(tmp_path, None, runs=1)
+    assert set(t) == {"ours"} and len(t["ours"].runs) == 1 and 0 < t["ours"].median < 30
