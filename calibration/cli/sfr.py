@@ -71,6 +71,8 @@ def run(args: argparse.Namespace) -> int:
                                           edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
                                           method=args.method, executor=create_executor("serial", progress=True))
             else:
+                if args.workers < 1:
+                    raise ConfigError(f"--workers must be at least 1, got {args.workers}")
                 kind_ = "processes" if args.workers > 1 else "serial"
                 with create_executor(kind_, workers=args.workers, progress=True) as ex:
                     res = measure_chart(img, channel=_channel(args, img), encoding=args.encoding,
