@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pixel-pitch", type=float, metavar="UM", help="pixel pitch in µm (adds lp/mm)")
     p.add_argument("--bootstrap", type=int, default=0, help="resamples for MTF50/SFRA uncertainty")
     p.add_argument("--workers", type=int, default=2, metavar="N",
-                   help="--chart: processes measuring the edges (default 2; 1 measures in this process)")
+                   help="--chart: processes measuring the edges, images and raw (default 2; 1 measures in this process)")
     p.add_argument("--json", metavar="OUT.json", help="write the results as JSON")
     p.add_argument("--plot", metavar="OUT.png",
                    help="write a figure: the SFR; with --chart the chart annotated (each edge coloured and labelled "
@@ -61,19 +61,20 @@ def run(args: argparse.Namespace) -> int:
         notes.append("8-bit image measured as linear codes; pass --encoding srgb if it is sRGB-encoded")
     try:
         if args.chart:
+            if args.workers < 1:
+                raise ConfigError(f"--workers must be at least 1, got {args.workers}")
+            kind_ = "processes" if args.workers > 1 else "serial"
             if kind == "raw":
                 from calibration.sfr.chart import measure_chart_bayer
 
                 channel = args.channel or "G"
                 if channel == "all":
                     raise ConfigError("--chart on raw data measures one colour at a time: --channel R, G, B, Gr or Gb")
-                res = measure_chart_bayer(img, meta.cfa, channel=channel, mode=args.bayer_mode,
-                                          edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
-                                          method=args.method, executor=create_executor("serial", progress=True))
+                with create_executor(kind_, workers=args.workers, progress=True) as ex:
+                    res = measure_chart_bayer(img, meta.cfa, channel=channel, mode=args.bayer_mode,
+                                              edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,
+                                              method=args.method, executor=ex)
             else:
-                if args.workers < 1:
-                    raise ConfigError(f"--workers must be at least 1, got {args.workers}")
-                kind_ = "processes" if args.workers > 1 else "serial"
                 with create_executor(kind_, workers=args.workers, progress=True) as ex:
                     res = measure_chart(img, channel=_channel(args, img), encoding=args.encoding,
                                         edge_fit_order=args.edge_fit_order, pixel_pitch_um=args.pixel_pitch,

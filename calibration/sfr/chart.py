@@ -558,7 +558,6 @@ def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane",
     and measured on the mosaic itself per colour with
     :func:`calibration.sfr.esfr.measure_sfr_bayer` (``channel`` one of R, G, B,
     Gr, Gb; frequencies per sensor pixel)."""
-    from calibration.sfr.esfr import measure_sfr_bayer
 
     m = np.asarray(mosaic, dtype=np.float64)
     if m.ndim != 2:
@@ -570,10 +569,19 @@ def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane",
     res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid, method=method)
     full = [EdgeROI(2 * r.x, 2 * r.y, 2 * r.w, 2 * r.h, r.angle_deg, r.direction, r.radius, r.field_angle_deg,
                     r.orientation, r.shape) for r in rois]
-    res.edges, res.skipped = measure_rois(
-        full, lambda box: measure_sfr_bayer(m, cfa, channel=channel, mode=mode, box=box, edge_fit_order=edge_fit_order,
-                                            pixel_pitch_um=pixel_pitch_um, method=method), executor=executor)
+    settings = dict(channel=channel, mode=mode, edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um,
+                    method=method)
+    res.edges, res.skipped = measure_rois(full, _measure_mosaic_box, executor=executor, payload=(m, cfa, settings))
     return res
+
+
+def _measure_mosaic_box(payload, box):
+    """:func:`calibration.sfr.esfr.measure_sfr_bayer` of one ROI of a mosaic
+    (``payload = (mosaic, cfa, settings)``)."""
+    from calibration.sfr.esfr import measure_sfr_bayer
+
+    mosaic, cfa, settings = payload
+    return measure_sfr_bayer(mosaic, cfa, box=box, **settings)
 
 
 #: skip reasons as chart labels: (pattern of the measurement's message, label)

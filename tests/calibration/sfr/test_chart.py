@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from calibration.sfr.esfr import SfrError
-from calibration.sfr.chart import GRID, classify_orientation, find_edges, measure_chart, short_reason
+from calibration.sfr.chart import GRID, classify_orientation, find_edges, measure_chart, measure_chart_bayer, short_reason
 from calibration.sfr.synthetic import mtf50_of
 from tests.helpers import data_file
 
@@ -242,3 +242,17 @@ def test_every_side_is_found_through_perspective_distortion_and_vignetting(warp)
     res = measure_chart(out.astype(np.float64))
     assert len(res.edges) == 48 and not res.skipped
     assert all(0.15 < r.mtf50 < 0.25 for _, r in res.edges)     # σ 1 px: 0.180, moved a little by the resampling
+
+
+@pytest.mark.property
+def test_a_mosaic_chart_measured_on_worker_processes_equals_one_measured_here():
+    from calibration.sfr.synthetic import render_square_chart
+    from isp.frame import CFA
+    from isp.runtime.executor import create_executor
+
+    ch = render_square_chart((600, 800), (3, 4), sigma_px=1.5, angles_deg=(5.0, 8.0))
+    serial = measure_chart_bayer(ch.image, CFA.RGGB)
+    with create_executor("processes", workers=2) as ex:
+        pooled = measure_chart_bayer(ch.image, CFA.RGGB, executor=ex)
+    assert len(serial.edges) == 48
+    assert [s.mtf50 for _, s in pooled.edges] == [s.mtf50 for _, s in serial.edges]
