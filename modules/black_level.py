@@ -23,7 +23,8 @@ import numpy as np
 
 from isp.errors import InputError
 from isp.frame import Domain, Frame
-from isp.io.opcode_plan import area_slices, handled_by
+from isp.io.opcode_plan import handled_by
+from isp.opcodes.base import area_slices
 from isp.stage import StageBase
 
 from modules.common.mosaic import cfa_affine

@@ -39,7 +39,8 @@ from typing import Literal
 import numpy as np
 
 from isp.frame import Domain, Frame
-from isp.io.opcode_plan import area_slices, handled_by
+from isp.io.opcode_plan import handled_by
+from isp.opcodes.base import area_slices
 from isp.stage import StageBase
 
 

@@ -124,38 +124,3 @@ def handled_by(meta: CameraMeta, stage: str) -> list[tuple[int, int, object]]:
     list order."""
     return [(p.list_no, p.index, meta.opcodes[p.list_no][p.index])
             for p in opcode_plan(meta) if p.action == stage]
-
-
-def area_slices(top: int, left: int, bottom: int, right: int, row_pitch: int, col_pitch: int,
-                origin: tuple[int, int], shape: tuple[int, ...]) -> tuple[slice, slice] | None:
-    """Slices of a frame's data covered by an opcode area.
-
-    Opcode areas (DNG spec 7, "AreaSpec") are in active-area pixels and
-    step by RowPitch/ColPitch from Top/Left; a frame's data starts at
-    ``origin`` (its DefaultCrop offset). Returns ``(rows, cols)`` slices into
-    the data, or None if the area misses it.
-
-    >>> area_slices(1, 0, 10, 10, 2, 2, (2, 2), (6, 6))
-    (slice(1, 6, 2), slice(0, 6, 2))
-    >>> area_slices(0, 0, 0, 0, 1, 1, (0, 0), (4, 4))   # empty = whole image
-    (slice(0, 4, 1), slice(0, 4, 1))
-    """
-    oy, ox = origin
-    h, w = shape[0], shape[1]
-    if bottom <= top or right <= left:  # an empty area means the whole image (DNG SDK)
-        top, left, bottom, right, row_pitch, col_pitch = 0, 0, oy + h, ox + w, 1, 1
-
-    def one(start, stop, pitch, off, n):
-        pitch = max(1, int(pitch))
-        if start < off:
-            start += -(-(off - start) // pitch) * pitch
-        stop = min(stop, off + n)
-        if start >= stop:
-            return None
-        return slice(start - off, stop - off, pitch)
-
-    rs = one(top, bottom, row_pitch, oy, h)
-    cs = one(left, right, col_pitch, ox, w)
-    if rs is None or cs is None:
-        return None
-    return rs, cs

@@ -236,24 +236,8 @@ class AreaSpec:
         >>> AreaSpec(1, 0, 10, 10, row_pitch=2, col_pitch=2).window(ctx, (6, 6))
         (slice(1, 6, 2), slice(0, 6, 2))
         """
-        oy, ox = ctx.origin
-        h, w = int(shape[0]), int(shape[1])
-        if self.is_empty:
-            return slice(0, h, 1), slice(0, w, 1)
-
-        def one(start, stop, pitch, off, n):
-            if start < off:
-                start += -(-(off - start) // pitch) * pitch
-            stop = min(stop, off + n)
-            if start >= stop:
-                return None
-            return slice(start - off, stop - off, pitch)
-
-        rows = one(self.top, self.bottom, self.row_pitch, oy, h)
-        cols = one(self.left, self.right, self.col_pitch, ox, w)
-        if rows is None or cols is None:
-            return None
-        return rows, cols
+        return area_slices(self.top, self.left, self.bottom, self.right, self.row_pitch, self.col_pitch,
+                           ctx.origin, shape)
 
     def plane_range(self, planes: int) -> range:
         """The area's planes that an image of ``planes`` planes has."""
@@ -459,3 +443,38 @@ class UnknownOpcode(Opcode):
 
     def _describe(self):
         return {"parameter_bytes": len(self.data)}
+
+
+def area_slices(top: int, left: int, bottom: int, right: int, row_pitch: int, col_pitch: int,
+                origin: tuple[int, int], shape: tuple[int, ...]) -> tuple[slice, slice] | None:
+    """Slices of a frame's data covered by an opcode area.
+
+    Opcode areas (DNG spec 7, "AreaSpec"; :class:`AreaSpec`) are in active-area pixels and
+    step by RowPitch/ColPitch from Top/Left; a frame's data starts at
+    ``origin`` (its DefaultCrop offset). Returns ``(rows, cols)`` slices into
+    the data, or None if the area misses it.
+
+    >>> area_slices(1, 0, 10, 10, 2, 2, (2, 2), (6, 6))
+    (slice(1, 6, 2), slice(0, 6, 2))
+    >>> area_slices(0, 0, 0, 0, 1, 1, (0, 0), (4, 4))   # empty = whole image
+    (slice(0, 4, 1), slice(0, 4, 1))
+    """
+    oy, ox = origin
+    h, w = shape[0], shape[1]
+    if bottom <= top or right <= left:  # an empty area means the whole image (DNG SDK)
+        top, left, bottom, right, row_pitch, col_pitch = 0, 0, oy + h, ox + w, 1, 1
+
+    def one(start, stop, pitch, off, n):
+        pitch = max(1, int(pitch))
+        if start < off:
+            start += -(-(off - start) // pitch) * pitch
+        stop = min(stop, off + n)
+        if start >= stop:
+            return None
+        return slice(start - off, stop - off, pitch)
+
+    rs = one(top, bottom, row_pitch, oy, h)
+    cs = one(left, right, col_pitch, ox, w)
+    if rs is None or cs is None:
+        return None
+    return rs, cs
