@@ -555,3 +555,22 @@ def gain_map_params(gains, sv, sh, ov, oh, area=None) -> bytes:
     pv, ph, planes = g.shape
     return ((area or opcode_area()) + struct.pack(">II4dI", pv, ph, sv, sh, ov, oh, planes)
             + g.astype(">f4").tobytes())
+
+
+def encoder_meta():
+    """The capture metadata the encoder stages' tests write (EXIF) and read back."""
+    from isp import CameraMeta
+
+    return CameraMeta(make="phone-isp", model="test phone", exposure_time_s=1 / 250, f_number=1.8,
+                      iso=200.0, focal_length_mm=4.2, datetime="2026:11:21 09:08:07", lens="lens x")
+
+
+def display_ramp(h=48, w=64):
+    """(h, w, 3) float32 display RGB: smooth ramps in every channel and a
+    red top-left 8 × 8 corner that marks the orientation."""
+    import numpy as np
+
+    y, x = np.mgrid[0:h, 0:w]
+    rgb = np.stack([x / (w - 1), y / (h - 1), 0.25 + 0.5 * (x + y) / (h + w)], axis=2).astype(np.float32)
+    rgb[:8, :8] = [1, 0, 0]
+    return rgb

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from PIL import Image, ImageOps
 
-from isp import CameraMeta, Domain, Frame, create_stage
+from isp import Domain, Frame, create_stage
 from modules.common.encoding import apply_orientation
+from tests.helpers import encoder_meta
 
 
 def _display(h=48, w=64):
@@ -21,8 +22,7 @@ def _display(h=48, w=64):
     return rgb
 
 
-META = CameraMeta(make="phone-isp", model="test phone", exposure_time_s=1 / 250, f_number=1.8,
-                  iso=200.0, focal_length_mm=4.2, datetime="2026:11:21 09:08:07", lens="lens x")
+META = encoder_meta()
 
 
 @pytest.mark.published

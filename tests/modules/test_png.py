@@ -13,18 +13,12 @@ import numpy as np
 import pytest
 from PIL import Image, ImageCms, ImageOps
 
-from isp import CameraMeta, ConfigError, Domain, Frame, create_stage
+from isp import ConfigError, Domain, Frame, create_stage
 from modules.png import encode_png
+from tests.helpers import display_ramp, encoder_meta
 
-META = CameraMeta(make="phone-isp", model="test phone", exposure_time_s=1 / 250, f_number=1.8,
-                  iso=200.0, focal_length_mm=4.2, datetime="2026:11:21 09:08:07", lens="lens x")
+META = encoder_meta()
 
-
-def _display(h=48, w=64):
-    y, x = np.mgrid[0:h, 0:w]
-    rgb = np.stack([x / (w - 1), y / (h - 1), 0.25 + 0.5 * (x + y) / (h + w)], axis=2).astype(np.float32)
-    rgb[:8, :8] = [1, 0, 0]   # a red top-left corner marks orientation
-    return rgb
 
 
 def _decode_libpng(data: bytes) -> np.ndarray:
@@ -33,7 +27,7 @@ def _decode_libpng(data: bytes) -> np.ndarray:
 
 @pytest.mark.published
 def test_8_bit_round_trip_icc_and_exif():
-    rgb = _display()
+    rgb = display_ramp()
     out = create_stage("png")(Frame(rgb, Domain.DISPLAY_RGB, META))
     assert out.domain is Domain.ENCODED
     data = bytes(out.data)
@@ -68,11 +62,11 @@ def test_16_bit_holds_more_than_256_levels():
 @pytest.mark.published
 @pytest.mark.parametrize("orientation", range(1, 9))
 def test_orientation_applied_like_pillow(orientation):
-    img = np.round(_display() * 255).astype(np.uint8)
+    img = np.round(display_ramp() * 255).astype(np.uint8)
     pil = Image.fromarray(img)
     pil.getexif()[0x0112] = orientation
     expect = np.asarray(ImageOps.exif_transpose(pil))
-    out = create_stage("png")(Frame(_display(), Domain.DISPLAY_RGB, META.replace(orientation=orientation)))
+    out = create_stage("png")(Frame(display_ramp(), Domain.DISPLAY_RGB, META.replace(orientation=orientation)))
     assert np.array_equal(_decode_libpng(bytes(out.data)), expect)      # lossless: exactly
 
 

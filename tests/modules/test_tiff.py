@@ -14,17 +14,11 @@ import pytest
 import tifffile
 from PIL import Image, ImageCms, ImageOps
 
-from isp import CameraMeta, ConfigError, Domain, Frame, Pipeline, create_stage
+from isp import ConfigError, Domain, Frame, Pipeline, create_stage
+from tests.helpers import display_ramp, encoder_meta
 
-META = CameraMeta(make="phone-isp", model="test phone", exposure_time_s=1 / 250, f_number=1.8,
-                  iso=200.0, focal_length_mm=4.2, datetime="2026:11:21 09:08:07", lens="lens x")
+META = encoder_meta()
 
-
-def _display(h=48, w=64):
-    y, x = np.mgrid[0:h, 0:w]
-    rgb = np.stack([x / (w - 1), y / (h - 1), 0.25 + 0.5 * (x + y) / (h + w)], axis=2).astype(np.float32)
-    rgb[:8, :8] = [1, 0, 0]   # a red top-left corner marks orientation
-    return rgb
 
 
 def _page(data: bytes):
@@ -38,7 +32,7 @@ def _profile_description(page) -> str:
 @pytest.mark.published
 @pytest.mark.parametrize("compression", ["none", "deflate"])
 def test_16_bit_round_trip_icc_and_exif(compression):
-    rgb = _display()
+    rgb = display_ramp()
     out = create_stage("tiff", compression=compression)(Frame(rgb, Domain.DISPLAY_RGB, META))
     data = bytes(out.data)
     expect = np.round(rgb.astype(np.float64) * 65535).astype(np.uint16)
@@ -60,11 +54,11 @@ def test_16_bit_round_trip_icc_and_exif(compression):
 @pytest.mark.published
 @pytest.mark.parametrize("orientation", range(1, 9))
 def test_orientation_applied_like_pillow(orientation):
-    img = np.round(_display() * 255).astype(np.uint8)
+    img = np.round(display_ramp() * 255).astype(np.uint8)
     pil = Image.fromarray(img)
     pil.getexif()[0x0112] = orientation
     expect = np.asarray(ImageOps.exif_transpose(pil))
-    out = create_stage("tiff", bits=8)(Frame(_display(), Domain.DISPLAY_RGB, META.replace(orientation=orientation)))
+    out = create_stage("tiff", bits=8)(Frame(display_ramp(), Domain.DISPLAY_RGB, META.replace(orientation=orientation)))
     assert np.array_equal(_page(bytes(out.data)).asarray(), expect)
 
 
@@ -78,9 +72,9 @@ def test_float_tiff_keeps_linear_values_above_one():
     back = page.asarray()
     assert np.array_equal(back, lin) and back.max() > 1
     assert _profile_description(page) == "linear sRGB"
-    disp = create_stage("tiff", bits=32, compression="deflate")(Frame(_display(), Domain.DISPLAY_RGB, META))
+    disp = create_stage("tiff", bits=32, compression="deflate")(Frame(display_ramp(), Domain.DISPLAY_RGB, META))
     page = _page(bytes(disp.data))
-    assert np.array_equal(page.asarray(), _display()) and _profile_description(page) == "sRGB built-in"
+    assert np.array_equal(page.asarray(), display_ramp()) and _profile_description(page) == "sRGB built-in"
 
 
 @pytest.mark.property
@@ -94,7 +88,7 @@ def test_integer_tiff_of_linear_values_is_refused_at_build():
 
 @pytest.mark.property
 def test_without_exif():
-    out = create_stage("tiff", exif=False)(Frame(_display(), Domain.DISPLAY_RGB, META))
+    out = create_stage("tiff", exif=False)(Frame(display_ramp(), Domain.DISPLAY_RGB, META))
     page = _page(bytes(out.data))
     assert 34665 not in page.tags and 271 not in page.tags and 34675 in page.tags
 
@@ -102,9 +96,9 @@ def test_without_exif():
 @pytest.mark.published
 def test_pillow_reads_the_exif_ifd_and_the_profile():
     """A second reader of the Exif IFD written after tifffile's IFD0."""
-    out = create_stage("tiff", bits=8)(Frame(_display(), Domain.DISPLAY_RGB, META))
+    out = create_stage("tiff", bits=8)(Frame(display_ramp(), Domain.DISPLAY_RGB, META))
     im = Image.open(io.BytesIO(bytes(out.data)))
-    assert np.array_equal(np.asarray(im), np.round(_display() * 255).astype(np.uint8))
+    assert np.array_equal(np.asarray(im), np.round(display_ramp() * 255).astype(np.uint8))
     sub = im.getexif().get_ifd(0x8769)
     assert float(sub[0x829A]) == pytest.approx(1 / 250) and sub[0x8827] == 200 and sub[0xA434] == "lens x"
     assert "sRGB" in ImageCms.getProfileDescription(ImageCms.ImageCmsProfile(io.BytesIO(im.info["icc_profile"])))
