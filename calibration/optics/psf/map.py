@@ -116,11 +116,11 @@ CACHE_VERSION = 1
 WINDOW_UM = 32.0
 """Default side of a PSF window, µm (:func:`default_psf_n`; the fit's
 ``ModelSettings.window_um`` too). A lens's PSF is as wide in µm whatever
-the pixel: a window of a fixed sample count shrinks with the pixel pitch,
-and until 2026-11-26 :func:`psf_map`'s default of 32 samples at half a
-pixel was 16 µm on 1 µm pixels, where a device drawn within e9's
-tolerance kept only 47 % of a corner PSF (``isp calib simulate`` at the
-prescription's sensor rendered such devices sharper than their lens)."""
+the pixel: a window of a fixed sample count shrinks with the pixel pitch.
+32 samples at half a pixel would be 16 µm on 1 µm pixels, where a device
+drawn within e9's tolerance keeps only 47 % of a corner PSF, and a capture
+simulated through such a window (``isp calib simulate`` at the
+prescription's sensor) would be sharper than its lens."""
 
 WINDOW_ENERGY_WARN = 0.9
 """:func:`psf_map` warns when a PSF keeps less than this share of its energy

@@ -2,8 +2,8 @@
 published nd / vd (kind: published), and look-up behaviour (kind: property).
 
 Published values, as printed on the data sheets (nd to 5 decimals, vd to 2):
-SCHOTT optical glass data sheets 2017-01-20; HIKARI (Nikon) glass data
-sheets 2017-04; CDGM optical glass data sheets 2022-06; the Zemax MISC
+SCHOTT optical glass data sheets (2017); HIKARI (Nikon) glass data
+sheets (2017); CDGM optical glass data sheets (2022); the Zemax MISC
 catalogue after M. Bass (ed.), Handbook of Optics Vol. II (1995) for the
 plastics (nd to 6 decimals); the table is ``tests/data/reference/glass_nd_vd.csv``.
 The check is the formula of the catalogue entry evaluated at the F, d, C
