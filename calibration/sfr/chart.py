@@ -222,9 +222,7 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
             found.append(e)
     found = _deduplicate(found)
     if rejected is not None:
-        kept = [e.centre for e in found]
-        rejected += [(e, why) for e, why in refused
-                     if not any(abs(e.centre[0] - x) < 4 and abs(e.centre[1] - y) < 4 for x, y in kept)]
+        rejected += [(e, why) for e, why in refused if not _placed_among(e, found)]
     return sorted(found, key=lambda e: (round(e.centre[1] / 8), e.centre[0]))
 
 
@@ -374,14 +372,18 @@ def _one_edge(patch: np.ndarray) -> bool:
     return n_dark == 2 and n_light == 2 and 0.2 < frac < 0.8
 
 
+def _placed_among(e: EdgeROI, others) -> bool:
+    """True where ``e``'s centre is within 4 px (each way) of one of ``others``'."""
+    ex, ey = e.centre
+    return any(abs(ex - o.centre[0]) < 4 and abs(ey - o.centre[1]) < 4 for o in others)
+
+
 def _deduplicate(edges: list[EdgeROI]) -> list[EdgeROI]:
-    """Drop ROIs whose centres nearly coincide (a shape traced twice)."""
+    """Drop ROIs whose centres nearly coincide (an edge found twice)."""
     out: list[EdgeROI] = []
     for e in edges:
-        ex, ey = e.centre
-        if any(abs(ex - o.centre[0]) < 4 and abs(ey - o.centre[1]) < 4 for o in out):
-            continue
-        out.append(e)
+        if not _placed_among(e, out):
+            out.append(e)
     return out
 
 
@@ -680,16 +682,17 @@ def annotate_chart(result: ChartResult, image, *, value: str = "mtf50", ax=None,
                     ha="center", va="center",
                     bbox=dict(boxstyle="round,pad=0.15", fc=colour, ec="none", alpha=0.85))
     reasons: dict[str, int] = {}
+    counts: dict[str, int] = {}
     for roi, why in result.skipped:
         key = short_reason(why)
         k = reasons.setdefault(key, len(reasons) + 1)
+        counts[key] = counts.get(key, 0) + 1
         ax.add_patch(plt.Rectangle((roi.x, roi.y), roi.w, roi.h, fill=False, lw=0.9, ls="--", color="red"))
         ax.text(roi.x + roi.w / 2, roi.y + roi.h / 2, str(k), fontsize=font, color="white", ha="center",
                 va="center", bbox=dict(boxstyle="circle,pad=0.15", fc="red", ec="none", alpha=0.85))
     sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
     fig.colorbar(sm, ax=ax, fraction=0.035, pad=0.01, label=f"{value} (cycles/pixel)")
     if reasons:
-        counts = {key: sum(short_reason(r) == key for _, r in result.skipped) for key in reasons}
         ax.legend(handles=[plt.Line2D([], [], ls="none", marker="o", color="red", label=f"{k}: {key} ({counts[key]})")
                            for key, k in reasons.items()],
                   loc="upper left", fontsize=7, title="skipped", title_fontsize=7, framealpha=0.85)

@@ -27,7 +27,8 @@ def test_eight_bit_charts_are_png_and_noise_is_seeded(tmp_path):
 
     img = cv2.imread(str(a), cv2.IMREAD_UNCHANGED)
     assert a.suffix == ".png" and img.dtype == np.uint8 and len(truth) == 4
-    b, _ = sfr_chart.write_chart(case, tmp_path / ".." / tmp_path.name, seed=3)
+    (tmp_path / "again").mkdir()
+    b, _ = sfr_chart.write_chart(case, tmp_path / "again", seed=3)
     assert np.array_equal(img, cv2.imread(str(b), cv2.IMREAD_UNCHANGED))
 
 
