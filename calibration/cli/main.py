@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import argparse
 
-from isp.cli.commands import Command
+from isp.cli.commands import Command, add_subcommands
 
 EPILOG = """\
 examples:
@@ -66,13 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.description = "Calibration toolkit: lens models, ray tracing, PSFs, simulated captures, slanted-edge SFR."
     p.epilog = EPILOG
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    sub = p.add_subparsers(dest="command", metavar="COMMAND")
     p.set_defaults(func=lambda args: _no_command(p))
-    for cmd in SUBCOMMANDS:
-        add, run_sub = cmd.load()
-        sp = sub.add_parser(cmd.name, help=cmd.help)
-        add(sp)
-        sp.set_defaults(func=run_sub)
+    # only the chosen sub-command's module is imported: `isp calib sfr` starts without the fitter
+    add_subcommands(p, SUBCOMMANDS)
 
 
 def _no_command(parser: argparse.ArgumentParser) -> int:

@@ -10,7 +10,6 @@ import numpy as np
 from calibration.sfr.esfr import DEFAULT_METHOD
 from isp.cli.arguments import numbers
 from isp.errors import ConfigError, InputError
-from isp.runtime.executor import create_executor
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
         notes.append("8-bit image measured as linear codes; pass --encoding srgb if it is sRGB-encoded")
     try:
         if args.chart:
+            from isp.runtime.executor import create_executor
+
             if args.workers < 1:
                 raise ConfigError(f"--workers must be at least 1, got {args.workers}")
             kind_ = "processes" if args.workers > 1 else "serial"
@@ -114,7 +115,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         from isp.io.files import write_bytes_atomic
 
-        write_bytes_atomic(args.json, json.dumps(out, indent=1).encode())
+        # a chart's JSON (hundreds of curves) is written compact: the indented
+        # form goes through json's pure-Python encoder, 0.25 s for 468 edges
+        write_bytes_atomic(args.json, json.dumps(out, indent=None if args.chart else 1).encode())
     if fig is not None:
         save_figure(fig, args.plot, dpi=200 if args.chart else 120)
     for n in notes:

@@ -88,7 +88,11 @@ class EdgeROI:
 
 
 def _gray(image, channel=None, encoding: str = "linear") -> np.ndarray:
-    """A float64 (H, W) image in linear units for detection and measurement."""
+    """The (H, W) plane detection and measurement work on: a single plane of
+    uint8/uint16 codes with linear encoding stays as it is (the codes, as
+    :func:`calibration.sfr.esfr.measure_sfr` measures a single ROI, with no
+    full-frame float copy); luminance and sRGB codes become float64 linear
+    units; float input is kept float64 (no copy where it is float64 already)."""
     from calibration.sfr.esfr import LUMINANCE_WEIGHTS
 
     a = np.asarray(image)
@@ -101,6 +105,8 @@ def _gray(image, channel=None, encoding: str = "linear") -> np.ndarray:
         a = a[..., int(channel)]
     if a.ndim != 2:
         raise SfrError(f"chart image must be (H, W) or (H, W, 3), got shape {a.shape}")
+    if encoding != "srgb" and a.dtype in (np.uint8, np.uint16):
+        return a
     return _linear(a, encoding)
 
 
@@ -123,7 +129,7 @@ def _to_float(a: np.ndarray) -> np.ndarray:
         return a.astype(np.float64) / 255.0
     if a.dtype == np.uint16:
         return a.astype(np.float64) / 65535.0
-    return a.astype(np.float64)
+    return np.asarray(a, dtype=np.float64)
 
 
 def field_position(cx: float, cy: float, centre: tuple[float, float], half_diagonal: float) -> tuple[float, float]:
@@ -196,14 +202,13 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
     index of the edge piece.
     """
     g = _gray(image, channel, encoding)
-    if not np.all(np.isfinite(g)):
+    if g.dtype.kind == "f" and not np.all(np.isfinite(g)):
         raise SfrError("chart image has NaN or inf pixels")
     h, w = g.shape
     lo, hi = np.percentile(g[::4, ::4], [1, 99])
     if hi - lo <= 1e-9:
         raise SfrError("chart image is uniform: no edges to find")
-    u8 = np.clip((g - lo) / (hi - lo) * 255.0, 0, 255).astype(np.uint8)
-    pieces = _join_collinear(_line_segments(u8))
+    pieces = _join_collinear(_line_segments(g, lo, hi))
     cx, cy = centre if centre is not None else (w / 2.0, h / 2.0)
     half_diag = 0.5 * math.hypot(w, h)
     found: list[EdgeROI] = []
@@ -232,20 +237,24 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
 DETECT_MAX_SIDE = 2048
 
 
-def _line_segments(u8: np.ndarray) -> np.ndarray:
+def _line_segments(g: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """(N, 2, 2) straight edge segments ``[[x0, y0], [x1, y1]]`` in the
-    image's pixels (centres at integers), found by OpenCV's LSD."""
+    image's pixels (centres at integers), found by OpenCV's LSD on the
+    image reduced to :data:`DETECT_MAX_SIDE` (area average) and stretched
+    to 8 bits between ``lo`` and ``hi``."""
     import cv2
 
-    h, w = u8.shape
+    h, w = g.shape
     s = min(1.0, DETECT_MAX_SIDE / max(h, w))
-    work = u8 if s >= 1.0 else cv2.resize(u8, (max(1, round(w * s)), max(1, round(h * s))),
-                                          interpolation=cv2.INTER_AREA)
-    lines = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(work)[0]
+    work = g if g.dtype in (np.uint8, np.uint16, np.float32) else g.astype(np.float32)
+    if s < 1.0:
+        work = cv2.resize(work, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+    u8 = np.clip((work.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+    lines = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(u8)[0]
     if lines is None:
         return np.zeros((0, 2, 2))
     seg = lines.reshape(-1, 2, 2).astype(np.float64)
-    sx, sy = work.shape[1] / w, work.shape[0] / h
+    sx, sy = u8.shape[1] / w, u8.shape[0] / h
     seg[..., 0] = (seg[..., 0] + 0.5) / sx - 0.5
     seg[..., 1] = (seg[..., 1] + 0.5) / sy - 0.5
     return seg
@@ -272,20 +281,16 @@ def _join_collinear(seg: np.ndarray, angle_tol_deg: float = 1.5, offset_px: floa
         return i
 
     cos_tol = math.cos(math.radians(angle_tol_deg))
-    for i in range(n):
-        dots = np.abs(u[i + 1:] @ u[i])
-        cand = np.flatnonzero(dots >= cos_tol) + i + 1
-        for j in cand:
-            # ends of j off i's line, and the gap between the two along it
-            rel = seg[j] - seg[i, 0]
-            off = np.abs(rel[:, 0] * u[i, 1] - rel[:, 1] * u[i, 0])
-            if off.max() > offset_px:
-                continue
-            t = rel @ u[i]
-            lo, hi = t.min(), t.max()
-            if lo > length[i] + gap_px or hi < -gap_px:
-                continue
-            parent[root(j)] = root(i)
+    for i in range(n - 1):
+        rest = slice(i + 1, n)
+        # j's ends off i's line, and the gap between the two along it
+        rel = seg[rest] - seg[i, 0]                                  # (m, 2 ends, xy)
+        off = np.abs(rel[..., 0] * u[i, 1] - rel[..., 1] * u[i, 0]).max(axis=1)
+        t = rel @ u[i]
+        ok = ((np.abs(u[rest] @ u[i]) >= cos_tol) & (off <= offset_px)
+              & (t.min(axis=1) <= length[i] + gap_px) & (t.max(axis=1) >= -gap_px))
+        for j in np.flatnonzero(ok) + i + 1:
+            parent[root(int(j))] = root(i)
     groups: dict[int, list[int]] = {}
     for i in range(n):
         groups.setdefault(root(i), []).append(i)
@@ -379,11 +384,18 @@ def _placed_among(e: EdgeROI, others) -> bool:
 
 
 def _deduplicate(edges: list[EdgeROI]) -> list[EdgeROI]:
-    """Drop ROIs whose centres nearly coincide (an edge found twice)."""
+    """Drop ROIs whose centres nearly coincide (an edge found twice): the
+    first of each cluster of centres within 4 px (each way) of a kept one."""
     out: list[EdgeROI] = []
+    kept: dict[tuple[int, int], list[tuple[float, float]]] = {}   # 4 px cells → kept centres
     for e in edges:
-        if not _placed_among(e, out):
-            out.append(e)
+        cx, cy = e.centre
+        i, j = int(cx // 4), int(cy // 4)
+        near = (c for di in (-1, 0, 1) for dj in (-1, 0, 1) for c in kept.get((i + di, j + dj), ()))
+        if any(abs(cx - ox) < 4 and abs(cy - oy) < 4 for ox, oy in near):
+            continue
+        kept.setdefault((i, j), []).append((cx, cy))
+        out.append(e)
     return out
 
 

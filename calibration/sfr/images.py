@@ -2,12 +2,14 @@
 linear Bayer mosaic (:func:`load_image`).
 
 Imports ``isp`` (reading raw files, the black-level stage by name, errors)
-and OpenCV (lazily); nothing of the optics.
+and tifffile or OpenCV (lazily); nothing of the optics.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+
+import numpy as np
 
 from isp.errors import InputError
 
@@ -54,6 +56,8 @@ def load_image(path: str):
         if frame.data.ndim != 2:
             raise InputError(path, "a linear (demosaiced) DNG; SFR of raw data needs a Bayer mosaic")
         return frame.data, "raw", frame.meta
+    if p.suffix.lower() in (".tif", ".tiff"):
+        return _read_tiff(p), "image", None
     import cv2
 
     img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
@@ -62,3 +66,22 @@ def load_image(path: str):
     if img.ndim == 3:
         img = img[..., :3][..., ::-1]  # BGR(A) → RGB
     return img, "image", None
+
+
+def _read_tiff(p: Path):
+    """The first image of a TIFF file by tifffile (RGB order, alpha and
+    extra samples dropped): a single-ROI run starts without OpenCV (0.08 s
+    of import)."""
+    import tifffile
+
+    try:
+        img = tifffile.imread(p, key=0)
+    except Exception as e:  # noqa: BLE001 — any reader failure is a bad file
+        raise InputError(p, f"not a TIFF image tifffile can read ({type(e).__name__}: {e})") from None
+    if img.ndim == 3 and img.shape[0] in (3, 4) and img.shape[-1] not in (3, 4):
+        img = np.moveaxis(img, 0, -1)   # planar (samples first) → interleaved
+    if img.ndim == 3:
+        img = img[..., :3] if img.shape[-1] >= 3 else img[..., 0]
+    if img.ndim != 2 and not (img.ndim == 3 and img.shape[-1] == 3):
+        raise InputError(p, f"a TIFF of shape {img.shape}: expected one plane or RGB")
+    return np.ascontiguousarray(img)

@@ -106,6 +106,41 @@ BUILTIN = (
 
 
 
+def add_subcommands(parser, commands, *, dest: str = "command") -> None:
+    """Sub-commands of ``parser`` (e.g. ``isp calib sfr``) from
+    :class:`Command` records, each listed with its one-line help and
+    its module imported, its options added, only when the command line
+    chooses it: ``isp calib sfr`` imports neither the fitter nor the
+    tracer that ``isp calib fit`` needs. The chosen command's ``run``
+    becomes the namespace's ``func``.
+
+    >>> import argparse
+    >>> p = argparse.ArgumentParser(prog="demo")
+    >>> add_subcommands(p, [Command("hi", "say hi", run=lambda a: 0)])
+    >>> p.parse_args(["hi"]).command
+    'hi'
+    """
+    import argparse
+
+    records = {c.name: c for c in commands}
+
+    class _Lazy(argparse._SubParsersAction):
+        def __call__(self, parser_, namespace, values, option_string=None):
+            cmd = records.get(values[0])
+            chosen = self._name_parser_map.get(values[0])
+            if cmd is not None and chosen is not None and not getattr(chosen, "_isp_loaded", False):
+                add, run = cmd.load()
+                add(chosen)
+                chosen.set_defaults(func=run)
+                chosen._isp_loaded = True
+            super().__call__(parser_, namespace, values, option_string)
+
+    parser.register("action", "isp_lazy_parsers", _Lazy)
+    sub = parser.add_subparsers(dest=dest, metavar="COMMAND", action="isp_lazy_parsers")
+    for cmd in records.values():
+        sub.add_parser(cmd.name, help=cmd.help, description=cmd.help)
+
+
 def _check_entry(name: str, obj) -> Command:
     """What an ``isp.commands`` entry point must give: a :class:`Command`
     (renamed to its entry point's name)."""

@@ -63,7 +63,12 @@ def main(argv: list[str] | None = None) -> int:
     if not built:
         return code
     parser = built[0]
-    args = parser.parse_args(argv)
+    parsed: list[argparse.Namespace] = []
+    # parsing imports a nested command's module (`isp calib sfr`): its failure is reported as above
+    code = run_command(lambda: parsed.append(parser.parse_args(argv)), debug="--debug" in argv)
+    if not parsed:
+        return code
+    args = parsed[0]
     if not args.isp_command:
         parser.print_help()
         return BAD_INPUT

@@ -68,3 +68,38 @@ def test_forced_correction_imports_onnxruntime(dng, tmp_path):
     code, loaded = _loaded_by("process", dng, "-o", tmp_path / "x.jpg", "--correction", "default")
     assert code == 0
     assert "onnxruntime" in loaded
+
+
+@pytest.fixture(scope="module")
+def edge_tif(tmp_path_factory):
+    """A 16-bit TIFF of one slanted edge (5°, Gaussian σ 1.2 px)."""
+    import tifffile
+
+    from calibration.sfr.synthetic import render_slanted_edge
+
+    path = tmp_path_factory.mktemp("startup_sfr") / "edge.tif"
+    img = render_slanted_edge((150, 100), 5.0, 1.2, low=0.2, high=0.8)
+    tifffile.imwrite(path, np.round(img * 65535).astype(np.uint16))
+    return path
+
+
+def test_single_roi_sfr_imports_no_opencv_scipy_or_plotting(edge_tif):
+    """``isp calib sfr ROI.tif`` reads the TIFF without OpenCV and builds
+    only its own sub-command (not the fitter's, which imports the optics)."""
+    code = ("import json, sys\n"
+            "from isp.cli.main import main\n"
+            f"c = main(['calib', 'sfr', {str(edge_tif)!r}])\n"
+            f"print(json.dumps([c, [m for m in {HEAVY + ('calibration.fit.proxy', 'calibration.optics.lens')!r} "
+            "if m in sys.modules]]))\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    exit_code, loaded = json.loads(run.stdout.strip().splitlines()[-1])
+    assert exit_code == 0
+    assert loaded == []
+
+
+def test_chart_sfr_imports_opencv(edge_tif):
+    """The control: the chart search (OpenCV's LSD) shows up as an import."""
+    code, loaded = _loaded_by("calib", "sfr", edge_tif, "--chart", "--workers", "1")
+    assert code == 0
+    assert "cv2" in loaded
