@@ -83,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
             out = res.to_dict()
             fig = plot_chart(res, img if kind == "image" else None) if args.plot else None
             summary = f"{len(res.edges)} edges measured, {len(res.skipped)} skipped"
+            if res.layout is not None and res.layout.name != "unknown":
+                summary = f"{res.layout.title}; {summary}"
         else:
             box = numbers(args.roi, 4) if args.roi else (0, 0, w, h)
             box = tuple(int(round(v)) for v in box)

@@ -1,12 +1,15 @@
 """Slanted-edge charts: find the edges, measure each, map SFR over the field.
 
-Detection (OpenCV): the image is normalised, lightly smoothed and split into
-dark and light by a threshold relative to the local mean; the outlines of dark shapes (squares,
-the blades of ISO 12233:2023 pinwheels, any polygon) are simplified to
-polygons, and every straight side long enough and slanted between 2° and
-40° from the nearest axis becomes an edge ROI: a rectangle centred on the
-side, covering its middle 60 % (corners stay out) and a band across it wide
-enough for the edge spread, checked to hold one edge only.
+Detection (:func:`find_edges`): straight edge segments found by the LSD
+line-segment detector (OpenCV's) on the chart reduced to 2,048 px,
+collinear pieces joined, and every piece slanted 1–44° from the nearest
+axis and long enough given the largest axis-aligned ROI that holds it alone
+(the whole piece but its ends, where a square's neighbouring sides blur in).
+A curved (distorted) edge comes out as its straight pieces. Pieces found but
+not used are listed with the reason. The chart's layout is recognised too
+(:mod:`calibration.sfr.layout`: the ISO 12233:2023 e-SFR chart, the
+ISO 12233:2000 resolution chart, a slanted-square grid or a single slanted
+square) and reported with the results.
 
 Field position of an ROI: its centre relative to the optical centre (the
 image centre unless given), as a normalised radius (1 at the image corner)
@@ -26,6 +29,7 @@ it, for all edges and per orientation (NaN where there is none).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
@@ -35,6 +39,7 @@ import numpy as np
 from isp.runtime.executor import Executor, create_executor
 
 from calibration.sfr.esfr import DEFAULT_METHOD, SfrError, measure_sfr
+from calibration.sfr.layout import ChartLayout, recognise_chart
 
 GRID = (15, 20)
 #: what each end of a side loses to its corner, as a fraction of the side and in pixels
@@ -410,6 +415,7 @@ class ChartResult:
     skipped: list = field(default_factory=list)    # (EdgeROI, reason)
     grid: tuple[int, int] = GRID
     method: str = DEFAULT_METHOD   # the SFR method every edge was measured with
+    layout: ChartLayout | None = None   # the recognised chart (calibration.sfr.layout)
 
     def field_map(self, value: str = "sfra", orientation: str | None = None) -> np.ndarray:
         """(rows, cols) mean ``value`` ("sfra" or "mtf50") per region; NaN
@@ -451,6 +457,7 @@ class ChartResult:
                 for v in ("sfra", "mtf50")}
         return {"size": [self.width, self.height], "centre": list(self.centre), "grid": list(self.grid),
                 "method": self.method,
+                "layout": self.layout.as_dict() if self.layout is not None else None,
                 "edges": edges,
                 "skipped": [{**roi.as_dict(), "reason": reason} for roi, reason in self.skipped],
                 "maps": maps}
@@ -480,7 +487,8 @@ def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None,
     h, w = g.shape
     rejected: list = []
     rois = find_edges(g, centre=centre, min_length=min_length, rejected=rejected)
-    res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid, method=method)
+    res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid, method=method,
+                      layout=recognise_chart(g))
     settings = dict(edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um, method=method)
     res.edges, res.skipped = measure_rois(rois, _measure_image_box, executor=executor, payload=(g, settings))
     res.skipped += rejected
@@ -580,7 +588,10 @@ def measure_chart_bayer(mosaic, cfa, *, channel: str = "G", mode: str = "plane",
     half = m[: h // 2 * 2, : w // 2 * 2].reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
     c = None if centre is None else (centre[0] / 2.0, centre[1] / 2.0)
     rois = find_edges(half, centre=c, min_length=min_length / 2.0)
-    res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid, method=method)
+    layout = recognise_chart(half)
+    layout = dataclasses.replace(layout, centres=[(2 * x + 0.5, 2 * y + 0.5) for x, y in layout.centres])
+    res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid, method=method,
+                      layout=layout)
     full = [EdgeROI(2 * r.x, 2 * r.y, 2 * r.w, 2 * r.h, r.angle_deg, r.direction, r.radius, r.field_angle_deg,
                     r.orientation, r.shape) for r in rois]
     settings = dict(channel=channel, mode=mode, edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um,
@@ -708,7 +719,8 @@ def annotate_chart(result: ChartResult, image, *, value: str = "mtf50", ax=None,
         ax.legend(handles=[plt.Line2D([], [], ls="none", marker="o", color="red", label=f"{k}: {key} ({counts[key]})")
                            for key, k in reasons.items()],
                   loc="upper left", fontsize=7, title="skipped", title_fontsize=7, framealpha=0.85)
-    ax.set_title(f"{len(result.edges)} edges measured ({result.method}), {len(result.skipped)} skipped; "
+    named = f"{result.layout.title}: " if result.layout is not None and result.layout.name != "unknown" else ""
+    ax.set_title(f"{named}{len(result.edges)} edges measured ({result.method}), {len(result.skipped)} skipped; "
                  f"{value} from {vmin:.3f} to {vmax:.3f}")
     ax.set_xlim(0, w)
     ax.set_ylim(h, 0)

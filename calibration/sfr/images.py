@@ -69,15 +69,21 @@ def load_image(path: str):
 
 
 def _read_tiff(p: Path):
-    """The first image of a TIFF file by tifffile (RGB order, alpha and
-    extra samples dropped): a single-ROI run starts without OpenCV (0.08 s
-    of import)."""
+    """The first image of a TIFF file (RGB order, alpha and extra samples
+    dropped), by tifffile: a single-ROI run starts without OpenCV (0.08 s
+    of import). A compression tifffile cannot decode without its optional
+    codecs (LZW, JPEG) is read by OpenCV instead."""
     import tifffile
 
     try:
         img = tifffile.imread(p, key=0)
-    except Exception as e:  # noqa: BLE001 — any reader failure is a bad file
-        raise InputError(p, f"not a TIFF image tifffile can read ({type(e).__name__}: {e})") from None
+    except Exception as e:  # noqa: BLE001 — any reader failure: OpenCV's turn, then a bad file
+        import cv2
+
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputError(p, f"not a TIFF image tifffile or OpenCV can read ({type(e).__name__}: {e})") from None
+        return img[..., :3][..., ::-1] if img.ndim == 3 else img   # BGR(A) → RGB
     if img.ndim == 3 and img.shape[0] in (3, 4) and img.shape[-1] not in (3, 4):
         img = np.moveaxis(img, 0, -1)   # planar (samples first) → interleaved
     if img.ndim == 3:
