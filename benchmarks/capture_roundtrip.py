@@ -59,6 +59,43 @@ def sfra_rms(obs, pred) -> float:
     return float(np.sqrt(np.mean((np.asarray(obs.sfra) - pred) ** 2)))
 
 
+def capture_pair(lens_path, seed: int, size, exposure: float, methods, log=lambda m: None):
+    """The device ``isp calib simulate LENS --perturb random --seed SEED
+    --size W,H`` draws, captured twice (noise seeds ``seed`` and ``seed +
+    1000``) and measured as ``isp calib fit`` measures a capture, with each
+    SFR method: ``(device, what, nominal, {method: [obs0, obs1]})``, the
+    nominal lens matched to the capture's sensor."""
+    lens = read_lens(lens_path)
+    w, h = size
+    lens = lens.replace(sensor=Sensor(pixel_pitch_um=lens.sensor.pixel_pitch_um * lens.sensor.width_px / w,
+                                      width_px=w, height_px=h))
+    device, what = device_lens(lens, "random", seed=seed)
+    chart = slanted_square_chart(h, w)
+    obs = {m: [] for m in methods}
+    nominal = None
+    with tempfile.TemporaryDirectory() as tmp:
+        for noise_seed in (seed, seed + 1000):
+            log(f"capture, noise seed {noise_seed} ...")
+            dng = write_capture(Path(tmp) / f"c{noise_seed}.dng",
+                                capture=simulate_capture(device, chart, exposure=exposure, rng=noise_seed))
+            for m in methods:
+                o, _ = load_measured(str(dng), method=m)
+                nominal, o = match_sensor(read_lens(lens_path), o)
+                obs[m].append(o)
+    return device, what, nominal, obs
+
+
+def common_edges(a, b) -> tuple[np.ndarray, np.ndarray]:
+    """Indices into two measurements of the same chart of the edges both
+    hold (matched by position to a pixel and normal to a degree)."""
+    def key(o):
+        return {(round(x), round(y), round(n)): i for i, (x, y, n) in enumerate(zip(o.x_px, o.y_px, o.normal_deg))}
+
+    ka, kb = key(a), key(b)
+    both = sorted(set(ka) & set(kb))
+    return np.array([ka[c] for c in both], dtype=int), np.array([kb[c] for c in both], dtype=int)
+
+
 def main(argv=None) -> dict:
     ap = _harness.parser(__doc__)
     ap.add_argument("--lens", default=str(LENS))
@@ -74,34 +111,16 @@ def main(argv=None) -> dict:
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
-    lens = read_lens(args.lens)
+    device, what, nominal, obs = capture_pair(args.lens, args.seed, args.size, args.exposure, args.methods, log)
     w, h = args.size
-    lens = lens.replace(sensor=Sensor(pixel_pitch_um=lens.sensor.pixel_pitch_um * lens.sensor.width_px / w,
-                                      width_px=w, height_px=h))
-    device, what = device_lens(lens, "random", seed=args.seed)
-    chart = slanted_square_chart(h, w)
-    obs = {m: [] for m in args.methods}
-    with tempfile.TemporaryDirectory() as tmp:
-        for noise_seed in (args.seed, args.seed + 1000):
-            log(f"capture, noise seed {noise_seed} ...")
-            dng = write_capture(Path(tmp) / f"c{noise_seed}.dng",
-                                capture=simulate_capture(device, chart, exposure=args.exposure, rng=noise_seed))
-            for m in args.methods:
-                o, _ = load_measured(str(dng), method=m)
-                nominal, o = match_sensor(read_lens(args.lens), o)
-                obs[m].append(o)
-
-    def key(o):
-        return {(round(x), round(y), round(n)): i for i, (x, y, n) in enumerate(zip(o.x_px, o.y_px, o.normal_deg))}
 
     by_method = {}
     for m in args.methods:
         pair = obs[m]
-        k0, k1 = key(pair[0]), key(pair[1])
-        both = sorted(set(k0) & set(k1))
-        d = pair[0].sfra[[k0[c] for c in both]] - pair[1].sfra[[k1[c] for c in both]]
-        rec = {"edges": len(pair[0]), "edges_in_both": len(both), "noise_repeat_sfra": float(np.sqrt(np.mean(d ** 2) / 2))}
-        log(f"{m}: noise repeat SFRA {rec['noise_repeat_sfra']:.4f} per edge over {len(both)} edges")
+        i0, i1 = common_edges(*pair)
+        d = pair[0].sfra[i0] - pair[1].sfra[i1]
+        rec = {"edges": len(pair[0]), "edges_in_both": len(i0), "noise_repeat_sfra": float(np.sqrt(np.mean(d ** 2) / 2))}
+        log(f"{m}: noise repeat SFRA {rec['noise_repeat_sfra']:.4f} per edge over {len(i0)} edges")
         model = SfrModel(nominal, pair[0])
         with pool_executor(2) as ex:
             pred = model.predict(device).sfra + residual_bias(model, device, "sfra", ex).sfra

@@ -34,7 +34,8 @@ def load_image(path: str):
     array : (H, W) or (H, W, C) ndarray
         Image codes as stored (uint8/uint16, RGB order, alpha dropped), or for
         a raw file the Bayer mosaic, float32, black level removed,
-        normalised to white = 1.
+        normalised to white = 1, with the DNG's OpcodeList1 and OpcodeList2
+        applied (its GainMaps' lens-shading correction among them).
     kind : {"image", "raw"}
     meta : CameraMeta or None
         A raw file's metadata (CFA, pixel pitch where known).
@@ -52,7 +53,10 @@ def load_image(path: str):
         from isp import Pipeline
         from isp.io.read import read_raw
 
-        frame = Pipeline.from_names(["black_level"]).run(read_raw(p))
+        # the DNG's own linearisation before demosaic: opcodes of list 1, black level, list 2 and
+        # its per-phase GainMaps (lens_shading), which flatten the lens's shading: a shading slope
+        # across an ROI tilts the ESF's plateaus and biases the SFR at low frequencies
+        frame = Pipeline.from_names(["opcode_list1", "black_level", "opcode_list2", "lens_shading"]).run(read_raw(p))
         if frame.data.ndim != 2:
             raise InputError(path, "a linear (demosaiced) DNG; SFR of raw data needs a Bayer mosaic")
         return frame.data, "raw", frame.meta

@@ -194,7 +194,7 @@ def _finish(optical_or_mosaic, sensor: SensorModel | None, box, exposure, relati
 def render_slanted_edge(psf, center_px, size_px, angle_deg: float, *, horizontal: bool = False,
                         low=0.2, high=0.8, sensor: SensorModel | None = None, pixel_pitch_um: float | None = None,
                         fill_factor: float | None = None, exposure: float = 1.0, relative_illumination=None,
-                        noise: bool = True, rng=None) -> Rendering:
+                        noise: bool = True, rng=None, edge_px=None) -> Rendering:
     """A slanted-edge ROI through the local PSF, exactly.
 
     Parameters
@@ -227,6 +227,9 @@ def render_slanted_edge(psf, center_px, size_px, angle_deg: float, *, horizontal
     noise : bool
     rng : numpy Generator, int or None
         Noise; see :func:`calibration.simulate.sensor.as_rng`.
+    edge_px : (x, y), optional
+        A point of the edge, sensor pixel coordinates, where it is not the
+        ROI's centre ``center_px`` (an edge measured off its ROI's middle).
 
     Returns
     -------
@@ -267,8 +270,9 @@ def render_slanted_edge(psf, center_px, size_px, angle_deg: float, *, horizontal
     region = bank.region_at(cx, cy)
     t = math.radians(angle_deg)
     normal = (-math.sin(t), math.cos(t)) if horizontal else (math.cos(t), -math.sin(t))
-    xs = np.arange(x0, x0 + w, dtype=np.float64) - cx
-    ys = np.arange(y0, y0 + h, dtype=np.float64) - cy
+    ex, ey = (cx, cy) if edge_px is None else (float(edge_px[0]), float(edge_px[1]))
+    xs = np.arange(x0, x0 + w, dtype=np.float64) - ex
+    ys = np.arange(y0, y0 + h, dtype=np.float64) - ey
     d = normal[0] * xs[None, :] + normal[1] * ys[:, None]
     optical = np.empty((h, w, 3))
     for c in range(3):

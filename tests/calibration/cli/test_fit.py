@@ -41,7 +41,7 @@ def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device
     lens, obs_path = device_obs
     out = tmp_path / "proxy"
     code = main(["calib", "fit", "--lens", str(e9_zmx),
-                 "--measured", str(obs_path), "-o", str(out), "--n-params", "3", "--max-iter", "4",
+                 "--measured", str(obs_path), "-o", str(out), "--n-params", "2", "--max-iter", "4",
                  "--workers", "1", "--restarts", "1"])
     printed = capsys.readouterr()
     assert code == 0, printed.err
@@ -49,13 +49,13 @@ def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device
         assert (out / f).is_file(), f
     fit = json.loads((out / "fit.json").read_text())
     assert fit["errors"]["after"]["sfra_rms"] < 0.5 * fit["errors"]["before"]["sfra_rms"]
-    # the median |residual| (σ) falls with χ², above the floor's 0.67 here (three parameters), and is printed
+    # the median |residual| (σ) falls with χ², above the floor's 0.67 here (two parameters), and is printed
     e = fit["errors"]
     assert 0.67 < e["after"]["median_abs_z"] < 0.5 * e["before"]["median_abs_z"]
     assert e["after"]["median_abs_z"] ** 2 < e["after"]["chi2_per_obs"]
     assert f"{e['after']['median_abs_z']:.2f} σ" in printed.out
     assert all(np.isfinite(p["std"]) for p in fit["parameters"])
-    # three parameters cannot fit this device: the fit ends far above the noise floor and tries one restart
+    # two parameters cannot fit this device: the fit ends far above the noise floor and tries one restart
     assert len(fit["restarts"]) == 1 and "1 other starts tried" in printed.out
     proxy = load_proxy(out / "proxy.json")
     # the proxy file reads back as the nominal lens plus exactly the fitted perturbation

@@ -230,3 +230,40 @@ def test_measure_like_uses_the_method_the_observations_were_measured_with(make_o
     assert measure_like(make_observations(1, {"measure": "image", "sfr_method": "iso"}), 0)(img).sfra == iso
     raw = make_observations(1, {"measure": "raw", "cfa": "RGGB", "sfr_method": "iso"})
     assert measure_like(raw, 0)(img).sfra == measure_sfr_bayer(img, "RGGB", channel="G", method="iso").sfra
+
+
+@pytest.mark.parametrize("x, y, h, w, edge_dx", [(600, 400, 32, 42, 3.3), (1000, 800, 32, 42, -4.1),
+                                                 (200, 1000, 40, 36, 1.7)])
+def test_an_observation_is_rendered_as_its_capture_was(x, y, h, w, edge_dx):
+    """A raw edge measured off its ROI's middle through a PSF whose centroid
+    is off its centre sample: the model's render of the observation (its
+    ROI's shape, the edge where it was measured less the PSF's own shift)
+    measures as the capture did, to 1e-4 cycles/pixel of SFRA; rendered as a
+    tall ROI through its centre it was 4–7e-3 off."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from calibration.fit.forward_model import render_observation
+    from calibration.fit.measurements import _edge_item
+    from calibration.fit.observations import Observations
+    from calibration.optics.lens import Sensor
+    from calibration.sfr.chart import EdgeROI
+    from calibration.simulate.capture import render_slanted_edge
+
+    q, pixel_um = 0.5, 2.0
+    o = (np.arange(33) - 16) * q
+    g = np.exp(-((o[None] - 0.7) ** 2 + (o[:, None] + 0.3) ** 2) / (2 * 0.9 ** 2))   # centroid (+0.7, −0.3) px
+    psf = g / g.sum()
+    centre = (x + (w - 1) / 2, y + (h - 1) / 2)
+    cap = render_slanted_edge(SimpleNamespace(data=psf, pitch_um=q * pixel_um), centre, (h, w), 5.0, low=0.2,
+                              high=0.7, pixel_pitch_um=pixel_um, noise=False,
+                              edge_px=(centre[0] + edge_dx, centre[1])).optical[:, :, 0]
+    r = measure_sfr_bayer(np.pad(cap, ((y, 0), (x, 0))), "RGGB", channel="G", method="accurate", box=(x, y, w, h))
+    roi = EdgeROI(x, y, w, h, 5.0, "vertical", 0.5, 0.0, "tangential", 0)
+    obs = Observations.from_sfr_results([_edge_item(roi, r, 2000, 1500)], Sensor(pixel_pitch_um=pixel_um,
+                                                                                   width_px=2000, height_px=1500))
+    obs = dataclasses.replace(obs.with_fields(roi=np.array([[x, y, w, h]])),
+                              meta={"measure": "raw", "cfa": "RGGB", "sfr_method": "accurate"})
+    img = render_observation(psf, q * pixel_um, pixel_um, obs, 0, 1.0)
+    assert img.shape == (h, w)
+    assert measure_like(obs, 0)(img).sfra == pytest.approx(r.sfra, abs=1e-4)

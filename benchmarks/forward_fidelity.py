@@ -1,0 +1,154 @@
+"""How well the fitting forward model reproduces the simulator: each
+device's TRUE lens through the model, against the noise between two
+captures of that device.
+
+For each phone lens of ``--lenses``, the device ``isp calib simulate LENS
+--perturb random --seed SEED --size W,H`` draws (every tolerance drawn,
+refocused) is captured twice with two noise seeds and measured as ``isp
+calib fit`` measures a capture (``benchmarks.capture_roundtrip.capture_pair``).
+The device's own lens goes through :class:`calibration.fit.forward_model.SfrModel`
+with the measurement's bias (``residual_bias``, ``shape``: SFRA, the four
+SFR bands and the LSF's asymmetry bands), and its residual against the first
+capture is set against the noise, measured as the difference of the two
+captures over √2 on the edges both hold:
+
+* **SFRA**: the residual's RMS over the noise's (1.0 for a perfect model);
+* **bands**: the same for the mean SFR in each of the four frequency
+  bands (0.02–0.125, –0.25, –0.375, –0.5 cycles/pixel);
+* **asymmetry**: the LSF's odd part in its bands, χ² per term with the
+  noise's σ per band (1.0 for a perfect model), and with the σ the fitter
+  divides by (``odd_sigma``: the measurement's own estimate with the model's
+  floor in quadrature).
+
+A model that matched the simulator exactly would score 1 on each; the gap
+is the model's own error, the floor under any fit and under every effect the
+loop tries to detect. ``--window-um``, ``--wavelengths`` and
+``--noise-realisations`` set the model's PSF window, Gauss nodes per channel
+and the noisy renders of its bias (default: the fitter's), so that what each
+difference from the simulator costs can be measured.
+
+Results are kept per model (``--label``, default "fitter") and lens in
+``benchmarks/results/forward_fidelity.json``; a lens measured with the same
+settings is not measured again (``--redo``), so the run can go in parts.
+Prints one JSON object as the last line. Usage::
+
+    python -m benchmarks.forward_fidelity [--lenses e1 e2 e9 e11] [--seed 5] [--size 2000 1500]
+    python -m benchmarks.forward_fidelity --label simulator_psf --window-um 45 --wavelengths 3
+"""
+
+from __future__ import annotations
+
+from benchmarks import _harness
+
+if __name__ == "__main__":   # one BLAS thread per worker, set before numpy loads
+    _harness.pin_threads(2, blas=1)
+
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from benchmarks.capture_roundtrip import capture_pair, common_edges  # noqa: E402
+from calibration.fit.forward_model import ModelSettings, SfrModel, band_means  # noqa: E402
+from calibration.fit.proxy import residual_bias  # noqa: E402
+from calibration.sfr.asymmetry import odd_sigma  # noqa: E402
+from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
+from isp.runtime.executor import pool_executor  # noqa: E402
+
+PHONE = _harness.ROOT.parent / "shared" / "data" / "lenses" / "phone"
+#: short names of the phone lenses → their prescriptions
+LENSES = {"e1": "US-11906710-B2-e1", "e2": "US-12210142-B2-e2", "e9": "US-12210142-B2-e9",
+          "e11": "US-11933948-B2-e11"}
+
+
+def _rms(a) -> np.ndarray:
+    return np.sqrt(np.nanmean(np.asarray(a, float) ** 2, axis=0))
+
+
+def fidelity(nominal, pair, device, executor, settings: ModelSettings | None = None) -> dict:
+    """The device lens's residual through the model (``settings``, default
+    the fitter's) against the noise of two captures ``pair`` (module notes)."""
+    first, second = pair
+    i0, i1 = common_edges(first, second)
+    model = SfrModel(nominal, first, settings)
+    pred = model.predict(device)
+    bias = residual_bias(model, device, "shape", executor)
+    out = {"edges": len(first), "edges_in_both": len(i0)}
+    # SFRA
+    noise = float(_rms((first.sfra[i0] - second.sfra[i1]) / np.sqrt(2)))
+    resid = first.sfra - pred.sfra - bias.sfra
+    out["sfra"] = {"noise": noise, "residual": float(_rms(resid)), "ratio": float(_rms(resid) / noise)}
+    # the four SFR bands
+    b0, b1 = band_means(first.freq, first.sfr), band_means(second.freq, second.sfr)
+    noise_b = _rms((b0[i0] - b1[i1]) / np.sqrt(2))
+    resid_b = bias.measured_bands - band_means(first.freq, pred.sfr) - bias.bands
+    out["bands"] = {"noise": noise_b.tolist(), "residual": _rms(resid_b).tolist(),
+                    "ratio": (_rms(resid_b) / noise_b).tolist()}
+    # the LSF's asymmetry bands
+    if first.odd is not None and second.odd is not None:
+        noise_o = _rms((first.odd[i0] - second.odd[i1]) / np.sqrt(2))
+        resid_o = first.odd - model.predict_odd(device) - bias.odd
+        out["odd"] = {"noise": noise_o.tolist(), "residual": _rms(resid_o).tolist(),
+                      "chi2_per_term": float(np.nanmean((resid_o / noise_o) ** 2)),
+                      "chi2_per_term_fitter": float(np.nanmean((resid_o / odd_sigma(first.odd_std)) ** 2))}
+    return out
+
+
+def main(argv=None) -> dict:
+    ap = _harness.parser(__doc__)
+    ap.add_argument("--lenses", nargs="+", default=list(LENSES), choices=list(LENSES))
+    ap.add_argument("--seed", type=int, default=5, help="the device of each lens (isp calib simulate --seed)")
+    ap.add_argument("--size", type=int, nargs=2, default=[2000, 1500], metavar=("W", "H"))
+    ap.add_argument("--exposure", type=float, default=0.8, help="chart white level (isp calib simulate's default)")
+    ap.add_argument("--method", default=DEFAULT_METHOD, choices=("accurate", "iso"))
+    ap.add_argument("--window-um", type=float, help="the model's PSF window, µm (default the fitter's)")
+    ap.add_argument("--wavelengths", type=int, help="the model's Gauss nodes per channel (default the fitter's)")
+    ap.add_argument("--noise-realisations", type=int, help="noisy renders per edge of the bias (default the fitter's)")
+    ap.add_argument("--label", default="fitter", help="the model's name in the results (default fitter)")
+    ap.add_argument("--redo", action="store_true", help="measure the lenses again even where recorded")
+    args = ap.parse_args(argv)
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    model = ModelSettings()
+    if args.window_um:
+        model = model.with_window(args.window_um)
+    if args.wavelengths:
+        model = dataclasses.replace(model, n_wavelengths=args.wavelengths)
+    if args.noise_realisations:
+        model = dataclasses.replace(model, noise_realisations=args.noise_realisations)
+    settings = {"seed": args.seed, "size": list(args.size), "exposure": args.exposure, "method": args.method,
+                "model": {"window_um": model.window_um, "pupil_samples": model.pupil_samples,
+                          "n_wavelengths": model.n_wavelengths, "noise_realisations": model.noise_realisations}}
+    path = _harness.results_dir(args) / "forward_fidelity.json"
+    models = json.loads(path.read_text()).get("results", {}).get("models", {}) if path.is_file() else {}
+    mine = models.get(args.label, {})
+    done = mine.get("lenses", {}) if mine.get("settings") == settings and not args.redo else {}
+    for name in args.lenses:
+        if name in done:
+            log(f"{name}: recorded, skipped (--redo to measure again)")
+            continue
+        t0 = time.perf_counter()
+        log(f"{name}: capturing the device twice ...")
+        device, what, nominal, obs = capture_pair(PHONE / f"{LENSES[name]}.zmx", args.seed, args.size,
+                                                  args.exposure, [args.method], log)
+        with pool_executor(2) as ex:
+            rec = fidelity(nominal, obs[args.method], device, ex, model)
+        rec.update(lens=LENSES[name], device=what, seconds=round(time.perf_counter() - t0, 1))
+        done[name] = rec
+        odd = rec.get("odd", {})
+        log(f"{name}: SFRA ratio {rec['sfra']['ratio']:.2f} (residual {rec['sfra']['residual']:.4f}, noise "
+            f"{rec['sfra']['noise']:.4f}); bands " + " ".join(f"{r:.2f}" for r in rec["bands"]["ratio"])
+            + (f"; asymmetry chi2/term {odd['chi2_per_term']:.2f}" if odd else "") + f" ({rec['seconds']} s)")
+        # each lens is kept as it finishes: the run can stop and go on
+        models[args.label] = {"settings": settings, "lenses": done}
+        _harness.publish("forward_fidelity", {"models": models}, args, argv)
+    models[args.label] = {"settings": settings, "lenses": done}
+    return _harness.publish("forward_fidelity", {"models": models}, args, argv)
+
+
+if __name__ == "__main__":
+    main()
