@@ -17,6 +17,10 @@ A template is Markdown with placeholders between double braces:
     spec may follow a pipe: ``{{ sfr:results.per_edge_ms|.2f }}``. A timing
     summary (``{"median", "min", "max", "n"}``) renders as
     ``median (min–max)``, each number in that format.
+``{{ NAME:path?|format }}``
+    the same, for a run that may measure part of what its page shows (an
+    entry of ``--only``): a path ending in ``?`` that the file lacks renders
+    as *not measured* instead of an error.
 ``{{ table NAME:path }}``
     a Markdown table of a list of flat dicts (one row each, the keys as
     columns) or of a dict of dicts (one row per key, the key first); a
@@ -233,7 +237,15 @@ def _render_one(expr: str, ctx: Context) -> str:
     m = _VALUE.match(expr)
     if m:
         rec = ctx.record(m["name"])
-        return not_measured(m["name"]) if rec is None else format_value(lookup(rec, m["path"]), m["fmt"])
+        if rec is None:
+            return not_measured(m["name"])
+        path = m["path"]
+        if path.endswith("?"):          # optional: a part the run did not measure
+            try:
+                return format_value(lookup(rec, path[:-1]), m["fmt"])
+            except TemplateError:
+                return not_measured(m["name"])
+        return format_value(lookup(rec, path), m["fmt"])
     raise TemplateError("not a placeholder: NAME:path[|format], table NAME:path, env NAME or command NAME")
 
 

@@ -67,6 +67,21 @@ def test_a_missing_json_renders_as_not_measured_and_the_check_sees_a_new_one(tre
     assert "Rays: 1,534,000;" in (p / "speed.md").read_text()
 
 
+def test_an_optional_path_a_partial_run_lacks_renders_as_not_measured(tree):
+    """A run of some entries (``--only``): ``path?`` renders the entries it
+    measured and *not measured* for the rest; without ``?`` a missing path
+    stays an error."""
+    t, p, r = tree
+    _record(r, "ablations", {"entries": {"doconv": {"psnr": 21.456}}})
+    (t / "abl.md").write_text("{{ ablations:results.entries.doconv.psnr?|.2f }} / "
+                              "{{ ablations:results.entries.static.psnr?|.2f }}\n")
+    report.write(t, p, r)
+    assert "21.46 / *not measured: run `python -m benchmarks.ablations`*" in (p / "abl.md").read_text()
+    (t / "abl.md").write_text("{{ ablations:results.entries.static.psnr|.2f }}\n")
+    with pytest.raises(report.TemplateError, match="no such key"):
+        report.write(t, p, r)
+
+
 def test_the_check_lists_missing_pages_and_orphans_and_exits_1(tree, capsys):
     t, p, r = tree
     (t / "a.md").write_text("no placeholders\n")
