@@ -29,7 +29,10 @@ difference from the simulator costs can be measured.
 
 Results are kept per model (``--label``, default "fitter") and lens in
 ``benchmarks/results/forward_fidelity.json``; a lens measured with the same
-settings is not measured again (``--redo``), so the run can go in parts.
+settings is not measured again (``--redo`` measures the lenses named
+again), so the run can go in parts. The SFRA record also holds the noise
+the model's own noisy renders show (``model_noise``, whence the loop's σ)
+over the captures' (``model_noise_ratio``, 1.0 for a right noise model).
 Prints one JSON object as the last line. Usage::
 
     python -m benchmarks.forward_fidelity [--lenses e1 e2 e9 e11] [--seed 5] [--size 2000 1500]
@@ -80,6 +83,11 @@ def fidelity(nominal, pair, device, executor, settings: ModelSettings | None = N
     noise = float(_rms((first.sfra[i0] - second.sfra[i1]) / np.sqrt(2)))
     resid = first.sfra - pred.sfra - bias.sfra
     out["sfra"] = {"noise": noise, "residual": float(_rms(resid)), "ratio": float(_rms(resid) / noise)}
+    # the noise the model's own renders show (the loop's σ comes from it): against the captures'
+    spread = getattr(model, "last_sfra_noise", None)
+    if spread is not None:
+        out["sfra"]["model_noise"] = float(_rms(spread))
+        out["sfra"]["model_noise_ratio"] = float(_rms(spread) / noise)
     # the four SFR bands
     b0, b1 = band_means(first.freq, first.sfr), band_means(second.freq, second.sfr)
     noise_b = _rms((b0[i0] - b1[i1]) / np.sqrt(2))
@@ -126,9 +134,9 @@ def main(argv=None) -> dict:
     path = _harness.results_dir(args) / "forward_fidelity.json"
     models = json.loads(path.read_text()).get("results", {}).get("models", {}) if path.is_file() else {}
     mine = models.get(args.label, {})
-    done = mine.get("lenses", {}) if mine.get("settings") == settings and not args.redo else {}
+    done = mine.get("lenses", {}) if mine.get("settings") == settings else {}
     for name in args.lenses:
-        if name in done:
+        if name in done and not args.redo:
             log(f"{name}: recorded, skipped (--redo to measure again)")
             continue
         t0 = time.perf_counter()
