@@ -26,7 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("image", help="image file (PNG/TIFF/JPEG/BMP, 8 or 16 bit) or raw file")
     p.add_argument("--roi", metavar="X,Y,W,H", help="region of one edge, pixels (default: whole image)")
-    p.add_argument("--chart", action="store_true", help="find every slanted edge and map SFR over the field")
+    p.add_argument("--chart", action="store_true",
+                   help="find every slanted edge and map SFR over the field; the chart's layout (ISO 12233:2023 "
+                        "e-SFR, ISO 12233:2000, slanted-square grid or target) is named in the summary and JSON")
     p.add_argument("--channel", help="R, G, B or luminance (colour images); R, G, B, Gr, Gb or all (raw)")
     p.add_argument("--bayer-mode", choices=("plane", "green"), default="plane",
                    help="raw: measure each CFA plane, or both greens at full resolution")
