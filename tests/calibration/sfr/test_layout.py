@@ -85,3 +85,31 @@ def test_tiff_files_read_as_opencv_reads_them(name):
     ref = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     ref = ref[..., :3][..., ::-1] if ref.ndim == 3 else ref
     assert kind == "image" and img.dtype == ref.dtype and np.array_equal(img, ref)
+
+
+@pytest.mark.property
+@pytest.mark.parametrize("warp", ["perspective", "barrel", "barrel_vignetting"])
+def test_the_grid_is_recognised_through_perspective_distortion_and_vignetting(warp):
+    """The chart of the edge search's distortion test (seen at an angle;
+    barrel distortion, k = 0.08 at the half-width; 35 % vignetting): still
+    a slanted-square grid of all its 12 squares."""
+    import cv2
+
+    ch = render_square_chart((600, 800), (3, 4), sigma_px=1.0, angles_deg=(5.0, 8.0, 11.0), side=0.5)
+    img = ch.image.astype(np.float32)
+    h, w = img.shape
+    if warp == "perspective":
+        src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+        dst = np.float32([[30, 20], [w - 10, 0], [w - 10, h], [30, h - 20]])
+        out = cv2.warpPerspective(img, cv2.getPerspectiveTransform(src, dst), (w, h), flags=cv2.INTER_CUBIC,
+                                  borderValue=0.8)
+    else:
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        nx, ny = (xx - w / 2) / (w / 2), (yy - h / 2) / (w / 2)
+        r2 = nx * nx + ny * ny
+        out = cv2.remap(img, (w / 2 + nx * (1 + 0.08 * r2) * w / 2).astype(np.float32),
+                        (h / 2 + ny * (1 + 0.08 * r2) * w / 2).astype(np.float32), cv2.INTER_CUBIC, borderValue=0.8)
+        if warp == "barrel_vignetting":
+            out = out * (1 - 0.35 * r2 / r2.max())
+    lay = recognise_chart(out)
+    assert lay.name == "square_grid" and lay.squares == 12
