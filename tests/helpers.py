@@ -574,3 +574,29 @@ def display_ramp(h=48, w=64):
     rgb = np.stack([x / (w - 1), y / (h - 1), 0.25 + 0.5 * (x + y) / (h + w)], axis=2).astype(np.float32)
     rgb[:8, :8] = [1, 0, 0]
     return rgb
+
+
+def warped_square_chart(warp: str):
+    """The 600 × 800 chart of 3 × 4 slanted squares (σ 1 px; 5°, 8°, 11°)
+    seen through ``warp``: "perspective" (at an angle), "barrel" (k = 0.08
+    at the frame's half-width: curved sides) or "barrel_vignetting" (and
+    35 % vignetting); float32, ground 0.8."""
+    import cv2
+    import numpy as np
+
+    from calibration.sfr.synthetic import render_square_chart
+
+    img = render_square_chart((600, 800), (3, 4), sigma_px=1.0, angles_deg=(5.0, 8.0, 11.0),
+                              side=0.5).image.astype(np.float32)
+    h, w = img.shape
+    if warp == "perspective":
+        src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+        dst = np.float32([[30, 20], [w - 10, 0], [w - 10, h], [30, h - 20]])
+        return cv2.warpPerspective(img, cv2.getPerspectiveTransform(src, dst), (w, h), flags=cv2.INTER_CUBIC,
+                                   borderValue=0.8)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    nx, ny = (xx - w / 2) / (w / 2), (yy - h / 2) / (w / 2)
+    r2 = nx * nx + ny * ny
+    out = cv2.remap(img, (w / 2 + nx * (1 + 0.08 * r2) * w / 2).astype(np.float32),
+                    (h / 2 + ny * (1 + 0.08 * r2) * w / 2).astype(np.float32), cv2.INTER_CUBIC, borderValue=0.8)
+    return out * (1 - 0.35 * r2 / r2.max()) if warp == "barrel_vignetting" else out

@@ -12,7 +12,7 @@ import pytest
 from calibration.sfr.esfr import SfrError
 from calibration.sfr.chart import GRID, classify_orientation, find_edges, measure_chart, measure_chart_bayer, short_reason
 from calibration.sfr.synthetic import mtf50_of
-from tests.helpers import data_file
+from tests.helpers import data_file, warped_square_chart
 
 
 def _chart(h=600, w=800, rows=4, cols=5, angle=5.0, sigma=1.0, ss=8, dark=0.2, light=0.8):
@@ -218,27 +218,7 @@ def test_every_side_is_found_through_perspective_distortion_and_vignetting(warp)
     """A chart seen at an angle (perspective), through barrel distortion
     (curved sides, k = 0.08 at the frame's half-width) and with 35 %
     vignetting: every side of every square is still found and measured."""
-    import cv2
-
-    from calibration.sfr.synthetic import render_square_chart
-
-    ch = render_square_chart((600, 800), (3, 4), sigma_px=1.0, angles_deg=(5.0, 8.0, 11.0), side=0.5)
-    img = ch.image.astype(np.float32)
-    h, w = img.shape
-    if warp == "perspective":
-        src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
-        dst = np.float32([[30, 20], [w - 10, 0], [w - 10, h], [30, h - 20]])
-        out = cv2.warpPerspective(img, cv2.getPerspectiveTransform(src, dst), (w, h), flags=cv2.INTER_CUBIC,
-                                  borderValue=0.8)
-    else:
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-        nx, ny = (xx - w / 2) / (w / 2), (yy - h / 2) / (w / 2)
-        r2 = nx * nx + ny * ny
-        scale = 1 + 0.08 * r2
-        out = cv2.remap(img, (w / 2 + nx * scale * w / 2).astype(np.float32),
-                        (h / 2 + ny * scale * w / 2).astype(np.float32), cv2.INTER_CUBIC, borderValue=0.8)
-        if warp == "barrel_vignetting":
-            out = out * (1 - 0.35 * r2 / r2.max())
+    out = warped_square_chart(warp)
     res = measure_chart(out.astype(np.float64))
     assert len(res.edges) == 48 and not res.skipped
     assert all(0.15 < r.mtf50 < 0.25 for _, r in res.edges)     # σ 1 px: 0.180, moved a little by the resampling

@@ -11,7 +11,7 @@ from calibration.sfr.chart import _gray, measure_chart
 from calibration.sfr.images import load_image
 from calibration.sfr.layout import LAYOUTS, recognise_chart
 from calibration.sfr.synthetic import render_square_chart
-from tests.helpers import data_file
+from tests.helpers import data_file, warped_square_chart
 
 
 @pytest.mark.property
@@ -91,25 +91,7 @@ def test_tiff_files_read_as_opencv_reads_them(name):
 @pytest.mark.parametrize("warp", ["perspective", "barrel", "barrel_vignetting"])
 def test_the_grid_is_recognised_through_perspective_distortion_and_vignetting(warp):
     """The chart of the edge search's distortion test (seen at an angle;
-    barrel distortion, k = 0.08 at the half-width; 35 % vignetting): still
-    a slanted-square grid of all its 12 squares."""
-    import cv2
-
-    ch = render_square_chart((600, 800), (3, 4), sigma_px=1.0, angles_deg=(5.0, 8.0, 11.0), side=0.5)
-    img = ch.image.astype(np.float32)
-    h, w = img.shape
-    if warp == "perspective":
-        src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
-        dst = np.float32([[30, 20], [w - 10, 0], [w - 10, h], [30, h - 20]])
-        out = cv2.warpPerspective(img, cv2.getPerspectiveTransform(src, dst), (w, h), flags=cv2.INTER_CUBIC,
-                                  borderValue=0.8)
-    else:
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-        nx, ny = (xx - w / 2) / (w / 2), (yy - h / 2) / (w / 2)
-        r2 = nx * nx + ny * ny
-        out = cv2.remap(img, (w / 2 + nx * (1 + 0.08 * r2) * w / 2).astype(np.float32),
-                        (h / 2 + ny * (1 + 0.08 * r2) * w / 2).astype(np.float32), cv2.INTER_CUBIC, borderValue=0.8)
-        if warp == "barrel_vignetting":
-            out = out * (1 - 0.35 * r2 / r2.max())
-    lay = recognise_chart(out)
+    barrel distortion; vignetting): still a slanted-square grid of all its
+    12 squares."""
+    lay = recognise_chart(warped_square_chart(warp))
     assert lay.name == "square_grid" and lay.squares == 12
