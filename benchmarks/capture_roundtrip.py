@@ -49,14 +49,51 @@ from calibration.optics.lens import Sensor  # noqa: E402
 from calibration.fit.measurements import load_measured, match_sensor  # noqa: E402
 from calibration.fit.proxy import ProxyFitSettings, fit_proxy, residual_bias  # noqa: E402
 from isp.runtime.executor import pool_executor  # noqa: E402
-from calibration.fit.forward_model import FAST_JACOBIAN, SfrModel  # noqa: E402
+from calibration.fit.forward_model import FAST_JACOBIAN, ModelSettings, SfrModel, band_means  # noqa: E402
+from calibration.sfr.asymmetry import odd_sigma  # noqa: E402
 from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
 
 LENS = ROOT.parent / "shared" / "data" / "lenses" / "phone" / "US-12210142-B2-e9.zmx"
 
 
-def sfra_rms(obs, pred) -> float:
-    return float(np.sqrt(np.mean((np.asarray(obs.sfra) - pred) ** 2)))
+def _rms(a) -> np.ndarray:
+    return np.sqrt(np.nanmean(np.asarray(a, float) ** 2, axis=0))
+
+
+def fidelity(nominal, pair, device, executor, settings: ModelSettings | None = None) -> dict:
+    """The device lens's residual through the model (``settings``, default
+    the fitter's) against the noise of two captures ``pair``: SFRA, the four
+    SFR bands and the LSF's asymmetry, each as RMS residual over RMS noise
+    (``benchmarks/forward_fidelity.py`` explains the figures)."""
+    first, second = pair
+    i0, i1 = common_edges(first, second)
+    model = SfrModel(nominal, first, settings)
+    pred = model.predict(device)
+    bias = residual_bias(model, device, "shape", executor)
+    out = {"edges": len(first), "edges_in_both": len(i0)}
+    # SFRA
+    noise = float(_rms((first.sfra[i0] - second.sfra[i1]) / np.sqrt(2)))
+    resid = first.sfra - pred.sfra - bias.sfra
+    out["sfra"] = {"noise": noise, "residual": float(_rms(resid)), "ratio": float(_rms(resid) / noise)}
+    # the noise the model's own renders show (the loop's σ comes from it): against the captures'
+    spread = getattr(model, "last_sfra_noise", None)
+    if spread is not None:
+        out["sfra"]["model_noise"] = float(_rms(spread))
+        out["sfra"]["model_noise_ratio"] = float(_rms(spread) / noise)
+    # the four SFR bands
+    b0, b1 = band_means(first.freq, first.sfr), band_means(second.freq, second.sfr)
+    noise_b = _rms((b0[i0] - b1[i1]) / np.sqrt(2))
+    resid_b = bias.measured_bands - band_means(first.freq, pred.sfr) - bias.bands
+    out["bands"] = {"noise": noise_b.tolist(), "residual": _rms(resid_b).tolist(),
+                    "ratio": (_rms(resid_b) / noise_b).tolist()}
+    # the LSF's asymmetry bands
+    if first.odd is not None and second.odd is not None:
+        noise_o = _rms((first.odd[i0] - second.odd[i1]) / np.sqrt(2))
+        resid_o = first.odd - model.predict_odd(device) - bias.odd
+        out["odd"] = {"noise": noise_o.tolist(), "residual": _rms(resid_o).tolist(),
+                      "chi2_per_term": float(np.nanmean((resid_o / noise_o) ** 2)),
+                      "chi2_per_term_fitter": float(np.nanmean((resid_o / odd_sigma(first.odd_std)) ** 2))}
+    return out
 
 
 def capture_pair(lens_path, seed: int, size, exposure: float, methods, log=lambda m: None):
@@ -116,15 +153,11 @@ def main(argv=None) -> dict:
 
     by_method = {}
     for m in args.methods:
-        pair = obs[m]
-        i0, i1 = common_edges(*pair)
-        d = pair[0].sfra[i0] - pair[1].sfra[i1]
-        rec = {"edges": len(pair[0]), "edges_in_both": len(i0), "noise_repeat_sfra": float(np.sqrt(np.mean(d ** 2) / 2))}
-        log(f"{m}: noise repeat SFRA {rec['noise_repeat_sfra']:.4f} per edge over {len(i0)} edges")
-        model = SfrModel(nominal, pair[0])
         with pool_executor(2) as ex:
-            pred = model.predict(device).sfra + residual_bias(model, device, "sfra", ex).sfra
-        rec["device_lens_sfra_rms"] = sfra_rms(pair[0], pred)
+            f = fidelity(nominal, obs[m], device, ex)
+        rec = {"edges": f["edges"], "edges_in_both": f["edges_in_both"], "noise_repeat_sfra": f["sfra"]["noise"],
+               "device_lens_sfra_rms": f["sfra"]["residual"]}
+        log(f"{m}: noise repeat SFRA {rec['noise_repeat_sfra']:.4f} per edge over {rec['edges_in_both']} edges")
         log(f"{m}: the device's own lens: SFRA RMS {rec['device_lens_sfra_rms']:.4f}")
         by_method[m] = rec
     first = args.methods[0]

@@ -5,7 +5,8 @@ captures of that device.
 For each phone lens of ``--lenses``, the device ``isp calib simulate LENS
 --perturb random --seed SEED --size W,H`` draws (every tolerance drawn,
 refocused) is captured twice with two noise seeds and measured as ``isp
-calib fit`` measures a capture (``benchmarks.capture_roundtrip.capture_pair``).
+calib fit`` measures a capture (``benchmarks.capture_roundtrip.capture_pair``); the comparison is
+``benchmarks.capture_roundtrip.fidelity``.
 The device's own lens goes through :class:`calibration.fit.forward_model.SfrModel`
 with the measurement's bias (``residual_bias``, ``shape``: SFRA, the four
 SFR bands and the LSF's asymmetry bands), and its residual against the first
@@ -51,12 +52,9 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
-import numpy as np  # noqa: E402
 
-from benchmarks.capture_roundtrip import capture_pair, common_edges  # noqa: E402
-from calibration.fit.forward_model import ModelSettings, SfrModel, band_means  # noqa: E402
-from calibration.fit.proxy import residual_bias  # noqa: E402
-from calibration.sfr.asymmetry import odd_sigma  # noqa: E402
+from benchmarks.capture_roundtrip import capture_pair, fidelity  # noqa: E402
+from calibration.fit.forward_model import ModelSettings  # noqa: E402
 from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
 from isp.runtime.executor import pool_executor  # noqa: E402
 
@@ -64,44 +62,6 @@ PHONE = _harness.ROOT.parent / "shared" / "data" / "lenses" / "phone"
 #: short names of the phone lenses → their prescriptions
 LENSES = {"e1": "US-11906710-B2-e1", "e2": "US-12210142-B2-e2", "e9": "US-12210142-B2-e9",
           "e11": "US-11933948-B2-e11"}
-
-
-def _rms(a) -> np.ndarray:
-    return np.sqrt(np.nanmean(np.asarray(a, float) ** 2, axis=0))
-
-
-def fidelity(nominal, pair, device, executor, settings: ModelSettings | None = None) -> dict:
-    """The device lens's residual through the model (``settings``, default
-    the fitter's) against the noise of two captures ``pair`` (module notes)."""
-    first, second = pair
-    i0, i1 = common_edges(first, second)
-    model = SfrModel(nominal, first, settings)
-    pred = model.predict(device)
-    bias = residual_bias(model, device, "shape", executor)
-    out = {"edges": len(first), "edges_in_both": len(i0)}
-    # SFRA
-    noise = float(_rms((first.sfra[i0] - second.sfra[i1]) / np.sqrt(2)))
-    resid = first.sfra - pred.sfra - bias.sfra
-    out["sfra"] = {"noise": noise, "residual": float(_rms(resid)), "ratio": float(_rms(resid) / noise)}
-    # the noise the model's own renders show (the loop's σ comes from it): against the captures'
-    spread = getattr(model, "last_sfra_noise", None)
-    if spread is not None:
-        out["sfra"]["model_noise"] = float(_rms(spread))
-        out["sfra"]["model_noise_ratio"] = float(_rms(spread) / noise)
-    # the four SFR bands
-    b0, b1 = band_means(first.freq, first.sfr), band_means(second.freq, second.sfr)
-    noise_b = _rms((b0[i0] - b1[i1]) / np.sqrt(2))
-    resid_b = bias.measured_bands - band_means(first.freq, pred.sfr) - bias.bands
-    out["bands"] = {"noise": noise_b.tolist(), "residual": _rms(resid_b).tolist(),
-                    "ratio": (_rms(resid_b) / noise_b).tolist()}
-    # the LSF's asymmetry bands
-    if first.odd is not None and second.odd is not None:
-        noise_o = _rms((first.odd[i0] - second.odd[i1]) / np.sqrt(2))
-        resid_o = first.odd - model.predict_odd(device) - bias.odd
-        out["odd"] = {"noise": noise_o.tolist(), "residual": _rms(resid_o).tolist(),
-                      "chi2_per_term": float(np.nanmean((resid_o / noise_o) ** 2)),
-                      "chi2_per_term_fitter": float(np.nanmean((resid_o / odd_sigma(first.odd_std)) ** 2))}
-    return out
 
 
 def main(argv=None) -> dict:

@@ -59,6 +59,7 @@ from calibration.optics.psf.map import WINDOW_UM, check_window, chief_ray_fields
 from calibration.optics.psf.methods import monochromatic_samples
 from calibration.optics.psf.pupil import exit_pupil_z, nodes_from_trace, pupil_points, reference_sphere
 from calibration.optics.psf.sampling import grid_offsets_mm
+from calibration.optics.psf.result import sample_centroid_um
 from calibration.optics.psf.spectral import DEFAULT_CAMERA, channel_quadrature
 from calibration.sfr.esfr import LUMINANCE_WEIGHTS
 from calibration.sfr.asymmetry import BANDS as ODD_BANDS
@@ -553,31 +554,12 @@ def render_observation(psf, pitch_um, pixel_pitch_um, obs, i, aperture_px) -> np
     edge = centre
     if obs.roi is not None:
         rx, ry = float(obs.roi[i][0]), float(obs.roi[i][1])
-        sx, sy = psf_centroid_px(psf, pitch_um, pixel_pitch_um)
+        sx, sy = sample_centroid_um(psf, pitch_um) / pixel_pitch_um
         edge = (float(obs.x_px[i]) - rx - sx, float(obs.y_px[i]) - ry - sy)
     r = render_slanted_edge(SimpleNamespace(data=psf, pitch_um=pitch_um), centre, (h, w), angle,
                             horizontal=horizontal, low=0.25, high=0.25 + step, pixel_pitch_um=pixel_pitch_um,
                             fill_factor=aperture_px, noise=False, edge_px=edge)
     return r.optical[:, :, 0]
-
-
-def psf_centroid_px(psf: np.ndarray, pitch_um: float, pixel_pitch_um: float) -> tuple[float, float]:
-    """(x, y) centroid of a PSF array from its centre sample ``n // 2``,
-    sensor pixels (+y down).
-
-    >>> p = np.zeros((5, 5)); p[2, 3] = 1.0
-    >>> psf_centroid_px(p, 1.0, 2.0)
-    (0.5, 0.0)
-    """
-    d = np.asarray(psf, dtype=np.float64)
-    tot = d.sum()
-    if not tot > 0:
-        return 0.0, 0.0
-    n0, n1 = d.shape
-    scale = float(pitch_um) / float(pixel_pitch_um)
-    x = float((d.sum(axis=0) @ (np.arange(n1) - n1 // 2)) / tot * scale)
-    y = float((d.sum(axis=1) @ (np.arange(n0) - n0 // 2)) / tot * scale)
-    return x, y
 
 
 def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_px) -> tuple:

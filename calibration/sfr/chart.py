@@ -39,7 +39,7 @@ import numpy as np
 from isp.runtime.executor import Executor, create_executor
 
 from calibration.sfr.esfr import DEFAULT_METHOD, SfrError, measure_sfr
-from calibration.sfr.layout import ChartLayout, recognise_chart
+from calibration.sfr.layout import ChartLayout, detection_image, recognise_chart
 
 GRID = (15, 20)
 #: what each end of a side loses to its corner, as a fraction of the side and in pixels
@@ -171,7 +171,8 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
 
     Straight edge segments are found by the LSD line-segment detector
     (Grompone von Gioi et al., *LSD: a Line Segment Detector*, IPOL 2012;
-    OpenCV's), on the image reduced to :data:`DETECT_MAX_SIDE` px at most;
+    OpenCV's), on the image reduced to
+    :data:`calibration.sfr.layout.DETECT_MAX_SIDE` px at most;
     collinear pieces of one edge are joined (:func:`_join_collinear`). A
     curved edge comes out as the straight pieces LSD finds along it, each
     measured on its own, as ISO 12233 allows for a curved edge. Each piece
@@ -232,29 +233,20 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
             found.append(e)
     found = _deduplicate(found)
     if rejected is not None:
-        rejected += [(e, why) for e, why in refused if not _placed_among(e, found)]
+        placed = _Centres(found)
+        rejected += [(e, why) for e, why in refused if not placed.near(e)]
     return sorted(found, key=lambda e: (round(e.centre[1] / 8), e.centre[0]))
-
-
-#: the longest side of the image the segment detector works on: a 12 MP
-#: chart is halved (0.13 s instead of 0.64 s; the pieces are only located
-#: there, the SFR is measured at full resolution)
-DETECT_MAX_SIDE = 2048
 
 
 def _line_segments(g: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """(N, 2, 2) straight edge segments ``[[x0, y0], [x1, y1]]`` in the
     image's pixels (centres at integers), found by OpenCV's LSD on the
-    image reduced to :data:`DETECT_MAX_SIDE` (area average) and stretched
-    to 8 bits between ``lo`` and ``hi``."""
+    image reduced and stretched to 8 bits between ``lo`` and ``hi``
+    (:func:`calibration.sfr.layout.detection_image`)."""
     import cv2
 
     h, w = g.shape
-    s = min(1.0, DETECT_MAX_SIDE / max(h, w))
-    work = g if g.dtype in (np.uint8, np.uint16, np.float32) else g.astype(np.float32)
-    if s < 1.0:
-        work = cv2.resize(work, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
-    u8 = np.clip((work.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+    u8, _ = detection_image(g, lo, hi)
     lines = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(u8)[0]
     if lines is None:
         return np.zeros((0, 2, 2))
@@ -382,25 +374,35 @@ def _one_edge(patch: np.ndarray) -> bool:
     return n_dark == 2 and n_light == 2 and 0.2 < frac < 0.8
 
 
-def _placed_among(e: EdgeROI, others) -> bool:
-    """True where ``e``'s centre is within 4 px (each way) of one of ``others``'."""
-    ex, ey = e.centre
-    return any(abs(ex - o.centre[0]) < 4 and abs(ey - o.centre[1]) < 4 for o in others)
+class _Centres:
+    """ROI centres filed in 4 px cells: whether a point lies within 4 px
+    (each way) of one of them, in constant time."""
+
+    def __init__(self, edges=()):
+        self.cells: dict[tuple[int, int], list[tuple[float, float]]] = {}
+        for e in edges:
+            self.add(e)
+
+    def add(self, e: EdgeROI) -> None:
+        cx, cy = e.centre
+        self.cells.setdefault((int(cx // 4), int(cy // 4)), []).append((cx, cy))
+
+    def near(self, e: EdgeROI) -> bool:
+        cx, cy = e.centre
+        i, j = int(cx // 4), int(cy // 4)
+        return any(abs(cx - ox) < 4 and abs(cy - oy) < 4
+                   for di in (-1, 0, 1) for dj in (-1, 0, 1) for ox, oy in self.cells.get((i + di, j + dj), ()))
 
 
 def _deduplicate(edges: list[EdgeROI]) -> list[EdgeROI]:
     """Drop ROIs whose centres nearly coincide (an edge found twice): the
     first of each cluster of centres within 4 px (each way) of a kept one."""
     out: list[EdgeROI] = []
-    kept: dict[tuple[int, int], list[tuple[float, float]]] = {}   # 4 px cells → kept centres
+    kept = _Centres()
     for e in edges:
-        cx, cy = e.centre
-        i, j = int(cx // 4), int(cy // 4)
-        near = (c for di in (-1, 0, 1) for dj in (-1, 0, 1) for c in kept.get((i + di, j + dj), ()))
-        if any(abs(cx - ox) < 4 and abs(cy - oy) < 4 for ox, oy in near):
-            continue
-        kept.setdefault((i, j), []).append((cx, cy))
-        out.append(e)
+        if not kept.near(e):
+            kept.add(e)
+            out.append(e)
     return out
 
 

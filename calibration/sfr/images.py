@@ -62,14 +62,20 @@ def load_image(path: str):
         return frame.data, "raw", frame.meta
     if p.suffix.lower() in (".tif", ".tiff"):
         return _read_tiff(p), "image", None
+    img = _read_opencv(p)
+    if img is None:
+        raise InputError(path, "not an image OpenCV can read")
+    return img, "image", None
+
+
+def _read_opencv(p: Path):
+    """The image OpenCV reads at ``p`` as stored (RGB order, alpha dropped), or None."""
     import cv2
 
     img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(path, "not an image OpenCV can read")
-    if img.ndim == 3:
+    if img is not None and img.ndim == 3:
         img = img[..., :3][..., ::-1]  # BGR(A) → RGB
-    return img, "image", None
+    return img
 
 
 def _read_tiff(p: Path):
@@ -82,12 +88,10 @@ def _read_tiff(p: Path):
     try:
         img = tifffile.imread(p, key=0)
     except Exception as e:  # noqa: BLE001 — any reader failure: OpenCV's turn, then a bad file
-        import cv2
-
-        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        img = _read_opencv(p)
         if img is None:
             raise InputError(p, f"not a TIFF image tifffile or OpenCV can read ({type(e).__name__}: {e})") from None
-        return img[..., :3][..., ::-1] if img.ndim == 3 else img   # BGR(A) → RGB
+        return img
     if img.ndim == 3 and img.shape[0] in (3, 4) and img.shape[-1] not in (3, 4):
         img = np.moveaxis(img, 0, -1)   # planar (samples first) → interleaved
     if img.ndim == 3:

@@ -21,7 +21,8 @@ import numpy as np
 
 from calibration.optics.lens import LensError
 
-__all__ = ["PSF", "PSFError", "check_aiming", "check_field", "check_positive_int", "check_wavelength", "ncc"]
+__all__ = ["PSF", "PSFError", "check_aiming", "check_field", "check_positive_int", "check_wavelength", "ncc",
+           "sample_centroid_um"]
 
 
 class PSFError(LensError):
@@ -93,9 +94,7 @@ class PSF:
     @property
     def centroid_um(self) -> np.ndarray:
         """(x, y) intensity centroid relative to the centre sample, µm."""
-        o = self.offsets_um()
-        s = self.data.sum()
-        return np.array([float(self.data.sum(axis=0) @ o / s), float(self.data.sum(axis=1) @ o / s)])
+        return sample_centroid_um(self.data, self.pitch_um)
 
     @property
     def peak_um(self) -> np.ndarray:
@@ -191,6 +190,24 @@ class PSF:
             out = out / s
         return PSF(out, float(pitch_um), c_new, self.field_deg, self.wavelengths_nm, self.weights,
                    f"resampled({self.method})", self.window_energy)
+
+
+def sample_centroid_um(data: np.ndarray, pitch_um: float) -> np.ndarray:
+    """(x, y) intensity centroid of PSF samples ``data`` (rows along +y,
+    centre ``data[n//2, n//2]``, pitch ``pitch_um``) relative to the centre
+    sample, µm; (0, 0) for samples that sum to 0.
+
+    >>> p = np.zeros((5, 5)); p[2, 3] = 1.0
+    >>> sample_centroid_um(p, 0.5).tolist()
+    [0.5, 0.0]
+    """
+    d = np.asarray(data, dtype=np.float64)
+    s = d.sum()
+    if not s > 0:
+        return np.zeros(2)
+    n0, n1 = d.shape
+    return np.array([float(d.sum(axis=0) @ ((np.arange(n1) - n1 // 2) * pitch_um) / s),
+                     float(d.sum(axis=1) @ ((np.arange(n0) - n0 // 2) * pitch_um) / s)])
 
 
 def ncc(a: np.ndarray, b: np.ndarray) -> float:
