@@ -66,7 +66,8 @@ from calibration.sfr.asymmetry import BANDS as ODD_BANDS
 from calibration.sfr.asymmetry import model_odd_bands, odd_bands, project_masses
 from calibration.sfr.edge import area_weights
 
-__all__ = ["ModelSettings", "Prediction", "SfrModel", "aperture_mtf", "mtf_along", "otf_along", "sfra_of"]
+__all__ = ["ModelSettings", "Prediction", "SfrModel", "antithetic_spread", "aperture_mtf", "band_means", "mtf_along",
+           "otf_along", "sfra_of"]
 
 BIN_STEP_PX = 1.0 / 64.0
 CHANNELS = ("R", "G", "B")
@@ -420,7 +421,7 @@ class SfrModel:
         exact_a = sfra_of(obs.freq, exact)
         exact_odd = model_odd_bands(psfs, self.pitch_px, obs.normal_deg, aperture_px=s.aperture_px)
         out = np.zeros(len(obs))
-        spread = np.zeros(len(obs))
+        spread = np.zeros((len(obs), 1 + len(BANDS)))
         curves = np.zeros_like(exact)
         odd = np.zeros_like(exact_odd)
         job = dict(psfs=psfs, pitch_um=self.pitch_um, pixel_pitch_um=self.sensor.pixel_pitch_um, obs=obs,
@@ -435,8 +436,8 @@ class SfrModel:
             curves[i] = np.where(np.isfinite(c), c - exact[i], 0.0)
             odd[i] = np.where(np.isfinite(q), q - exact_odd[i], 0.0)
             spread[i] = sd
-        self.last_sfra_noise = spread
-        return MeasurementBias(out, curves, odd)
+        self.last_sfra_noise = spread[:, 0]
+        return MeasurementBias(out, curves, odd, spread)
 
 
 def _bias_task(i: int) -> tuple:
@@ -447,11 +448,15 @@ def _bias_task(i: int) -> tuple:
 
 class MeasurementBias(NamedTuple):
     """What the measurement adds to the model's noise-free prediction:
-    SFRA (N,), SFR curves (N, F) and LSF asymmetry bands (N, K)."""
+    SFRA (N,), SFR curves (N, F) and LSF asymmetry bands (N, K); and
+    ``noise`` (N, 1 + len(BANDS)), the standard deviation of one noisy
+    measurement's SFRA and of its mean SFR in each of :data:`BANDS`, from
+    the same renders (:func:`antithetic_spread`), cycles/pixel."""
 
     sfra: np.ndarray
     sfr: np.ndarray
     odd: np.ndarray
+    noise: np.ndarray | None = None
 
 
 def _real_aim(pl: PerturbedLens, fields, samples: int) -> tuple[np.ndarray, np.ndarray]:
@@ -562,10 +567,33 @@ def render_observation(psf, pitch_um, pixel_pitch_um, obs, i, aperture_px) -> np
     return r.optical[:, :, 0]
 
 
+def antithetic_spread(values) -> np.ndarray:
+    """Standard deviation of one noisy measurement from antithetic pairs:
+    ``values`` (2P, ...) are measurements of clean + n_p and clean − n_p,
+    pair by pair. A measurement is m₀ + o(n) + e(n), o odd and e even in
+    the noise; the half-differences are o, the pair means m₀ + e, so
+    Var = mean(o²) + Var(pair means) (the latter from P ≥ 2 pairs). The
+    half-differences alone miss the even part, which a magnitude such as
+    the SFR has: on e1's device they read 0.89 of the spread between two
+    captures, both parts together 1.00.
+
+    >>> v = np.array([1.0, -1.0, 3.0, 1.0])          # o = ±1, pair means 0 and 2
+    >>> float(antithetic_spread(v))
+    1.7320508075688772
+    """
+    v = np.asarray(values, float)
+    half = 0.5 * (v[0::2] - v[1::2])
+    var = np.nanmean(half ** 2, axis=0)
+    if len(v) >= 4:
+        var = var + np.nanvar(0.5 * (v[0::2] + v[1::2]), axis=0, ddof=1)
+    return np.sqrt(var)
+
+
 def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_px) -> tuple:
-    """Mean measured SFRA, SFR curve, SFRA spread and LSF asymmetry bands
-    of observation ``i``'s edge rendered through ``psf`` with its noise
-    (noise-free once if it has none)."""
+    """Mean measured SFRA, SFR curve, spread (SFRA and :data:`BANDS`,
+    :func:`antithetic_spread`) and LSF asymmetry bands of observation
+    ``i``'s edge rendered through ``psf`` with its noise (noise-free once
+    if it has none)."""
     from calibration.sfr.esfr import SfrError
 
     noise = float(obs.noise[i])
@@ -591,17 +619,18 @@ def _measured_sfra(psf, pitch_um, pixel_pitch_um, obs, i, n_real, rng, aperture_
     a = np.array([v[0] for v in vals])
     c = np.array([v[1] for v in vals])
     q = np.array([v[2] for v in vals])
+    nb = 1 + len(BANDS)
     if not np.isfinite(a).any():
-        return float("nan"), np.full(f.shape, np.nan), float("nan"), np.full(n_odd, np.nan)
+        return float("nan"), np.full(f.shape, np.nan), np.full(nb, np.nan), np.full(n_odd, np.nan)
     with np.errstate(invalid="ignore"):
         import warnings
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            # the spread of one noisy measurement: the pairs' half-differences (their members
-            # are anti-correlated, so the values' own spread would read high)
-            half = 0.5 * (a[0::2] - a[1::2]) if draws else np.array([np.nan])
-            sd = float(np.sqrt(np.nanmean(half ** 2))) if np.isfinite(half).any() else float("nan")
+            # the spread of one noisy measurement (the pairs' members are anti-correlated, so the
+            # values' own spread would read high): SFRA and the band means
+            sd = (antithetic_spread(np.concatenate([a[:, None], band_means(f, c)], axis=1)) if draws
+                  else np.full(nb, np.nan))
             return float(np.nanmean(a)), np.nanmean(c, axis=0), sd, np.nanmean(q, axis=0)
 
 

@@ -267,19 +267,22 @@ class ResidualBias(NamedTuple):
     """What the measurement adds to the model's noise-free prediction, in
     the parts a kind of residuals uses: SFRA bias (N,); for band residuals
     the band bias (N, 4) and the measured band means (N, 4); for asymmetry
-    residuals the asymmetry-band bias (N, K)."""
+    residuals the asymmetry-band bias (N, K); ``band_noise`` (4,), each
+    band's noise over SFRA's, from the model's noisy renders (default 4:
+    a band mean over a quarter of the range)."""
 
     sfra: np.ndarray
     bands: np.ndarray | None = None
     measured_bands: np.ndarray | None = None
     odd: np.ndarray | None = None
+    band_noise: np.ndarray | float = 4.0
 
 
 def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
     """Residuals over their σ, (N, parts) flattened: SFRA; with band parts
     in ``bias`` (a :class:`ResidualBias`), the mean SFR in four bands, each
-    over 4σ (a band mean of a quarter of the range: about four SFRA's worth
-    of noise); with asymmetry parts, the LSF asymmetry bands over their σ
+    over σ times its ``band_noise`` (the SFR's noise rises with frequency:
+    on e1's device 1.0, 2.0, 3.6 and 5.2 × SFRA's); with asymmetry parts, the LSF asymmetry bands over their σ
     (:mod:`calibration.sfr.asymmetry`). ``bias`` may be a plain (N,) SFRA bias."""
     lens = space.apply(np.asarray(u) * space.tolerance)
     pred = model.predict(lens)
@@ -291,7 +294,7 @@ def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
         from calibration.fit.forward_model import band_means
 
         parts.append((bias.measured_bands - band_means(obs.freq, pred.sfr) - bias.bands)
-                     / (4.0 * obs.sfra_std[:, None]))
+                     / (np.asarray(bias.band_noise, float) * obs.sfra_std[:, None]))
     if bias.odd is not None:
         from calibration.sfr.asymmetry import odd_sigma
 
@@ -328,10 +331,29 @@ def residual_bias(model, lens, residuals: str, executor: Executor | None = None)
     if residuals in ("bands", "shape"):
         from calibration.fit.forward_model import band_means
 
-        out = out._replace(bands=band_means(obs.freq, mb.sfr), measured_bands=band_means(obs.freq, obs.sfr))
+        out = out._replace(bands=band_means(obs.freq, mb.sfr), measured_bands=band_means(obs.freq, obs.sfr),
+                           band_noise=band_noise(mb.noise))
     if residuals in ("odd", "shape"):
         out = out._replace(odd=mb.odd)
     return out
+
+
+def band_noise(spread) -> np.ndarray | float:
+    """(K,) each SFR band's noise over SFRA's: RMS of ``spread``'s band
+    columns over RMS of its first (``spread`` (N, 1 + K), the model's noisy
+    renders, :class:`calibration.fit.forward_model.MeasurementBias`); 4.0
+    where the renders carry no noise.
+
+    >>> band_noise(np.array([[0.01, 0.01, 0.02, 0.036, 0.052]] * 3)).round(2).tolist()
+    [1.0, 2.0, 3.6, 5.2]
+    """
+    if spread is None:
+        return 4.0
+    s = np.asarray(spread, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(np.nanmean(s ** 2, axis=0))
+        r = rms[1:] / rms[0]
+    return r if np.all(np.isfinite(r)) and np.all(r > 0) else 4.0
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ import numpy as np
 
 from calibration.loop.effects import Geometry
 from calibration.fit.observations import Observations
-from calibration.fit.forward_model import Prediction, aperture_mtf, measure_like, sfra_of
+from calibration.fit.forward_model import BANDS, Prediction, aperture_mtf, band_means, measure_like, sfra_of
 
 __all__ = ["LensBase", "ParametricBase", "area_weights", "colour_shift_mtf", "diffraction_mtf", "disc_mtf",
            "disc_otf", "edge_profile", "make_base"]
@@ -193,7 +193,8 @@ class ParametricBase:
         diffraction PSF's far tails: light beyond the ROI is not seen, so the
         measured SFR sits ≈ 1 % above the exact MTF at low frequencies
         (f/2, 64-px ROI) — a Gaussian edge of the same SFRA has no such
-        tails. Returns (sfra bias (N,), sfr bias (N, F), sfra noise std (N,))."""
+        tails. Returns (sfra bias (N,), sfr bias (N, F), noise std (N, 1 + K):
+        SFRA's and the SFR band means' (:data:`calibration.fit.forward_model.BANDS`))."""
         return _edge_bias(self.obs, lambda nu, normal: self.otf_along(xb, nu, normal))
 
     #: a diffraction × Gaussian × pixel-aperture LSF is symmetric: no asymmetry, none added by ISO
@@ -260,7 +261,7 @@ class LensBase:
     def measurement_bias(self, xb):
         b = self.model.measurement_biases(self.lens(xb))
         self.odd_bias = b.odd
-        return b.sfra, b.sfr, self.model.last_sfra_noise
+        return b.sfra, b.sfr, b.noise
 
     def odd(self, xb, defocus_mm=None) -> np.ndarray:
         """(N, K) noise-free LSF asymmetry (:mod:`calibration.sfr.asymmetry`)."""
@@ -313,7 +314,8 @@ def edge_profile(otf, du: float = 1.0 / 16.0, half_px: float = 256.0):
 
 
 def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
-    """(sfra bias, sfr bias, sfra noise std) per observation: the edge of
+    """(sfra bias (N,), sfr bias (N, F), noise std (N, 1 + K) of SFRA and
+    the SFR band means) per observation: the edge of
     transfer ``otf(nu, normal_deg)`` rendered (slanted as observed, in an ROI
     of the observation's size, ``default_roi`` (across, along) px where it
     has none) with the observation's noise and measured, minus the exact
@@ -323,7 +325,7 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
     rng = np.random.default_rng(0)
     n = len(obs)
     f = np.asarray(obs.freq, float)
-    a_bias, sd, c_bias = np.zeros(n), np.zeros(n), np.zeros((n, len(f)))
+    a_bias, sd, c_bias = np.zeros(n), np.zeros((n, 1 + len(BANDS))), np.zeros((n, len(f)))
     ext = _roi_extent(obs)
     cache = {}
     for i in range(n):
@@ -358,7 +360,10 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
             continue
         a_bias[i] = np.mean(vals) - exact_a
         c_bias[i] = np.nan_to_num(np.nanmean(curves, axis=0) - exact)
-        sd[i] = np.std(vals, ddof=1) if len(vals) > 1 else 0.0
+        if len(vals) > 1:
+            with np.errstate(invalid="ignore"):
+                sd[i] = np.nanstd(np.concatenate([np.array(vals)[:, None], band_means(f, np.array(curves))], axis=1),
+                                  axis=0, ddof=1)
     return a_bias, c_bias, sd
 
 

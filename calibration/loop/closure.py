@@ -17,7 +17,9 @@ effects of the registry (:mod:`calibration.loop.effects`):
    few for a per-edge σ). The floor is RMS(σ_i).
 3. Residuals per observation: SFRA and the mean SFR in four frequency
    bands (0.02–0.125–0.25–0.375–0.5 cycles/pixel), each divided by its
-   noise (a band mean over a quarter of the range: ≈ 4σ_i). They are
+   own noise, the same law fitted to the renders' spread of that band
+   (on e1's device the bands' noise is 1.0, 2.0, 3.6 and 5.2 × SFRA's:
+   the SFR's noise rises with frequency). They are
    decomposed by field position (x, y, radius), orientation, channel and
    band for the report.
 4. Every registry effect not yet in the model is tried: its parameters are
@@ -124,8 +126,8 @@ class _Problem:
 
     def residuals(self, pred, mask=None):
         obs = self.obs
-        ra = (obs.sfra - pred.sfra - self.bias_a) / self.sigma
-        rb = (self.meas_bands - band_means(obs.freq, pred.sfr) - self.bias_bands) / (4.0 * self.sigma[:, None])
+        ra = (obs.sfra - pred.sfra - self.bias_a) / self.sigma[:, 0]
+        rb = (self.meas_bands - band_means(obs.freq, pred.sfr) - self.bias_bands) / self.sigma[:, 1:]
         r = np.concatenate([ra[:, None], rb], axis=1)
         r = np.where(np.isfinite(r), r, 0.0)
         if mask is not None:
@@ -247,7 +249,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     a1, c1, sd1 = base.measurement_bias(p[:nb])          # bias at the fitted base
     prob.bias_a, prob.bias_bands = a1, band_means(obs.freq, c1)
     prob.sigma = sigma = _sigma_law(obs, sd1)
-    noise_floor = float(np.sqrt(np.mean(sigma ** 2)))
+    noise_floor = float(np.sqrt(np.mean(sigma[:, 0] ** 2)))
     tick("base fitted")
     pred0 = prob.predict(p)
     x_before = p.copy()
@@ -377,12 +379,27 @@ def asymmetry_check(base, prob, p, ratio: float) -> dict | None:
 
 
 def _sigma_law(obs, sd) -> np.ndarray:
-    """σ_i = k·noise_i/step_i fitted to the re-rendered spreads, in
-    quadrature with the model floor."""
+    """σ_ij = k_j·noise_i/step_i for each column j of the re-rendered
+    spreads ``sd`` (N, 1 + K: SFRA, then the SFR bands), in quadrature
+    with the model floor. k_j is fitted in variance, k² = Σx²s²/Σx⁴: a
+    spread from a few renders is unbiased as a variance, not as a
+    standard deviation (from two antithetic pairs its square root reads
+    ≈ 0.9 of σ).
+
+    >>> obs = type("O", (), {"noise": np.full(4, 0.01), "step": np.full(4, 0.5)})()
+    >>> s = _sigma_law(obs, np.array([[0.004, 0.008]] * 4))
+    >>> bool(np.allclose(s, np.sqrt(np.array([0.004, 0.008]) ** 2 + MODEL_FLOOR ** 2)))
+    True
+    """
     x = np.asarray(obs.noise, float) / np.maximum(np.asarray(obs.step, float), 1e-6)
-    ok = np.isfinite(sd) & (sd > 0) & (x > 0)
-    k = float(np.sum(x[ok] * sd[ok]) / np.sum(x[ok] ** 2)) if ok.sum() >= 3 else 0.0
-    return np.sqrt((k * x) ** 2 + MODEL_FLOOR ** 2)
+    sd = np.asarray(sd, float).reshape(len(x), -1)
+    out = np.empty_like(sd)
+    for j in range(sd.shape[1]):
+        s = sd[:, j]
+        ok = np.isfinite(s) & (s > 0) & (x > 0)
+        k = float(np.sqrt(np.sum(x[ok] ** 2 * s[ok] ** 2) / np.sum(x[ok] ** 4))) if ok.sum() >= 3 else 0.0
+        out[:, j] = np.sqrt((k * x) ** 2 + MODEL_FLOOR ** 2)
+    return out
 
 
 def _cv_gain(prob: _Problem, p, e, fold, k):
