@@ -143,7 +143,8 @@ class _Problem:
             mse = np.nanmean((np.asarray(obs.sfr)[:, m] - pred.sfr[:, m]) ** 2)
         r = self.residuals(pred)
         out = {"sfra_rms": float(np.sqrt(np.mean(d ** 2))), "sfr_mse": float(mse),
-               "chi2_per_obs": float(np.mean(r ** 2))}
+               "chi2_per_obs": float(np.mean(r ** 2)),
+               "normalised_rms_per_band": np.sqrt(np.mean(r.reshape(len(obs), -1)[:, 1:] ** 2, axis=0)).tolist()}
         for fov in (0.1, 0.5, 0.9):
             sel = np.abs(obs.radius - fov) <= 0.1
             if sel.any():
@@ -475,8 +476,12 @@ def write_report(report: LoopReport, obs, directory) -> dict:
     lines = ["# Loop closure report", "", f"Base model: {report.base}", "",
              f"Noise floor (SFRA RMS from the data): {report.noise_floor:.4f} cycles/pixel", "",
              "| metric | before | after |", "|---|---|---|"]
-    for k in report.error_before:
-        lines.append(f"| {k} | {report.error_before[k]:.5g} | {report.error_after.get(k, float('nan')):.5g} |")
+    for k, v in report.error_before.items():
+        after = report.error_after.get(k, float("nan"))
+        if isinstance(v, list):          # one value per SFR band
+            lines.append(f"| {k} | {', '.join(f'{x:.3g}' for x in v)} | {', '.join(f'{x:.3g}' for x in after)} |")
+        else:
+            lines.append(f"| {k} | {v:.5g} | {after:.5g} |")
     lines += ["", "## Effects tried", "",
               "| round | effect | held-out χ² before | after | gain | consistent across folds |",
               "|---|---|---|---|---|---|"]
