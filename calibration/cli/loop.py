@@ -59,6 +59,19 @@ def _effect_names(text: str | None) -> list[str] | None:
     return names
 
 
+def _n_params(text: str) -> int | None:
+    """``--n-params``: a positive count, or "all" (None)."""
+    if text.strip().lower() == "all":
+        return None
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a count or 'all': {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
+    return n
+
+
 def _check_args(args) -> None:
     if args.f_number not in (None, "fit"):
         try:
@@ -177,7 +190,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="parametric base: F-number held at N, or fitted from 2.0 (default fit)")
     p.add_argument("--pixel-um", type=float, metavar="UM",
                    help=f"pixel pitch, µm (default: the raw file's, else {DEFAULT_PIXEL_UM:g})")
-    p.add_argument("--n-params", type=int, default=12,
-                   help="lens base: perturbations screened (default 12; on a simulated device perturbed in all "
-                        "48, 24 left χ² 4.3 per term in 389 s against 12.6 in 279 s: docs/results/loop.md)")
+    p.add_argument("--n-params", type=_n_params, default=None, metavar="N|all",
+                   help="lens base: the N most sensitive perturbations, or all of them (default all, focus "
+                        "excepted; on a clean simulated e1 device, every tolerance drawn, all 42 fitted to SFRA "
+                        "0.0091 in 424 s, the 24 most sensitive to 0.0104 in 632 s: docs/results/loop.md)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fold split and noise renders")

@@ -426,6 +426,12 @@ class ProxyFitSettings:
         refine on all of them from there (no restarts); only where that
         cuts the observations at least twofold and ``x0`` is not given.
         None: fit on all observations from the start.
+    fine_iter : int, optional
+        Iterations at most of a coarse-to-fine fit's stage on all
+        observations (≥ 1); None: ``max_iter``. Each costs as much as the
+        whole coarse stage's per observation: on e1's clean device (41
+        perturbations, 1,200 edges, 24 s an iteration) the merit after 12
+        stood within 1.3 % of where 20 left it.
     floor_chi2 : float
         DLS stops at the noise floor: χ² per residual at most this (> 0),
         with less than one unit of χ² left to gain in the linearised model
@@ -456,6 +462,7 @@ class ProxyFitSettings:
     restarts: int = RESTARTS
     seed: int = 0
     coarse: tuple[int, int] | None = COARSE_GRID
+    fine_iter: int | None = None
     floor_chi2: float = 1.0
 
     def __post_init__(self):
@@ -493,6 +500,7 @@ class ProxyFitSettings:
             if getattr(self, name) not in valid:
                 raise bad(name, f"unknown {getattr(self, name)!r}; valid: {', '.join(map(repr, valid))}")
         integer("max_iter", 1)
+        integer("fine_iter", 1, optional=True)
         integer("n_params", 1, optional=True)
         integer("refresh", 1)
         integer("restarts", 0)
@@ -730,8 +738,8 @@ def _coarse_to_fine(nominal, obs, mask, names, cfg: ProxyFitSettings, ex: Execut
     # unit of χ² to gain, whatever χ² per residual the model's own error leaves (on e9 device 1 at
     # 15 × 20 the merit stood within 0.01 % for its last 12 of 20 iterations, each rejected step
     # costing up to 24 evaluations of all 600 observations)
-    fine = _fit(nominal, obs, dataclasses.replace(cfg, restarts=0, floor_chi2=np.inf), list(first.space.names),
-                first.u, ex)
+    fine_cfg = dataclasses.replace(cfg, restarts=0, floor_chi2=np.inf, max_iter=cfg.fine_iter or cfg.max_iter)
+    fine = _fit(nominal, obs, fine_cfg, list(first.space.names), first.u, ex)
     stage = {"observations": int(mask.sum()), "evaluations": first.evaluations, "seconds": round(first.seconds, 2),
              "merit": None if first.result is None else round(first.result.merit, 3),
              "residuals": None if first.result is None else int(first.result.residuals.size)}

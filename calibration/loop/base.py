@@ -207,22 +207,40 @@ class ParametricBase:
         return np.zeros((len(self.obs), len(ODD_BANDS)))
 
 
+#: the lens base's PSF window, µm: the simulator's. A 32 µm window (the
+#: fitter's default) drops the PSF's outer light, which the SFR's lowest band
+#: loses: on e9's device the true lens through the model read 1.17 of the
+#: noise floor with it, 1.10 at 45 µm (docs/results/loop.md)
+LOOP_WINDOW_UM = 45.0
+
+
+#: iterations of the base fit's stage on all edges (:class:`calibration.fit.proxy.ProxyFitSettings`'s
+#: ``fine_iter``): what the loop's ten minutes on two cores allow with every perturbation free
+LOOP_FINE_ITER = 12
+
+
 class LensBase:
-    """A lens prescription and its perturbations (module docstring)."""
+    """A lens prescription and its perturbations (module docstring).
+    ``n_params``: the most sensitive perturbations fitted, or None for all
+    of them (focus excepted). Why all by default: on e1's clean device,
+    every tolerance drawn, ``fit_proxy`` over all 42 perturbations ended
+    at SFRA RMS 0.0091 in 424 s, over the 24 most sensitive at 0.0104 in
+    632 s (more restarts), the noise floor being 0.0078."""
 
     refit_in_cv = False    # every evaluation traces the lens: candidates are fitted with it held
 
-    def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int = 12):
+    def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int | None = None):
         from calibration.optics.perturb import nominal as as_perturbed
         from calibration.fit.proxy import default_names, focus_name, parameter_space, screen_parameters
         from calibration.fit.forward_model import ModelSettings, SfrModel
 
-        self.model = SfrModel(nominal, obs, settings or ModelSettings())
+        self.model = SfrModel(nominal, obs, settings or ModelSettings().with_window(LOOP_WINDOW_UM))
         self.obs = obs
         self.nominal = nominal
         if names is None:
             names = [n for n in default_names(nominal) if n != focus_name(nominal)]
-            names = screen_parameters(self.model, names, n_params)
+            if n_params is not None and n_params < len(names):
+                names = screen_parameters(self.model, names, n_params)
         self.space = parameter_space(nominal, names)
         self.names = tuple(self.space.names)
         k = len(self.names)
@@ -237,7 +255,8 @@ class LensBase:
 
     def start(self, executor=None) -> np.ndarray:
         """Where the loop's base fit starts: :func:`calibration.fit.proxy.fit_proxy`
-        on SFRA over these parameters, whose coarse stage and restarts find
+        over these parameters, on the fitter's residuals (SFRA, the SFR bands
+        and the LSF asymmetry where measured), whose coarse stage and restarts find
         the basin. Why: from the nominal lens the loop's own DLS settled in a
         local minimum on a device perturbed in all 48 parameters (e9 dev3 of
         `isp calib simulate --perturb random --seed 3`, 24 parameters: SFRA
@@ -250,7 +269,10 @@ class LensBase:
         from calibration.fit.proxy import ProxyFitSettings, fit_proxy
         from calibration.fit.forward_model import FAST_JACOBIAN
 
-        settings = ProxyFitSettings(model=self.model.settings, residuals="sfra", jacobian_model=FAST_JACOBIAN)
+        from calibration.fit.proxy import resolve_residuals
+
+        settings = ProxyFitSettings(model=self.model.settings, residuals=resolve_residuals("auto", self.obs),
+                                    jacobian_model=FAST_JACOBIAN, fine_iter=LOOP_FINE_ITER)
         fit = fit_proxy(self.nominal, self.obs, settings, names=list(self.names),
                         executor=pool_executor(None) if executor is None else executor)
         return np.clip(fit.u, self.lower, self.upper)
@@ -328,6 +350,9 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
     a_bias, sd, c_bias = np.zeros(n), np.zeros((n, 1 + len(BANDS))), np.zeros((n, len(f)))
     ext = _roi_extent(obs)
     cache = {}
+    # at least 64 noisy renders in all (4 per edge where there are many): the noise floor of a
+    # single edge split into four segments, from 4 renders each, was off by ±20 % (12 degrees of freedom)
+    renders = int(min(32, max(4, math.ceil(64 / max(n, 1)))))
     for i in range(n):
         normal = float(obs.normal_deg[i])
         dev = (normal + 45.0) % 90.0 - 45.0                  # the edge's slant from the pixel axes
@@ -349,7 +374,7 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
         img = 0.2 + step * prof
         vals, curves = [], []
         measure = measure_like(obs, i)   # as it was measured: an image, or a mosaic's plane
-        for _ in range(4 if noise > 0 else 1):
+        for _ in range(renders if noise > 0 else 1):
             try:
                 r = measure(img + rng.normal(0, noise, img.shape) if noise > 0 else img)
             except SfrError:
@@ -367,7 +392,7 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
     return a_bias, c_bias, sd
 
 
-def make_base(lens: str, obs, *, f_number="fit", n_params: int = 12, pixel_um: float | None = None):
+def make_base(lens: str, obs, *, f_number="fit", n_params: int | None = None, pixel_um: float | None = None):
     """The base model: ``"parametric"`` → :class:`ParametricBase` (F-number
     fitted from 2.0, or held at ``f_number``), else a lens file →
     :class:`LensBase` of the lens matched to the measurement's sensor

@@ -211,8 +211,11 @@ def prob_scale(prob: _Problem) -> np.ndarray:
     return np.concatenate(s)
 
 
-#: base-fit iterations after a base's own ``start()`` (:meth:`calibration.loop.base.LensBase.start`)
-START_POLISH = 3
+#: base-fit iterations after a base's own ``start()`` (:meth:`calibration.loop.base.LensBase.start`),
+#: which already fits the loop's residuals (SFRA and the SFR bands; the fitter weighs each edge by
+#: its measured σ, the loop by its σ law): with every perturbation of a lens free, one more
+#: iteration costs as many predictions as the lens has perturbations
+START_POLISH = 0
 
 
 def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.15, stop_ratio: float = 1.2,
@@ -243,13 +246,15 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     a0, c0, sd0 = base.measurement_bias(x_start)
     sigma = _sigma_law(obs, sd0)
     prob = _Problem(base, obs, a0, c0, sigma)
-    # from a fitted start the base only moves to the loop's own weighting (its σ law): a few
-    # iterations; with 24 lens parameters each costs about a minute (e9, 1,127 edges: 12 took 400 s)
-    p, _ = _fit(prob, x_start, np.asarray(base.lower, float), np.asarray(base.upper, float), np.ones(nb, bool),
-                max_iter=min(base_iter, START_POLISH) if started else base_iter)
-    a1, c1, sd1 = base.measurement_bias(p[:nb])          # bias at the fitted base
-    prob.bias_a, prob.bias_bands = a1, band_means(obs.freq, c1)
-    prob.sigma = sigma = _sigma_law(obs, sd1)
+    # from a fitted start the base moves only to the loop's own weighting (its σ law), if at all
+    n_iter = min(base_iter, START_POLISH) if started else base_iter
+    p = x_start.copy()
+    if n_iter > 0:
+        p, _ = _fit(prob, x_start, np.asarray(base.lower, float), np.asarray(base.upper, float), np.ones(nb, bool),
+                    max_iter=n_iter)
+        a1, c1, sd1 = base.measurement_bias(p[:nb])          # bias at the fitted base
+        prob.bias_a, prob.bias_bands = a1, band_means(obs.freq, c1)
+        prob.sigma = sigma = _sigma_law(obs, sd1)
     noise_floor = float(np.sqrt(np.mean(sigma[:, 0] ** 2)))
     tick("base fitted")
     pred0 = prob.predict(p)
