@@ -87,7 +87,8 @@ def main(argv=None) -> dict:
                "ratio": before["sfra_rms"] / rep.noise_floor, "chi2_per_term": before["chi2_per_obs"],
                "two_capture_noise": repeat, "floor_over_two_capture_noise": rep.noise_floor / repeat,
                "bands": before["normalised_rms_per_band"], "asymmetry_chi2_per_term": (rep.asymmetry or {}).get("chi2_per_term"),
-               "effects_added": list(rep.effects_added), "wall_s": round(wall, 1)}
+               "effects_added": list(rep.effects_added), "effects": ", ".join(rep.effects_added) or "none",
+               "wall_s": round(wall, 1)}
         done[name] = rec
         log(f"{name}: base SFRA {rec['base_sfra_rms']:.4f}, floor {rec['noise_floor']:.4f} ({rec['ratio']:.2f}×; "
             f"two captures {repeat:.4f}), χ² {rec['chi2_per_term']:.2f}, effects {rec['effects_added'] or 'none'}, "
