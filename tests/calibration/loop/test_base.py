@@ -49,6 +49,10 @@ def test_close_loop_fits_from_the_start(lens_base, monkeypatch):
 
     monkeypatch.setattr(loop, "_fit", spy)
     monkeypatch.setattr(type(lens_base), "start", lambda self, executor=None: U_TRUE.copy())
+    rep = loop.close_loop(lens_base, lens_base.obs, effects=[], executor=pool_executor(None))
+    np.testing.assert_allclose(rep.base_x_before, U_TRUE)     # no polish: the base is where start() put it
+    assert seen == []
+    monkeypatch.setattr(loop, "START_POLISH", 1)                # a polish starts there too
     loop.close_loop(lens_base, lens_base.obs, effects=[], executor=pool_executor(None))
     np.testing.assert_allclose(seen[0], U_TRUE)
 
@@ -60,6 +64,6 @@ def test_a_raw_observation_re_rendered_scatters_as_a_mosaic_plane_does(make_obse
     def otf(nu, normal):
         return np.exp(-2 * np.pi ** 2 * 0.6 ** 2 * np.asarray(nu) ** 2)
 
-    sd_image = np.median(_edge_bias(make_observations(60, {"measure": "image"}), otf)[2])
-    sd_raw = np.median(_edge_bias(make_observations(60, {"measure": "raw", "cfa": "RGGB"}), otf)[2])
+    sd_image = np.median(_edge_bias(make_observations(60, {"measure": "image"}), otf)[2][:, 0])
+    sd_raw = np.median(_edge_bias(make_observations(60, {"measure": "raw", "cfa": "RGGB"}), otf)[2][:, 0])
     assert 1.3 < sd_raw / sd_image < 2.5, (sd_raw, sd_image)   # 1.81 measured
