@@ -223,9 +223,11 @@ class LensBase:
     """A lens prescription and its perturbations (module docstring).
     ``n_params``: the most sensitive perturbations fitted, or None for all
     of them (focus excepted). Why all by default: on e1's clean device,
-    every tolerance drawn, ``fit_proxy`` over all 42 perturbations ended
-    at SFRA RMS 0.0091 in 424 s, over the 24 most sensitive at 0.0104 in
-    632 s (more restarts), the noise floor being 0.0078."""
+    every tolerance drawn, ``isp calib fit --window-um 45`` over all 42
+    perturbations (focus among them) ended at SFRA RMS 0.0091 in 424 s,
+    over the 24 most sensitive at 0.0104 in 632 s (more restarts), the
+    noise floor being 0.0078; the loop's base over the 41 without focus
+    ends at 0.0098 (``benchmarks/loop_clean.py``)."""
 
     refit_in_cv = False    # every evaluation traces the lens: candidates are fitted with it held
 
