@@ -72,14 +72,13 @@ def fidelity(nominal, pair, device, executor, settings: ModelSettings | None = N
     bias = residual_bias(model, device, "shape", executor)
     out = {"edges": len(first), "edges_in_both": len(i0)}
     # SFRA
-    noise = float(_rms((first.sfra[i0] - second.sfra[i1]) / np.sqrt(2)))
+    noise = two_capture_noise(first, second)
     resid = first.sfra - pred.sfra - bias.sfra
     out["sfra"] = {"noise": noise, "residual": float(_rms(resid)), "ratio": float(_rms(resid) / noise)}
     # the noise the model's own renders show (the loop's σ comes from it): against the captures'
-    spread = getattr(model, "last_sfra_noise", None)
-    if spread is not None:
-        out["sfra"]["model_noise"] = float(_rms(spread))
-        out["sfra"]["model_noise_ratio"] = float(_rms(spread) / noise)
+    if bias.noise is not None:
+        out["sfra"]["model_noise"] = float(_rms(bias.noise[:, 0]))
+        out["sfra"]["model_noise_ratio"] = float(_rms(bias.noise[:, 0]) / noise)
     # the four SFR bands
     b0, b1 = band_means(first.freq, first.sfr), band_means(second.freq, second.sfr)
     noise_b = _rms((b0[i0] - b1[i1]) / np.sqrt(2))
@@ -120,6 +119,13 @@ def capture_pair(lens_path, seed: int, size, exposure: float, methods, log=lambd
                 nominal, o = match_sensor(read_lens(lens_path), o)
                 obs[m].append(o)
     return device, what, nominal, obs
+
+
+def two_capture_noise(first, second) -> float:
+    """One edge's SFRA noise, cycles/pixel: the RMS of two captures' SFRA
+    difference over √2, on the edges both hold (:func:`common_edges`)."""
+    i0, i1 = common_edges(first, second)
+    return float(_rms((first.sfra[i0] - second.sfra[i1]) / np.sqrt(2)))
 
 
 def common_edges(a, b) -> tuple[np.ndarray, np.ndarray]:

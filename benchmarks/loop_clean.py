@@ -34,9 +34,7 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
-import numpy as np  # noqa: E402
-
-from benchmarks.capture_roundtrip import capture_pair, common_edges  # noqa: E402
+from benchmarks.capture_roundtrip import capture_pair, two_capture_noise  # noqa: E402
 from benchmarks.forward_fidelity import LENSES, PHONE  # noqa: E402
 from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
 
@@ -78,8 +76,7 @@ def main(argv=None) -> dict:
         log(f"{name}: capturing the device twice ...")
         device, what, nominal, obs = capture_pair(lens_path, args.seed, args.size, 0.8, [DEFAULT_METHOD], log)
         first, second = obs[DEFAULT_METHOD]
-        i0, i1 = common_edges(first, second)
-        repeat = float(np.sqrt(np.mean(((first.sfra[i0] - second.sfra[i1]) / np.sqrt(2)) ** 2)))
+        repeat = two_capture_noise(first, second)
         rep, wall = run_loop(lens_path, first, args.n_params)
         before = rep.error_before
         rec = {"lens": LENSES[name], "device": what, "edges": len(first),

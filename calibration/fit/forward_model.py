@@ -436,7 +436,6 @@ class SfrModel:
             curves[i] = np.where(np.isfinite(c), c - exact[i], 0.0)
             odd[i] = np.where(np.isfinite(q), q - exact_odd[i], 0.0)
             spread[i] = sd
-        self.last_sfra_noise = spread[:, 0]
         return MeasurementBias(out, curves, odd, spread)
 
 

@@ -267,21 +267,22 @@ class ResidualBias(NamedTuple):
     """What the measurement adds to the model's noise-free prediction, in
     the parts a kind of residuals uses: SFRA bias (N,); for band residuals
     the band bias (N, 4) and the measured band means (N, 4); for asymmetry
-    residuals the asymmetry-band bias (N, K); ``band_noise`` (4,), each
-    band's noise over SFRA's, from the model's noisy renders (default 4:
-    a band mean over a quarter of the range)."""
+    residuals the asymmetry-band bias (N, K); ``noise`` (N, 1 + 4), the
+    spread of one noisy measurement's SFRA and band means from the same
+    renders (:class:`calibration.fit.forward_model.MeasurementBias`), whose
+    ratios weigh the bands (:func:`band_noise`)."""
 
     sfra: np.ndarray
     bands: np.ndarray | None = None
     measured_bands: np.ndarray | None = None
     odd: np.ndarray | None = None
-    band_noise: np.ndarray | float = 4.0
+    noise: np.ndarray | None = None
 
 
 def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
     """Residuals over their σ, (N, parts) flattened: SFRA; with band parts
     in ``bias`` (a :class:`ResidualBias`), the mean SFR in four bands, each
-    over σ times its ``band_noise`` (the SFR's noise rises with frequency:
+    over σ times its :func:`band_noise` (the SFR's noise rises with frequency:
     on e1's device 1.0, 2.0, 3.6 and 5.2 × SFRA's); with asymmetry parts, the LSF asymmetry bands over their σ
     (:mod:`calibration.sfr.asymmetry`). ``bias`` may be a plain (N,) SFRA bias."""
     lens = space.apply(np.asarray(u) * space.tolerance)
@@ -294,7 +295,7 @@ def _residuals(model, space: ParameterSpace, bias, u: np.ndarray) -> np.ndarray:
         from calibration.fit.forward_model import band_means
 
         parts.append((bias.measured_bands - band_means(obs.freq, pred.sfr) - bias.bands)
-                     / (np.asarray(bias.band_noise, float) * obs.sfra_std[:, None]))
+                     / (np.asarray(band_noise(bias.noise), float) * obs.sfra_std[:, None]))
     if bias.odd is not None:
         from calibration.sfr.asymmetry import odd_sigma
 
@@ -327,12 +328,11 @@ def residual_bias(model, lens, residuals: str, executor: Executor | None = None)
     this process)."""
     mb = model.measurement_biases(lens, executor=executor)
     obs = model.obs
-    out = ResidualBias(np.asarray(mb.sfra, float))
+    out = ResidualBias(np.asarray(mb.sfra, float), noise=mb.noise)
     if residuals in ("bands", "shape"):
         from calibration.fit.forward_model import band_means
 
-        out = out._replace(bands=band_means(obs.freq, mb.sfr), measured_bands=band_means(obs.freq, obs.sfr),
-                           band_noise=band_noise(mb.noise))
+        out = out._replace(bands=band_means(obs.freq, mb.sfr), measured_bands=band_means(obs.freq, obs.sfr))
     if residuals in ("odd", "shape"):
         out = out._replace(odd=mb.odd)
     return out

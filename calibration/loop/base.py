@@ -268,10 +268,8 @@ class LensBase:
         to 2 worker processes, no progress bar."""
         from isp.runtime.executor import pool_executor
 
-        from calibration.fit.proxy import ProxyFitSettings, fit_proxy
+        from calibration.fit.proxy import ProxyFitSettings, fit_proxy, resolve_residuals
         from calibration.fit.forward_model import FAST_JACOBIAN
-
-        from calibration.fit.proxy import resolve_residuals
 
         settings = ProxyFitSettings(model=self.model.settings, residuals=resolve_residuals("auto", self.obs),
                                     jacobian_model=FAST_JACOBIAN, fine_iter=LOOP_FINE_ITER)
