@@ -3,7 +3,8 @@ never sees half a file.
 
 Every file goes through a temporary file in the same folder and a rename
 (:func:`isp.io.files.write_bytes_atomic`): :func:`save_figure` for
-matplotlib figures, :func:`write_json` for JSON documents. A report folder
+matplotlib figures, :func:`write_json` for JSON documents, :func:`write_npz`
+for numpy archives. A report folder
 is built whole in a temporary folder beside its destination and published
 at the end (:func:`staged_folder`, :func:`publish_folder`), so a run that
 fails leaves nothing behind; :func:`check_output_folder` refuses a
@@ -28,7 +29,7 @@ from pathlib import Path
 from isp.errors import InputError
 from isp.io.files import write_bytes_atomic
 
-__all__ = ["check_output_folder", "publish_folder", "save_figure", "staged_folder", "write_json"]
+__all__ = ["check_output_folder", "publish_folder", "save_figure", "staged_folder", "write_json", "write_npz"]
 
 
 def save_figure(fig, path, *, dpi: int = 120) -> None:
@@ -60,6 +61,16 @@ def write_json(path, doc, *, indent: int = 2) -> Path:
     '{\\n  "x": 1\\n}'
     """
     return write_bytes_atomic(Path(path), json.dumps(doc, indent=indent).encode())
+
+
+def write_npz(path, arrays: dict) -> Path:
+    """Write ``arrays`` (name → array) as an uncompressed ``.npz``,
+    atomically; returns the path."""
+    import numpy as np
+
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return write_bytes_atomic(Path(path), buf.getvalue())
 
 
 def check_output_folder(out) -> None:

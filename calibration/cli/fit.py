@@ -12,7 +12,11 @@ temporary folder and renamed, so a failed fit leaves nothing):
   ``isp synth --lens proxy.json`` makes training data from it);
 * ``fit.json``: parameters with 1σ uncertainty, errors before/after, merit
   per iteration, lens evaluations, time, restarts, the coarse stage;
-* ``merit.png``, ``sfra_maps.png``, ``parameters.png``.
+* ``merit.png``, ``sfra_maps.png``, ``parameters.png``;
+* with ``--basis``: ``device.json``, the device's calibration (``device/v1``,
+  :mod:`calibration.fit.device`): the proxy's descriptor on the design's
+  basis, the fit's errors and the measurement's SHA-256, what one shared
+  correction model reads.
 """
 
 from __future__ import annotations
@@ -33,11 +37,13 @@ EPILOG = """examples:
   isp calib fit --lens e9.zmx --measured chart_sfr.json --method scipy --max-iter 20
   isp calib fit --lens e9.zmx --measured obs.json --residuals bands --no-fast-jacobian
   isp calib fit --lens e9.zmx --measured capture.dng --bootstrap 20 -o e9_proxy/   # each edge its own σ
+  isp calib fit --lens e9.zmx --measured capture.dng --basis e9_basis.npz -o dev3/   # + device.json
 """
 
 
 def run(args: argparse.Namespace) -> int:
     """Fit the proxy camera and write its folder (built aside and renamed into place)."""
+    from calibration.fit.device import load_basis
     from calibration.fit.measurements import load_measured, match_sensor
     from calibration.optics.io import read_lens
     from calibration.report import check_output_folder, staged_folder
@@ -56,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--restarts {args.restarts}: 0 or more")
     if args.bootstrap < 0:
         raise ConfigError(f"--bootstrap {args.bootstrap}: 0 or more")
+    if args.components < 1:
+        raise ConfigError(f"--components {args.components}: at least 1")
     if args.window_um is not None and not 8.0 <= args.window_um <= 256.0:
         raise ConfigError(f"--window-um {args.window_um:g}: between 8 and 256 µm")
     if min(args.coarse) < 0 or (0 in args.coarse and any(args.coarse)):
@@ -63,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     check_output_folder(out)
     nominal = read_lens(args.lens)              # a bad lens file fails before any measurement
+    basis = load_basis(args.basis, nominal) if args.basis else None
     obs, notes = load_measured(args.measured, channel=args.channel, encoding=args.encoding,
                                pixel_um=args.pixel_um, bootstrap=args.bootstrap,
                                executor=create_executor("serial", progress=True))
@@ -80,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
                     executor=pool_executor(args.workers, progress=True))
     with staged_folder(out) as tmp:
         fit.save(tmp)
+        if basis is not None:
+            cal = _device_file(fit, basis, args, tmp / "device.json")
     e = fit.errors()
     if fit.coarse:
         print(f"coarse to fine: fitted first on {fit.coarse['observations']} of {len(obs)} observations "
@@ -96,13 +107,32 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the fitted lens throws {1 - fit.window_energy:.0%} of some region's light outside the model's "
               f"{fit.settings.get('window_um')} µm PSF window; its SFR there is too high at low frequencies "
               "(a wider window: --window-um, benchmarks/psf_window.py)")
-    print(f"wrote {out}/proxy.json, fit.json, merit.png, sfra_maps.png, parameters.png "
-          f"({time.perf_counter() - t0:.0f} s)")
+    if basis is not None:
+        print(f"device calibration: {cal.grid[0]} × {cal.grid[1]} regions × {cal.descriptor.shape[2]} components "
+              f"on basis {basis.key[:12]} (max |d| {abs(cal.descriptor).max():.2f} spreads)")
+    print(f"wrote {out}/proxy.json, fit.json, merit.png, sfra_maps.png, parameters.png"
+          f"{', device.json' if basis is not None else ''} ({time.perf_counter() - t0:.0f} s)")
     return 0
+
+
+def _device_file(fit, basis, args, path):
+    """Write the device's ``device/v1`` calibration of the fitted proxy."""
+    from calibration.fit.device import device_calibration, file_sha256
+
+    e = fit.errors()
+    summary = {"sfra_rms_before": e["before"]["sfra_rms"], "sfra_rms_after": e["after"]["sfra_rms"],
+               "chi2_per_obs": e["after"]["chi2_per_obs"], "parameters": len(fit.space.names)}
+    src = {"measured": Path(args.measured).name}
+    if Path(args.measured).is_file():
+        src["sha256"] = file_sha256(args.measured)
+    cal = device_calibration(fit.lens, basis, min(args.components, basis.size), fit=summary, source=src)
+    cal.save(path)
+    return cal
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``isp calib fit``."""
+    from calibration.fit.device import DEFAULT_COMPONENTS
     from calibration.fit.proxy import COARSE_GRID, MAX_ITER, N_PARAMS, REFRESH, RESTART_CHI2, RESTARTS
 
     p.description = __doc__.split("\n\n")[0].replace("``", "`")
@@ -135,6 +165,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"edges (default {COARSE_GRID[0]} {COARSE_GRID[1]}: on the paper's 15 × 20 regions, "
                         "35 of 300; 0 0: off)")
     p.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
+    p.add_argument("--basis", metavar="BASIS.npz",
+                   help="the design's descriptor basis (`isp calib basis`): also write device.json, the "
+                        "device's calibration for the shared correction model")
+    p.add_argument("--components", type=int, default=DEFAULT_COMPONENTS,
+                   help=f"descriptor components in device.json (default {DEFAULT_COMPONENTS}, at most the basis's)")
     p.add_argument("--fast-jacobian", action=argparse.BooleanOptionalAction, default=True,
                    help="Jacobian from a cheaper model (32 pupil samples, a 24 µm PSF window), steps judged on the full model "
                         "(default on: on e9 at 15 × 20 regions, with the 16 µm model window of the time, it "

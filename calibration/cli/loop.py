@@ -86,6 +86,8 @@ def _check_args(args) -> None:
         raise ConfigError(f"--max-effects {args.max_effects}: 0 or more")
     if not 8 <= args.min_edge <= 10000:
         raise ConfigError(f"--min-edge {args.min_edge:g}: outside 8–10000 px")
+    if args.components < 1:
+        raise ConfigError(f"--components {args.components}: at least 1")
     if args.pixel_um is not None and not 0.1 <= args.pixel_um <= 100:
         raise ConfigError(f"--pixel-um {args.pixel_um:g}: outside 0.1–100 µm")
 
@@ -125,6 +127,14 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.measured}: {len(obs)} observations in {regions} field region(s)")
     if args.lens != "parametric":
         print("loop: tracing the lens and screening its perturbations (a few minutes on 2 cores)", flush=True)
+    basis = None
+    if args.basis:
+        if args.lens == "parametric":
+            raise ConfigError("--basis: a device calibration needs a lens file, not --lens parametric")
+        from calibration.fit.device import load_basis
+        from calibration.optics.io import read_lens
+
+        basis = load_basis(args.basis, read_lens(args.lens))
     base = make_base(args.lens, obs, f_number=args.f_number, n_params=args.n_params, pixel_um=args.pixel_um)
     obs = base.obs
     folds = max(2, min(args.folds, regions))
@@ -134,10 +144,28 @@ def run(args: argparse.Namespace) -> int:
     with staged_folder(out) as tmp:
         write_report(rep, obs, tmp)
         _curves(base, rep, obs, tmp / "sfr_curves.png", args)
+        if basis is not None:
+            _device_file(base, rep, basis, args, tmp / "device.json")
     print(summary(rep))
-    print(f"wrote {out}/report.json, report.md, residual_maps.png, sfr_curves.png "
-          f"({time.perf_counter() - t0:.0f} s)")
+    print(f"wrote {out}/report.json, report.md, residual_maps.png, sfr_curves.png"
+          f"{', device.json' if basis is not None else ''} ({time.perf_counter() - t0:.0f} s)")
     return 0
+
+
+def _device_file(base, rep, basis, args, path) -> None:
+    """The device's ``device/v1`` calibration: the loop's final lens on the
+    design's basis, and the effects it kept with their fitted values."""
+    from calibration.fit.device import device_calibration, file_sha256
+
+    effects = [{"name": n, "params": {k: float(v) for k, v in rep.effect_values[n].items()}}
+               for n in rep.effects_added]
+    fit = {"sfra_rms_before": rep.error_before.get("sfra_rms"), "sfra_rms_after": rep.error_after.get("sfra_rms"),
+           "noise_floor": rep.noise_floor, "unexplained": list(rep.unexplained)}
+    src = {"measured": Path(args.measured).name}
+    if Path(args.measured).is_file():
+        src["sha256"] = file_sha256(args.measured)
+    device_calibration(base.lens(rep.base_x), basis, min(args.components, basis.size), fit=fit,
+                       effects=effects, source=src).save(path)
 
 
 def _curves(base, rep, obs, path, args) -> None:
@@ -156,6 +184,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``isp calib loop``."""
     import textwrap
 
+    from calibration.fit.device import DEFAULT_COMPONENTS
     from calibration.fit.measurements import DEFAULT_PIXEL_UM
     from calibration.loop.effects import list_effects
 
@@ -195,3 +224,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "excepted; on a clean simulated e1 device, every tolerance drawn, all 42 fitted to SFRA "
                         "0.0091 in 424 s, the 24 most sensitive to 0.0104 in 632 s: docs/results/loop.md)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fold split and noise renders")
+    p.add_argument("--basis", metavar="BASIS.npz",
+                   help="the design's descriptor basis (`isp calib basis`): also write device.json, the "
+                        "device's calibration (the final lens's descriptor and the kept effects)")
+    p.add_argument("--components", type=int, default=DEFAULT_COMPONENTS,
+                   help=f"descriptor components in device.json (default {DEFAULT_COMPONENTS}, at most the basis's)")

@@ -20,6 +20,10 @@ commands never load the optics code. Sub-commands:
 ``fit``
     Fit a proxy camera to a measurement: lens/v1 + fitted perturbation, and
     a report.
+``basis``
+    A lens design's descriptor basis: principal components of the PSFs of
+    lenses drawn within its tolerances (what ``fit --basis`` projects a
+    device on).
 ``loop``
     Close the loop on a measurement: fit, find the effects the model lacks,
     refit, report before/after.
@@ -45,6 +49,8 @@ examples:
   isp calib simulate phone.json -o capture.dng --perturb random --seed 3
   isp calib sfr capture.png --chart --json sfr.json --plot sfr.png
   isp calib fit --lens phone.zmx --measured capture.dng -o proxy/  # proxy camera (paper Alg. 1)
+  isp calib basis phone.zmx -o phone_basis.npz    # once per lens design
+  isp calib fit --lens phone.zmx --measured capture.dng --basis phone_basis.npz -o dev/   # + dev/device.json
   isp calib loop --lens parametric --measured edge.jpg --encoding srgb -o edge_loop/
 """
 
@@ -56,6 +62,8 @@ SUBCOMMANDS = (
     Command("simulate", "a simulated chart capture written as DNG", module="calibration.cli.simulate"),
     Command("sfr", "ISO 12233 slanted-edge SFR of an image, ROI or chart", module="calibration.cli.sfr"),
     Command("fit", "fit a proxy camera (lens perturbations) to a measured SFR", module="calibration.cli.fit"),
+    Command("basis", "a lens design's device-descriptor basis, from lenses drawn within tolerance",
+            module="calibration.cli.basis"),
     Command("loop", "fit, find the effects the model lacks, refit; report before/after",
             module="calibration.cli.loop"),
 )

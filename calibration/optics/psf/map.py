@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import io
 import json
 import math
 import os
@@ -340,7 +339,9 @@ class PSFMap:
             arrays["channel_weights"] = np.asarray(self.channel_weights, dtype=np.float64)
         if self.window_energy is not None:
             arrays["window_energy"] = np.asarray(self.window_energy, dtype=np.float64)
-        return _atomic_savez(Path(path), arrays)
+        from calibration.report import write_npz
+
+        return write_npz(path, arrays)
 
     @classmethod
     def from_npz(cls, path) -> PSFMap:
@@ -355,16 +356,6 @@ class PSFMap:
                            z.get("window_energy", None), meta.get("settings", {}))
             except KeyError as e:
                 raise PSFError(f"{path}: not a PSF map file (missing {e})") from None
-
-
-def _atomic_savez(path: Path, arrays: dict) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    from isp.io.files import write_bytes_atomic
-
-    write_bytes_atomic(path, buf.getvalue())
-    return path
 
 
 # -- chief rays ------------------------------------------------------------------------------
@@ -475,7 +466,7 @@ def chief_ray_fields(lens: Lens | PerturbedLens, points_mm, wavelength_nm: float
 
 # -- cache key -----------------------------------------------------------------------------------
 
-def _canon(obj):
+def canonical(obj):
     """A JSON-safe canonical form (floats as exact hex) for hashing."""
     if isinstance(obj, bool) or obj is None or isinstance(obj, str):
         return obj
@@ -484,22 +475,22 @@ def _canon(obj):
     if isinstance(obj, (float, np.floating)):
         return float(obj).hex()
     if isinstance(obj, np.ndarray):
-        return [_canon(v) for v in obj.tolist()]
+        return [canonical(v) for v in obj.tolist()]
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         skip = {"metadata", "name"} if isinstance(obj, Lens) else set()
         return {"__type__": type(obj).__name__,
-                **{f.name: _canon(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.name not in skip}}
+                **{f.name: canonical(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.name not in skip}}
     if isinstance(obj, dict):
-        return {str(k): _canon(v) for k, v in sorted(obj.items())}
+        return {str(k): canonical(v) for k, v in sorted(obj.items())}
     if isinstance(obj, (list, tuple)):
-        return [_canon(v) for v in obj]
+        return [canonical(v) for v in obj]
     raise TypeError(f"cannot canonicalise {type(obj).__name__}")
 
 
 def _lens_identity(pl: PerturbedLens) -> dict:
     pert = {k: v for k, v in sorted(pl.perturbation.as_dict().items()) if v != 0.0}
-    return {"nominal": _canon(pl.nominal), "perturbation": _canon(pert), "lens": _canon(pl.lens),
-            "poses": [[_canon(p.rotation) if p.rotation is not None else None, _canon(p.vertex)]
+    return {"nominal": canonical(pl.nominal), "perturbation": canonical(pert), "lens": canonical(pl.lens),
+            "poses": [[canonical(p.rotation) if p.rotation is not None else None, canonical(p.vertex)]
                       for p in (*pl.poses, pl.image_pose)]}
 
 
@@ -507,7 +498,7 @@ def cache_key(lens: Lens | PerturbedLens, settings: dict) -> str:
     """SHA-256 (hex) of the (perturbed) lens geometry and the settings.
     A zero perturbation has the nominal lens's key; the lens's name and
     metadata (e.g. its file path) do not enter."""
-    blob = json.dumps({"version": CACHE_VERSION, "lens": _lens_identity(nominal(lens)), "settings": _canon(settings)},
+    blob = json.dumps({"version": CACHE_VERSION, "lens": _lens_identity(nominal(lens)), "settings": canonical(settings)},
                       sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(blob.encode()).hexdigest()
 

@@ -1,0 +1,459 @@
+"""A device's calibration (``device/v1``) and the descriptor a shared
+correction model reads.
+
+On a production line every camera module is measured on its chart, and
+:func:`calibration.fit.proxy.fit_proxy` turns that measurement into a proxy
+lens: the design plus the perturbation that reproduces the device's SFR.
+One shared correction network cannot read a lens prescription; it reads a
+short vector per field region, the device's **descriptor**, and this module
+makes it.
+
+The descriptor
+--------------
+The PSF of a lens drawn within tolerance differs from the design's mean PSF
+in a few correlated ways (defocus, astigmatism and coma growing over the
+field, lateral colour), so the differences are well described by few
+principal components. A :class:`DescriptorBasis` is learned once per lens
+design (:func:`learn_basis`) from the PSF maps of many lenses drawn within
+tolerance (:func:`restoration.synth.optics.draw_lenses`, refocused as
+assembly does):
+
+1. each lens's PSF map on a coarse grid of field regions (default 5 × 7),
+   integrated over the pixel cells (:func:`pixel_psfs`), R, G and B;
+2. the mean over the draws of each region's PSFs, ``μ_r``;
+3. the principal components of the deviations ``h − μ_r``, pooled over
+   the regions and the draws, the three channels as one vector (so a
+   component holds a colour's shift as well as its blur): ``V_k``, with
+   ``s_k`` the spread of the ``k``-th coefficient over the draws.
+
+A device's descriptor is then, per region ``r`` and component ``k``,
+
+.. math::
+
+    d_{r,k} = \\frac{\\langle h_r - \\mu_r, V_k\\rangle}{s_k},
+
+dimensionless, of unit spread over the tolerance distribution (what a
+network input wants), and its PSFs are recovered as ``μ_r + Σ_k d_{r,k}
+s_k V_k`` (:meth:`DescriptorBasis.reconstruct`). How many components are
+worth keeping, and how much of what a device-specific deconvolution gains
+they keep, is measured in ``benchmarks/device_descriptor.py``.
+
+The file
+--------
+``device/v1`` is JSON (:class:`DeviceCalibration`): the lens design's name
+and key, the basis's key, the grid, the descriptor (rows × cols × K numbers,
+4 significant digits), the loop's kept effects, the fit's errors, and where
+the measurement came from. It is at most :data:`MAX_BYTES` (64 KB; a 5 × 7
+grid with 16 components is about 5 KB).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from isp.errors import InputError
+
+__all__ = ["BASIS_FORMAT", "DEFAULT_COMPONENTS", "DEFAULT_GRID", "DescriptorBasis", "DeviceCalibration",
+           "FORMAT", "MAX_BYTES", "basis_from_psfs", "describe", "descriptor_map_settings", "design_key",
+           "device_calibration", "file_sha256", "learn_basis", "load_basis", "pixel_psfs"]
+
+#: schema of the device calibration file
+FORMAT = "device/v1"
+#: schema of the basis file (numpy ``.npz``)
+BASIS_FORMAT = "device-basis/v1"
+#: field regions of the descriptor (rows, cols): the fit's chart grid on a 4:3 sensor
+DEFAULT_GRID = (5, 7)
+#: components kept in a device file
+DEFAULT_COMPONENTS = 16
+#: the largest device file accepted or written, bytes
+MAX_BYTES = 64 * 1024
+#: significant digits of the descriptor in the JSON file (unit-spread numbers: 1e-4 of their spread)
+DIGITS = 4
+
+
+def design_key(lens) -> str:
+    """SHA-256 (hex) of a lens *design*: the nominal prescription of a Lens
+    or PerturbedLens, whatever its perturbation, name, metadata or sensor
+    (a capture's crop changes the sensor a fit sees, not the optics).
+    Device files, bases and models of one design share it."""
+    import dataclasses
+
+    from calibration.optics.perturb import nominal
+    from calibration.optics.psf.map import canonical
+
+    design = nominal(lens).nominal
+    doc = {f.name: canonical(getattr(design, f.name)) for f in dataclasses.fields(design)
+           if f.name not in ("name", "metadata", "sensor")}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def pixel_psfs(psfmap) -> np.ndarray:
+    """The map's PSFs integrated over the pixel cells: ``(rows, cols,
+    channels, m, m)`` float64, ``m = n / f`` with ``f`` the pixel pitch over
+    the PSF's sample pitch (an integer: psf_map's default samples half a
+    pixel, ``f = 2``). Each sums to what its window holds (≤ 1).
+
+    >>> from calibration.optics.lens import Sensor
+    >>> from calibration.optics.psf.map import PSFMap
+    >>> m = PSFMap(np.full((1, 1, 1, 4, 4), 1 / 16), 0.5, np.zeros((1, 1, 2)), np.zeros((1, 1, 2)),
+    ...            ("G",), Sensor(1.0, 10, 10))
+    >>> pixel_psfs(m)[0, 0, 0]
+    array([[0.25, 0.25],
+           [0.25, 0.25]])
+    """
+    f = psfmap.sensor.pixel_pitch_um / psfmap.pitch_um
+    fi = int(round(f))
+    if fi < 1 or abs(f - fi) > 1e-9 or psfmap.n % fi:
+        raise ValueError(f"the PSF pitch {psfmap.pitch_um} µm does not divide the pixel pitch "
+                         f"{psfmap.sensor.pixel_pitch_um} µm into the map's {psfmap.n} samples")
+    r, c, ch, n, _ = psfmap.psfs.shape
+    m = n // fi
+    return psfmap.psfs.astype(np.float64).reshape(r, c, ch, m, fi, m, fi).sum(axis=(4, 6))
+
+
+def descriptor_map_settings(grid, channels=("R", "G", "B")):
+    """The PSF map settings of a descriptor: psf_map's defaults on ``grid``."""
+    from calibration.optics.psf.map import PSFMapSettings
+
+    return PSFMapSettings(grid=tuple(grid), channels=tuple(channels))
+
+
+@dataclass(frozen=True)
+class DescriptorBasis:
+    """Principal components of a lens design's PSFs over its tolerances
+    (module docstring). Built by :func:`learn_basis`; files by
+    :meth:`save` / :meth:`load`.
+
+    Attributes
+    ----------
+    lens : str
+        The design's name.
+    design : str
+        :func:`design_key` of the design.
+    grid : (rows, cols)
+    channels : tuple of str
+    mean : (rows, cols, channels, m, m) float64
+        Each region's mean pixel PSF over the draws.
+    components : (K, channels·m·m) float64
+        Orthonormal, by decreasing spread.
+    scales : (K,) float64
+        Spread (standard deviation) of each coefficient over the draws.
+    explained : (K,) float64
+        Fraction of the deviations' variance the first ``k + 1`` components hold.
+    draws : int
+        Lenses the basis was learned from.
+    sensor : Sensor
+        The sensor whose regions and pixels the PSFs are mapped on: a
+        device's descriptor is computed on it whatever sensor its capture
+        had (:func:`describe`).
+    meta : dict
+        Tolerance scale, seed, PSF settings (JSON-safe).
+    """
+
+    lens: str
+    design: str
+    grid: tuple[int, int]
+    channels: tuple[str, ...]
+    mean: np.ndarray
+    components: np.ndarray
+    scales: np.ndarray
+    explained: np.ndarray
+    draws: int
+    sensor: object = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def key(self) -> str:
+        """SHA-256 (hex) of the basis's numbers: a device file names the basis it was made with."""
+        h = hashlib.sha256()
+        for a in (self.mean, self.components, self.scales):
+            h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+        h.update(json.dumps([self.design, list(self.grid), list(self.channels), self._sensor_dict()]).encode())
+        return h.hexdigest()
+
+    def _sensor_dict(self) -> dict | None:
+        import dataclasses
+
+        return dataclasses.asdict(self.sensor) if self.sensor is not None else None
+
+    @property
+    def size(self) -> int:
+        """Components held (K)."""
+        return self.components.shape[0]
+
+    def project(self, psfs: np.ndarray, k: int | None = None) -> np.ndarray:
+        """The descriptor of pixel PSFs ``(rows, cols, channels, m, m)``
+        (:func:`pixel_psfs` of a map on this basis's grid): ``(rows, cols,
+        k)`` float64, unit spread over the tolerance distribution."""
+        psfs = np.asarray(psfs, dtype=np.float64)
+        if psfs.shape != self.mean.shape:
+            raise ValueError(f"PSFs of shape {psfs.shape}; this basis takes {self.mean.shape}")
+        k = self.size if k is None else int(k)
+        if not 1 <= k <= self.size:
+            raise ValueError(f"k must be between 1 and {self.size}, got {k}")
+        r, c = self.grid
+        dev = (psfs - self.mean).reshape(r * c, -1)
+        return (dev @ self.components[:k].T / self.scales[:k]).reshape(r, c, k)
+
+    def reconstruct(self, descriptor: np.ndarray) -> np.ndarray:
+        """Pixel PSFs ``(rows, cols, channels, m, m)`` from a descriptor
+        ``(rows, cols, k)``: the mean plus the first ``k`` components."""
+        d = np.asarray(descriptor, dtype=np.float64)
+        r, c = self.grid
+        if d.ndim != 3 or d.shape[:2] != (r, c) or not 1 <= d.shape[2] <= self.size:
+            raise ValueError(f"descriptor of shape {d.shape}; this basis takes ({r}, {c}, ≤ {self.size})")
+        k = d.shape[2]
+        dev = (d.reshape(r * c, k) * self.scales[:k]) @ self.components[:k]
+        return self.mean + dev.reshape(self.mean.shape)
+
+    def save(self, path) -> Path:
+        """Write the basis (``.npz``, atomically); returns the path."""
+        from calibration.report import write_npz
+
+        meta = {"format": BASIS_FORMAT, "lens": self.lens, "design": self.design, "grid": list(self.grid),
+                "channels": list(self.channels), "draws": self.draws, "sensor": self._sensor_dict(),
+                "meta": self.meta}
+        return write_npz(path, {"mean": self.mean, "components": self.components,
+                                          "scales": self.scales, "explained": self.explained,
+                                          "info": np.array(json.dumps(meta))})
+
+    @classmethod
+    def load(cls, path) -> DescriptorBasis:
+        """Read a basis written by :meth:`save`; InputError naming the file otherwise."""
+        p = Path(path)
+        from calibration.optics.lens import Sensor
+
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                info = json.loads(str(z["info"]))
+                if info.get("format") != BASIS_FORMAT:
+                    raise InputError(p, f"not a {BASIS_FORMAT} file (format {info.get('format')!r})")
+                sensor = Sensor(**info["sensor"]) if info.get("sensor") else None
+                return cls(info["lens"], info["design"], tuple(info["grid"]), tuple(info["channels"]),
+                           z["mean"], z["components"], z["scales"], z["explained"], int(info["draws"]),
+                           sensor, info.get("meta", {}))
+        except FileNotFoundError:
+            raise InputError(p, "no such basis file") from None
+        except (OSError, ValueError, KeyError) as e:
+            raise InputError(p, f"not a {BASIS_FORMAT} file ({type(e).__name__}: {str(e)[:80]})") from None
+
+
+def load_basis(path, lens=None) -> DescriptorBasis:
+    """Read a basis file; with ``lens``, also check that it is of that
+    lens's design (InputError naming the file and both designs otherwise)."""
+    basis = DescriptorBasis.load(path)
+    if lens is not None and basis.design != design_key(lens):
+        from calibration.optics.perturb import nominal
+
+        name = nominal(lens).nominal.name or "this lens"
+        raise InputError(path, f"a basis of lens {basis.lens!r}, not of {name!r} (another design)")
+    return basis
+
+
+def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] = DEFAULT_GRID,
+                components: int = 32, tolerance_scale: float = 1.0, executor=None,
+                cache_dir=None, progress: bool = False) -> DescriptorBasis:
+    """Learn a design's descriptor basis from lenses drawn within tolerance.
+
+    Parameters
+    ----------
+    lens : Lens or PerturbedLens
+        The design (its perturbation, if any, is the centre of the draws).
+    draws : int
+        Lenses drawn (≥ 2 × ``components`` is sensible; each costs one PSF
+        map of ``grid``, ≈ 7 s for e9's 5 × 7 on one core, cached on disk).
+    seed : int
+        Of the draws.
+    grid : (rows, cols)
+    components : int
+        Principal components kept (K).
+    tolerance_scale : float
+        Multiplies every tolerance.
+    executor : isp.runtime.executor.Executor, optional
+        Runs each map's regions (psf_map's default otherwise).
+    cache_dir : path, optional
+        PSF map cache (psf_map's default otherwise).
+    progress : bool
+        A bar over the draws on stderr.
+
+    Returns
+    -------
+    DescriptorBasis
+    """
+    from calibration.optics.perturb import nominal
+    from calibration.optics.psf.map import psf_map
+    from restoration.synth.optics import draw_lenses
+
+    if draws < 2:
+        raise ValueError(f"draws must be ≥ 2, got {draws}")
+    pl = nominal(lens)
+    lenses = draw_lenses(pl, int(draws) + 1, np.random.default_rng(seed), tolerance_scale=tolerance_scale)[1:]
+    settings = descriptor_map_settings(grid)
+    from tqdm import tqdm
+
+    stack = np.stack([pixel_psfs(psf_map(d, settings, cache_dir=cache_dir, executor=executor))
+                      for d in tqdm(lenses, desc="PSF maps of drawn lenses", unit="lens", disable=not progress)])
+    return basis_from_psfs(stack, lens=pl.nominal.name or "lens", design=design_key(pl), grid=grid,
+                           channels=settings.channels, components=components, sensor=pl.lens.sensor,
+                           meta={"tolerance_scale": tolerance_scale, "seed": seed, "psf": settings.__dict__})
+
+
+def basis_from_psfs(stack: np.ndarray, *, lens: str, design: str, grid, channels, components: int = 32,
+                    sensor=None, meta: dict | None = None) -> DescriptorBasis:
+    """The basis of a stack of pixel PSF maps ``(draws, rows, cols,
+    channels, m, m)`` (:func:`learn_basis` without the optics)."""
+    stack = np.asarray(stack, dtype=np.float64)
+    n = stack.shape[0]
+    mean = stack.mean(axis=0)
+    x = (stack - mean).reshape(n * stack.shape[1] * stack.shape[2], -1)
+    # principal directions from the Gram matrix of the features when there are fewer of them
+    _, s, vt = np.linalg.svd(x, full_matrices=False)
+    k = min(int(components), vt.shape[0])
+    var = s ** 2
+    comps = vt[:k]
+    coeff_std = s[:k] / math.sqrt(x.shape[0])
+    return DescriptorBasis(lens, design, tuple(int(v) for v in grid), tuple(channels), mean, comps,
+                           coeff_std, np.cumsum(var[:k]) / var.sum(), n, sensor, dict(meta or {}))
+
+
+def describe(lens, basis: DescriptorBasis, k: int | None = None, *, executor=None, cache_dir=None) -> np.ndarray:
+    """The descriptor ``(rows, cols, k)`` of a (fitted or true) lens of the
+    basis's design, its PSFs mapped on the basis's sensor; ValueError where
+    the lens is of another design."""
+    from calibration.optics.psf.map import psf_map
+
+    if design_key(lens) != basis.design:
+        raise ValueError(f"the lens is not of the design {basis.lens!r} this basis was learned for")
+    m = psf_map(lens, descriptor_map_settings(basis.grid, basis.channels), sensor=basis.sensor, cache_dir=cache_dir,
+                executor=executor)
+    return basis.project(pixel_psfs(m), k)
+
+
+@dataclass(frozen=True)
+class DeviceCalibration:
+    """One device's calibration, the ``device/v1`` file (module docstring).
+
+    Attributes
+    ----------
+    lens : str
+        The design's name (the lens profile's LensModel).
+    design : str
+        :func:`design_key`.
+    basis : str
+        :attr:`DescriptorBasis.key` of the basis the descriptor is on.
+    descriptor : (rows, cols, k) ndarray
+    effects : tuple of dict
+        The loop's kept effects (``{"name", "params"}``), empty from a fit alone.
+    fit : dict
+        The fit's summary (SFRA RMS before/after, χ² per observation, noise floor).
+    source : dict
+        The measurement (file name, SHA-256) and the proxy's perturbation.
+    """
+
+    lens: str
+    design: str
+    basis: str
+    descriptor: np.ndarray
+    effects: tuple = ()
+    fit: dict = field(default_factory=dict)
+    source: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        d = np.asarray(self.descriptor, dtype=np.float64)
+        if d.ndim != 3 or min(d.shape) < 1 or not np.all(np.isfinite(d)):
+            raise ValueError(f"descriptor must be a finite (rows, cols, k) array, got shape {d.shape}")
+        object.__setattr__(self, "descriptor", d)
+        object.__setattr__(self, "effects", tuple(self.effects))
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        return self.descriptor.shape[0], self.descriptor.shape[1]
+
+    def to_dict(self) -> dict:
+        return {"format": FORMAT, "lens": self.lens, "design": self.design, "basis": self.basis,
+                "grid": list(self.grid), "components": self.descriptor.shape[2],
+                "descriptor": [[[float(f"{v:.{DIGITS}g}") for v in cell] for cell in row]
+                               for row in self.descriptor],
+                "effects": list(self.effects), "fit": self.fit, "source": self.source}
+
+    def save(self, path) -> Path:
+        """Write the file atomically (ValueError above :data:`MAX_BYTES`)."""
+        from isp.io.files import write_bytes_atomic
+
+        text = json.dumps(self.to_dict(), separators=(",", ":")).encode()
+        if len(text) > MAX_BYTES:
+            raise ValueError(f"a {FORMAT} file of {len(text)} bytes exceeds {MAX_BYTES}: fewer components "
+                             "or a coarser grid")
+        return write_bytes_atomic(Path(path), text)
+
+    @classmethod
+    def load(cls, path) -> DeviceCalibration:
+        """Read and check a ``device/v1`` file; InputError naming the file
+        and the problem (absent, too large, not JSON, wrong schema or
+        shapes)."""
+        p = Path(path)
+        try:
+            size = p.stat().st_size
+        except FileNotFoundError:
+            raise InputError(p, "no such device calibration file") from None
+        if size > MAX_BYTES:
+            raise InputError(p, f"{size} bytes; a {FORMAT} file is at most {MAX_BYTES}")
+        try:
+            d = json.loads(p.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise InputError(p, f"not JSON ({e})") from None
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            got = d.get("format") if isinstance(d, dict) else type(d).__name__
+            raise InputError(p, f"not a {FORMAT} file (format {got!r})")
+        try:
+            desc = np.asarray(d["descriptor"], dtype=np.float64)
+            if list(desc.shape[:2]) != list(d["grid"]) or desc.shape[2] != int(d["components"]):
+                raise ValueError(f"descriptor shape {desc.shape} against grid {d['grid']} and "
+                                 f"{d['components']} components")
+            return cls(str(d["lens"]), str(d["design"]), str(d["basis"]), desc, tuple(d.get("effects", ())),
+                       dict(d.get("fit", {})), dict(d.get("source", {})))
+        except KeyError as e:
+            raise InputError(p, f"{FORMAT} file without {e}") from None
+        except ValueError as e:
+            raise InputError(p, str(e)) from None
+
+    def check(self, basis: DescriptorBasis) -> None:
+        """ValueError (one line) where this file was not made with ``basis``."""
+        if self.design != basis.design:
+            raise ValueError(f"device calibration of lens {self.lens!r}, basis of lens {basis.lens!r}: "
+                             "another lens design")
+        if self.basis != basis.key:
+            raise ValueError(f"device calibration made with another basis of {self.lens!r} "
+                             f"({self.basis[:12]}…, this one {basis.key[:12]}…)")
+        if self.grid != basis.grid or self.descriptor.shape[2] > basis.size:
+            raise ValueError(f"descriptor {self.descriptor.shape} does not fit the basis "
+                             f"({basis.grid}, {basis.size} components)")
+
+
+def device_calibration(proxy, basis: DescriptorBasis, k: int = DEFAULT_COMPONENTS, *, fit: dict | None = None,
+                       effects=(), source: dict | None = None, executor=None, cache_dir=None) -> DeviceCalibration:
+    """The ``device/v1`` calibration of a fitted proxy lens (its descriptor
+    on ``basis``), with the fit's summary and the loop's kept effects."""
+    from calibration.optics.perturb import nominal
+
+    pl = nominal(proxy)
+    src = dict(source or {})
+    src.setdefault("perturbation", {k_: float(v) for k_, v in pl.perturbation.as_dict().items() if v != 0.0})
+    return DeviceCalibration(basis.lens, basis.design, basis.key,
+                             describe(pl, basis, k, executor=executor, cache_dir=cache_dir),
+                             tuple(effects), dict(fit or {}), src)
+
+
+def file_sha256(path) -> str:
+    """SHA-256 (hex) of a file's bytes (the measurement a calibration came from)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
