@@ -194,7 +194,8 @@ def main(argv=None) -> dict:
     from calibration.fit.device import (DEFAULT_GRID, DeviceCalibration, basis_from_psfs, design_key)
     from calibration.optics.perturb import nominal
     from isp.runtime.executor import pool_executor
-    from restoration.synth.optics import draw_lenses, load_lens
+    from calibration.simulate.device import draw_lenses
+    from restoration.synth.optics import load_lens
 
     t0 = time.perf_counter()
     lens_path = PHONE / f"{LENSES[args.lens]}.zmx"

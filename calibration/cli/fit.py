@@ -117,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _device_file(fit, basis, args, path):
     """Write the device's ``device/v1`` calibration of the fitted proxy."""
-    from calibration.fit.device import device_calibration, file_sha256
+    from calibration.fit.device import device_calibration
+    from isp.io.files import file_sha256
 
     e = fit.errors()
     summary = {"sfra_rms_before": e["before"]["sfra_rms"], "sfra_rms_after": e["after"]["sfra_rms"],

@@ -155,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
 def _device_file(base, rep, basis, args, path) -> None:
     """The device's ``device/v1`` calibration: the loop's final lens on the
     design's basis, and the effects it kept with their fitted values."""
-    from calibration.fit.device import device_calibration, file_sha256
+    from calibration.fit.device import device_calibration
+    from isp.io.files import file_sha256
 
     effects = [{"name": n, "params": {k: float(v) for k, v in rep.effect_values[n].items()}}
                for n in rep.effects_added]

@@ -15,7 +15,7 @@ in a few correlated ways (defocus, astigmatism and coma growing over the
 field, lateral colour), so the differences are well described by few
 principal components. A :class:`DescriptorBasis` is learned once per lens
 design (:func:`learn_basis`) from the PSF maps of many lenses drawn within
-tolerance (:func:`restoration.synth.optics.draw_lenses`, refocused as
+tolerance (:func:`calibration.simulate.device.draw_lenses`, refocused as
 assembly does):
 
 1. each lens's PSF map on a coarse grid of field regions (default 5 × 7),
@@ -61,7 +61,7 @@ from isp.errors import InputError
 
 __all__ = ["BASIS_FORMAT", "DEFAULT_COMPONENTS", "DEFAULT_GRID", "DescriptorBasis", "DeviceCalibration",
            "FORMAT", "MAX_BYTES", "basis_from_psfs", "describe", "descriptor_map_settings", "design_key",
-           "device_calibration", "file_sha256", "learn_basis", "load_basis", "pixel_psfs"]
+           "device_calibration", "learn_basis", "load_basis", "pixel_psfs"]
 
 #: schema of the device calibration file
 FORMAT = "device/v1"
@@ -288,7 +288,7 @@ def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] 
     """
     from calibration.optics.perturb import nominal
     from calibration.optics.psf.map import psf_map
-    from restoration.synth.optics import draw_lenses
+    from calibration.simulate.device import draw_lenses
 
     if draws < 2:
         raise ValueError(f"draws must be ≥ 2, got {draws}")
@@ -448,12 +448,3 @@ def device_calibration(proxy, basis: DescriptorBasis, k: int = DEFAULT_COMPONENT
     return DeviceCalibration(basis.lens, basis.design, basis.key,
                              describe(pl, basis, k, executor=executor, cache_dir=cache_dir),
                              tuple(effects), dict(fit or {}), src)
-
-
-def file_sha256(path) -> str:
-    """SHA-256 (hex) of a file's bytes (the measurement a calibration came from)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()

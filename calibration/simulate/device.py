@@ -5,7 +5,8 @@ the nominal lens, the fitted perturbation of a proxy lens file, a random
 device drawn within the default tolerances (and refocused: assembly sets
 focus, so a drawn device is not left defocused), or the perturbation of a
 ``{name: value}`` JSON file (names as :mod:`calibration.optics.perturb`
-spells them, e.g. ``{"e1.decenter_x": 0.003}``).
+spells them, e.g. ``{"e1.decenter_x": 0.003}``). :func:`draw_lenses` draws
+many devices around a lens, as data synthesis and descriptor bases need.
 
 Imports :mod:`calibration.optics` (perturb, spot) and ``isp`` errors.
 """
@@ -13,6 +14,7 @@ Imports :mod:`calibration.optics` (perturb, spot) and ``isp`` errors.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +24,7 @@ from calibration.optics.perturb import ParameterSpace, Perturbation, PerturbedLe
 from calibration.optics.spot import refocus
 from isp.errors import InputError
 
-__all__ = ["device_lens"]
+__all__ = ["device_lens", "draw_lenses"]
 
 
 def device_lens(lens: Lens, perturb: str | None = None, seed: int = 0) -> tuple[Lens | PerturbedLens, str]:
@@ -73,3 +75,49 @@ def device_lens(lens: Lens, perturb: str | None = None, seed: int = 0) -> tuple[
         return apply(lens, Perturbation.from_dict(values)), f"perturbation from {perturb}"
     except ValueError as e:
         raise InputError(perturb, str(e)) from None
+
+
+def draw_lenses(lens, samples: int, rng: np.random.Generator, *, tolerance_scale: float = 1.0,
+                refocus: bool = True) -> list:
+    """The proxy lens and ``samples − 1`` lenses drawn within tolerance.
+
+    Parameters
+    ----------
+    lens : PerturbedLens
+        The proxy camera's lens (its perturbation is kept in every draw).
+    samples : int
+        ≥ 1.
+    rng : numpy Generator
+    tolerance_scale : float
+        Multiplies every tolerance (0: the proxy repeated).
+    refocus : bool
+        Re-set focus per draw relative to the proxy (module notes).
+
+    Returns
+    -------
+    list of PerturbedLens, the proxy first.
+    """
+    from calibration.optics.spot import best_focus
+
+    if int(samples) < 1:
+        raise ValueError(f"samples must be ≥ 1, got {samples!r}")
+    if not (math.isfinite(tolerance_scale) and tolerance_scale >= 0):
+        raise ValueError(f"tolerance_scale must be ≥ 0, got {tolerance_scale!r}")
+    out = [lens]
+    if samples == 1:
+        return out
+    space = ParameterSpace.default(lens.nominal)
+    deltas = space.sample(rng, int(samples) - 1) * float(tolerance_scale)
+    base = lens.perturbation.as_dict()
+    focus_ref = best_focus(lens) if refocus else 0.0
+    last = f"s{len(lens.surfaces)}.thickness"
+    for d in deltas:
+        pert = dict(base)
+        for name, v in zip(space.names, d):
+            pert[name] = pert.get(name, 0.0) + float(v)
+        drawn = apply(lens.nominal, Perturbation.from_dict(pert))
+        if refocus:
+            pert[last] = pert.get(last, 0.0) + (best_focus(drawn) - focus_ref)
+            drawn = apply(lens.nominal, Perturbation.from_dict(pert))
+        out.append(drawn)
+    return out

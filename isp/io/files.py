@@ -61,6 +61,17 @@ def atomic_path(path: str | os.PathLike):
         raise
 
 
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 (hex) of a file's bytes, read in 1 MiB blocks."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def write_bytes_atomic(path: str | os.PathLike, data) -> Path:
     """Write ``data`` (bytes or any contiguous buffer, e.g. a uint8 array) to
     ``path`` via a temporary file and a rename."""

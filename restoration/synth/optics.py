@@ -74,6 +74,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from calibration.simulate.device import draw_lenses
 from isp.errors import InputError
 
 __all__ = ["CropBlur", "blur_crop", "draw_lenses", "load_lens", "map_margin_px", "psf_maps",
@@ -114,53 +115,6 @@ def load_lens(path):
     except LensError as e:
         msg = str(e)
         raise InputError(None, msg if str(path) in msg else f"{path}: {msg}") from None
-
-
-def draw_lenses(lens, samples: int, rng: np.random.Generator, *, tolerance_scale: float = 1.0,
-                refocus: bool = True) -> list:
-    """The proxy lens and ``samples − 1`` lenses drawn within tolerance.
-
-    Parameters
-    ----------
-    lens : PerturbedLens
-        The proxy camera's lens (its perturbation is kept in every draw).
-    samples : int
-        ≥ 1.
-    rng : numpy Generator
-    tolerance_scale : float
-        Multiplies every tolerance (0: the proxy repeated).
-    refocus : bool
-        Re-set focus per draw relative to the proxy (module notes).
-
-    Returns
-    -------
-    list of PerturbedLens, the proxy first.
-    """
-    from calibration.optics.perturb import ParameterSpace, Perturbation, apply
-    from calibration.optics.spot import best_focus
-
-    if int(samples) < 1:
-        raise ValueError(f"samples must be ≥ 1, got {samples!r}")
-    if not (math.isfinite(tolerance_scale) and tolerance_scale >= 0):
-        raise ValueError(f"tolerance_scale must be ≥ 0, got {tolerance_scale!r}")
-    out = [lens]
-    if samples == 1:
-        return out
-    space = ParameterSpace.default(lens.nominal)
-    deltas = space.sample(rng, int(samples) - 1) * float(tolerance_scale)
-    base = lens.perturbation.as_dict()
-    focus_ref = best_focus(lens) if refocus else 0.0
-    last = f"s{len(lens.surfaces)}.thickness"
-    for d in deltas:
-        pert = dict(base)
-        for name, v in zip(space.names, d):
-            pert[name] = pert.get(name, 0.0) + float(v)
-        drawn = apply(lens.nominal, Perturbation.from_dict(pert))
-        if refocus:
-            pert[last] = pert.get(last, 0.0) + (best_focus(drawn) - focus_ref)
-            drawn = apply(lens.nominal, Perturbation.from_dict(pert))
-        out.append(drawn)
-    return out
 
 
 def psf_maps(lenses: Sequence, *, executor=None, cache_dir=None, **options) -> list:

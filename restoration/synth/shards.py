@@ -49,6 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
+from isp.io.files import file_sha256
+
 __all__ = ["SCHEMA", "SHARD_KEYS", "file_sha256", "shard_name", "write_manifest", "write_shard"]
 
 SCHEMA = "isp-synth/v1"
@@ -68,15 +70,6 @@ def shard_name(k: int) -> str:
     'shard-00003.npz'
     """
     return f"shard-{int(k):05d}.npz"
-
-
-def file_sha256(path) -> str:
-    """SHA-256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def write_shard(path, pairs: list[dict], target_dtype=np.uint8) -> dict:
