@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
 
         q8 = Path(args.int8_output) if args.int8_output else out.with_suffix(".int8.onnx")
         reader = SynthCalibration(args.calib_data, args.calib, crop=args.calib_crop,
-                                  fov=meta["fov_encoding"] == "xy")
+                                  fov=meta["fov_encoding"] == "xy", device=int(meta.get("device_components", 0)))
         r = quantize_int8(out, q8, reader)
         report["int8"] = r
         print(f"{q8}: {r['int8_quantized_conv']}/{r['fp32_conv']} convs quantised after optimisation "

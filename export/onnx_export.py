@@ -24,7 +24,10 @@ metadata key        value
                     float model's measured ``tile_overlap``, kept by its
                     INT8 copy (module Notes)
 ``input_multiple``  4 (the UNet's total stride)
-``attention``       ``"local"`` or ``"global"``
+``attention``       ``"local"``, ``"global"`` or ``"field"``
+``device_components`` K of a network conditioned on the device (absent: blind)
+``device_design``   the lens design's key (from the training sets' descriptors)
+``device_basis``    the descriptor basis's key
 ``training_data``   the synth manifests' ``data_sha256`` (comma-joined)
 ``precision``       ``fp32`` (``int8`` after :func:`export.quantize.quantize_int8`)
 ``producer``        ``isp export`` + variant, training step, torch version
@@ -205,13 +208,22 @@ def sample_frame(shape: tuple[int, int], fov: bool, seed: int = 0) -> np.ndarray
     return np.ascontiguousarray(img, dtype=np.float32)
 
 
-def model_input(img: np.ndarray, fov: bool) -> np.ndarray:
-    """(1, C, H, W) float32 from (H, W, 3): RGB, then the full-frame field."""
+def model_input(img: np.ndarray, fov: bool, device: int = 0, seed: int = 0) -> np.ndarray:
+    """(1, C, H, W) float32 from (H, W, 3): RGB, then the full-frame field,
+    then ``device`` descriptor channels: a random 5 × 7 descriptor of unit
+    spread (seeded) interpolated as the stage does
+    (:func:`isp.io.device.descriptor_map`)."""
     from modules.correction import field_coordinates
 
     x = img.transpose(2, 0, 1)
     if fov:
         x = np.concatenate([x, field_coordinates(img.shape[:2], (0, 0), img.shape[:2])])
+    if device:
+        from isp.io.device import descriptor_map
+
+        d = np.random.default_rng(seed).normal(size=(5, 7, device))
+        h, w = img.shape[:2]
+        x = np.concatenate([x, descriptor_map(d, np.arange(h), np.arange(w), (h, w))])
     return np.ascontiguousarray(x[None], dtype=np.float32)
 
 
@@ -236,7 +248,7 @@ def onnx_parity(model, session, sizes=((64, 96), (96, 128)), seed: int = 0) -> f
     fov = getattr(model, "fov_encoding", "none") == "xy"
     err = 0.0
     for k, size in enumerate(sizes):
-        x = model_input(sample_frame(size, fov, seed + k), fov)
+        x = model_input(sample_frame(size, fov, seed + k), fov, _device_channels(model), seed + k)
         with torch.no_grad():
             ref = model(torch.from_numpy(x)).numpy()
         got = run_model(session, x)
@@ -348,13 +360,18 @@ def _measure_into(proto, path) -> dict:
     return measured
 
 
+def _device_channels(model) -> int:
+    """Descriptor channels a (space-to-depth form of a) network reads."""
+    return int(getattr(getattr(model, "model", model), "device", 0))
+
+
 def _export_bytes(model, opset: int, packing: int = 1) -> bytes:
     import torch
 
     from modules.correction import pack_input
 
     fov = getattr(model, "fov_encoding", "none") == "xy"
-    x = torch.from_numpy(pack_input(model_input(sample_frame((64, 96), fov), fov), packing))
+    x = torch.from_numpy(pack_input(model_input(sample_frame((64, 96), fov), fov, _device_channels(model)), packing))
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the legacy exporter's deprecation and constant-folding notes
@@ -452,6 +469,11 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
     }
     if "process" in meta:
         md["process"] = meta["process"]
+    if _device_channels(model):
+        md["device_components"] = str(_device_channels(model))
+        for key in ("device_design", "device_basis"):
+            if meta.get(key):
+                md[key] = str(meta[key])
     if overlap is not None:
         md["tile_overlap"] = str(int(overlap))
     exported, packing = model, 1

@@ -70,12 +70,13 @@ def _pairs(directory):
 
 
 def synth_crops(directory, n: int, *, crop: int = 128, multiple: int = 4, fov: bool = True,
-                indices=None, seed: int = 0) -> Iterator[np.ndarray]:
+                indices=None, seed: int = 0, device: int = 0) -> Iterator[np.ndarray]:
     """``n`` model inputs (1, C, crop, crop) float32 from a synth folder.
 
     Pairs are taken spread over the set (``indices`` overrides), one crop
     each at a random origin that is a multiple of ``multiple`` (the field
-    channels, from :class:`restoration.train.dataset.SynthPairs`, move with it).
+    channels, from :class:`restoration.train.dataset.SynthPairs`, move with
+    it, and the first ``device`` descriptor channels of a set that has them).
     """
     pairs = _pairs(directory)
     if n < 1:
@@ -87,6 +88,8 @@ def synth_crops(directory, n: int, *, crop: int = 128, multiple: int = 4, fov: b
         x = item["input"].transpose(2, 0, 1)
         if fov:
             x = np.concatenate([x, item["fov"]])
+        if device:
+            x = np.concatenate([x, _descriptor_channels(item, device, directory)])
         h, w = x.shape[1:]
         c = min(crop, h, w) // multiple * multiple
         y0 = int(rng.integers(0, (h - c) // multiple + 1)) * multiple
@@ -94,19 +97,30 @@ def synth_crops(directory, n: int, *, crop: int = 128, multiple: int = 4, fov: b
         yield np.ascontiguousarray(x[None, :, y0:y0 + c, x0:x0 + c], dtype=np.float32)
 
 
+def _descriptor_channels(item: dict, k: int, directory) -> np.ndarray:
+    """The first ``k`` descriptor channels of a pair (ConfigError where its set has fewer)."""
+    d = item.get("descriptor")
+    if d is None or d.shape[0] < k:
+        have = "none" if d is None else d.shape[0]
+        raise ConfigError(f"{directory}: the model reads {k} device-descriptor channels; this set's pairs carry "
+                          f"{have} (synthesise it with --basis)")
+    return d[:k]
+
+
 class SynthCalibration:
     """onnxruntime ``CalibrationDataReader`` over :func:`synth_crops`
     (``get_next`` → ``{input_name: (1, C, crop, crop)}``, None at the end)."""
 
     def __init__(self, directory, n: int, *, input_name: str = "input", crop: int = 128, fov: bool = True,
-                 seed: int = 0):
+                 seed: int = 0, device: int = 0):
         self.directory, self.n, self.input_name = directory, n, input_name
-        self.crop, self.fov, self.seed = crop, fov, seed
+        self.crop, self.fov, self.seed, self.device = crop, fov, seed, device
         _pairs(directory)  # fail now, not inside the calibration
         self.rewind()
 
     def rewind(self):
-        self._it = synth_crops(self.directory, self.n, crop=self.crop, fov=self.fov, seed=self.seed)
+        self._it = synth_crops(self.directory, self.n, crop=self.crop, fov=self.fov, seed=self.seed,
+                               device=self.device)
 
     def get_next(self):
         x = next(self._it, None)
@@ -612,6 +626,8 @@ def int8_psnr(fp32_path, int8_path, directory, n: int = 16, *, indices=None, thr
         x = rgb.transpose(2, 0, 1)[:, :h, :w]
         if fov:
             x = np.concatenate([x, item["fov"][:, :h, :w]])
+        if infos[0].device:
+            x = np.concatenate([x, _descriptor_channels(item, infos[0].device, directory)[:, :h, :w]])
         x = np.ascontiguousarray(x[None], dtype=np.float32)
         target = item["target"][:h, :w]
         scores["input"].append(_psnr(pairs.process(rgb[:h, :w], item), target))

@@ -27,6 +27,16 @@ padded by reflection, in the whole-frame run as in the tiled one, by
 edge, which is made up alike in both runs and so need not be the seam
 margin (:mod:`modules.common.tiling`).
 
+Device calibration
+------------------
+A model with ``device_components = K`` reads one module's calibration, a
+``device/v1`` file (:mod:`isp.io.device`): its descriptor, interpolated to
+each pixel (or block centre) of the full frame, fills the K channels after
+the field position. The file must be of the model's lens design and
+descriptor basis (one line naming both otherwise). Without one the
+descriptor is zero, the mean device of the design, and the stage's note
+says so; a blind model ignores a device file, and says that too.
+
 Field-of-view encoding ``"xy"`` appends two channels holding each pixel's
 normalised position on the *full* active area, in [-1, 1] (x right, y
 down), computed per tile from the tile's position in the full frame (in
@@ -64,6 +74,11 @@ metadata key              default    meaning
 ``space_to_depth``        1          ``s > 1``: input and output packed ``s × s`` to depth
                                      (:func:`pack_input`, :func:`unpack_output`); the
                                      stage packs while it reads each tile
+``device_components``     0          K > 0: a model for every device of a lens design; its
+                                     input holds, after the field channels, the device's
+                                     descriptor (``device/v1``) at each pixel, K channels
+``device_design``         ""         the design's key a device file must name
+``device_basis``          ""         the descriptor basis's key a device file must name
 ``attention``             "local"    ``"local"``: attention statistics from a bounded
                                      neighbourhood (tile-consistent, nothing to do);
                                      ``"global"``: pooled over the whole input, so the
@@ -233,6 +248,7 @@ class ModelInfo:
     stats_shape: tuple[int, ...] | None
     packing: int = 1
     border: int | None = None   #: ``border_context`` (None: the overlap)
+    device: int = 0             #: ``device_components``: descriptor channels after the field
 
 
 class Tiling(NamedTuple):
@@ -290,11 +306,15 @@ def model_info(session, name: str = "model") -> ModelInfo:
     if multiple % packing:
         raise ConfigError(f"model {name}: metadata space_to_depth={packing} does not divide "
                           f"input_multiple={multiple}")
-    want = 3 * packing * packing + (2 if fov == "xy" else 0)
+    device = _int_meta(meta, "device_components", 0, name)
+    if device and fov != "xy":
+        raise ConfigError(f"model {name}: metadata device_components={device} needs fov_encoding 'xy'")
+    want = 3 * packing * packing + (2 if fov == "xy" else 0) + device
     if len(img.shape) != 4 or (isinstance(img.shape[1], int) and img.shape[1] != want):
         packed = f", packed {packing}×{packing} to depth" if packing > 1 else ""
+        dev = f", {device} descriptor channels" if device else ""
         raise ConfigError(f"model {name}: input {img.name!r} has shape {img.shape}; with fov_encoding "
-                          f"{fov!r}{packed} it must be (1, {want}, H, W)")
+                          f"{fov!r}{packed}{dev} it must be (1, {want}, H, W)")
     if img.type not in _DTYPES:
         raise ConfigError(f"model {name}: input type {img.type}; valid: {', '.join(_DTYPES)}")
     stats_shape = None
@@ -311,7 +331,8 @@ def model_info(session, name: str = "model") -> ModelInfo:
         overlap=overlap, multiple=multiple,
         attention=attention, input_name=img.name, in_channels=want, dtype=_DTYPES[img.type],
         stats_name=STATS_INPUT if stats else None, stats_shape=stats_shape, packing=packing,
-        border=_int_meta(meta, "border_context", overlap, name) if "border_context" in meta else None)
+        border=_int_meta(meta, "border_context", overlap, name) if "border_context" in meta else None,
+        device=device)
 
 
 def pack_input(x: np.ndarray, s: int) -> np.ndarray:
@@ -444,6 +465,9 @@ class Correction(StageBase):
     progress : bool, optional
         Progress bar on stderr; by default when stderr is a terminal and the
         frame takes at least 4 tiles.
+    device : path, optional
+        The module's calibration (``device/v1``) for a model conditioned on
+        it (module notes; ``isp process --device FILE``).
     """
 
     name = "correction"
@@ -455,6 +479,7 @@ class Correction(StageBase):
     overlap: int | None = None
     border: int | None = None
     progress: bool | None = None
+    device: str | Path | None = None
 
     def __post_init__(self):
         if self.threads < 1:
@@ -466,6 +491,12 @@ class Correction(StageBase):
         if self.border is not None and self.border < 0:
             raise ValueError(f"border must be ≥ 0, got {self.border}")
         object.__setattr__(self, "_by_model", {})   # auto: the stage of each profile's model
+        if self.device is not None and str(self.device).strip().lower() in NO_MODEL:
+            object.__setattr__(self, "device", None)
+        if self.device is not None:
+            from isp.io.device import DeviceCalibration
+
+            DeviceCalibration.load(self.device)      # a bad file fails when the pipeline is built
         if isinstance(self.model, str) and self.model.strip().lower() == AUTO:
             object.__setattr__(self, "model", AUTO)
             return
@@ -619,12 +650,16 @@ class Correction(StageBase):
             feeds[info.stats_name] = s.reshape(info.stats_shape).astype(info.dtype)
 
         k, p = 3 * info.packing ** 2, info.packing
+        cal, device_note = self.calibration(info)
 
         def run(x: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
             if info.fov_encoding == "xy":
                 if p > 1:   # each block's centre: the mean of its pixels' (reflected) positions
                     rows, cols = rows.reshape(-1, p).mean(1), cols.reshape(-1, p).mean(1)
-                x[k:] = field_coordinates_at(rows + origin[0], cols + origin[1], full)
+                x[k:k + 2] = field_coordinates_at(rows + origin[0], cols + origin[1], full)
+                if info.device:
+                    x[k + 2:] = 0.0 if cal is None else cal.field_map(rows + origin[0], cols + origin[1],
+                                                                       full)[:info.device]
             return sess.run(None, {info.input_name: x[None], **feeds})[0][0]
 
         n = len(plan_tiles(frame.data.shape[:2], tile, margin, mult, border))
@@ -635,4 +670,27 @@ class Correction(StageBase):
         how = (f"{n} tiles of {tile} px, overlap {margin} px" if n > 1 else "whole frame") + \
             (f", border {border} px" if n == 1 or border != margin else "")
         return frame.evolve(out, stage=self.name,
-                            note=f"{info.name} (lens {lens}, fov {info.fov_encoding}, {how})")
+                            note=f"{info.name} (lens {lens}, fov {info.fov_encoding}, {how}){device_note}")
+
+    def calibration(self, info: ModelInfo):
+        """The device calibration the model reads, and a note for the
+        history: ``(DeviceCalibration or None, str)``; ConfigError (one
+        line) for a file of another design or basis, or too short."""
+        if not self.device:
+            return None, ("; no device calibration: the design's mean device (descriptor 0)"
+                          if info.device else "")
+        from isp.io.device import DeviceCalibration
+
+        cal = DeviceCalibration.load(self.device)
+        if not info.device:
+            return None, f"; {Path(self.device).name} ignored: the model is not conditioned on a device"
+        meta = info.meta
+        for key, what in (("device_design", cal.design), ("device_basis", cal.basis)):
+            if meta.get(key) and meta[key] != what:
+                kind = "lens design" if key == "device_design" else "descriptor basis"
+                raise ConfigError(f"{self.device}: a calibration of another {kind} than model {info.name}'s "
+                                  f"(device lens {cal.lens!r}, model lens {meta.get('lens', '?')!r})")
+        if cal.components < info.device:
+            raise ConfigError(f"{self.device}: {cal.components} descriptor components; model {info.name} "
+                              f"reads {info.device}")
+        return cal, f"; device {Path(self.device).name}"

@@ -40,7 +40,8 @@ they keep, is measured in ``benchmarks/device_descriptor.py``.
 
 The file
 --------
-``device/v1`` is JSON (:class:`DeviceCalibration`): the lens design's name
+``device/v1`` is JSON (:class:`isp.io.device.DeviceCalibration`, where its
+keys are listed; the correction stage reads it): the lens design's name
 and key, the basis's key, the grid, the descriptor (rows × cols × K numbers,
 4 significant digits), the loop's kept effects, the fit's errors, and where
 the measurement came from. It is at most :data:`MAX_BYTES` (64 KB; a 5 × 7
@@ -58,23 +59,18 @@ from pathlib import Path
 import numpy as np
 
 from isp.errors import InputError
+from isp.io.device import FORMAT, MAX_BYTES, DeviceCalibration
 
 __all__ = ["BASIS_FORMAT", "DEFAULT_COMPONENTS", "DEFAULT_GRID", "DescriptorBasis", "DeviceCalibration",
-           "FORMAT", "MAX_BYTES", "basis_from_psfs", "describe", "descriptor_map_settings", "design_key",
+           "FORMAT", "MAX_BYTES", "basis_from_psfs", "check_calibration", "describe", "descriptor_map_settings", "design_key",
            "device_calibration", "learn_basis", "load_basis", "pixel_psfs"]
 
-#: schema of the device calibration file
-FORMAT = "device/v1"
 #: schema of the basis file (numpy ``.npz``)
 BASIS_FORMAT = "device-basis/v1"
 #: field regions of the descriptor (rows, cols): the fit's chart grid on a 4:3 sensor
 DEFAULT_GRID = (5, 7)
 #: components kept in a device file
 DEFAULT_COMPONENTS = 16
-#: the largest device file accepted or written, bytes
-MAX_BYTES = 64 * 1024
-#: significant digits of the descriptor in the JSON file (unit-spread numbers: 1e-4 of their spread)
-DIGITS = 4
 
 
 def design_key(lens) -> str:
@@ -335,105 +331,17 @@ def describe(lens, basis: DescriptorBasis, k: int | None = None, *, executor=Non
     return basis.project(pixel_psfs(m), k)
 
 
-@dataclass(frozen=True)
-class DeviceCalibration:
-    """One device's calibration, the ``device/v1`` file (module docstring).
-
-    Attributes
-    ----------
-    lens : str
-        The design's name (the lens profile's LensModel).
-    design : str
-        :func:`design_key`.
-    basis : str
-        :attr:`DescriptorBasis.key` of the basis the descriptor is on.
-    descriptor : (rows, cols, k) ndarray
-    effects : tuple of dict
-        The loop's kept effects (``{"name", "params"}``), empty from a fit alone.
-    fit : dict
-        The fit's summary (SFRA RMS before/after, χ² per observation, noise floor).
-    source : dict
-        The measurement (file name, SHA-256) and the proxy's perturbation.
-    """
-
-    lens: str
-    design: str
-    basis: str
-    descriptor: np.ndarray
-    effects: tuple = ()
-    fit: dict = field(default_factory=dict)
-    source: dict = field(default_factory=dict)
-
-    def __post_init__(self):
-        d = np.asarray(self.descriptor, dtype=np.float64)
-        if d.ndim != 3 or min(d.shape) < 1 or not np.all(np.isfinite(d)):
-            raise ValueError(f"descriptor must be a finite (rows, cols, k) array, got shape {d.shape}")
-        object.__setattr__(self, "descriptor", d)
-        object.__setattr__(self, "effects", tuple(self.effects))
-
-    @property
-    def grid(self) -> tuple[int, int]:
-        return self.descriptor.shape[0], self.descriptor.shape[1]
-
-    def to_dict(self) -> dict:
-        return {"format": FORMAT, "lens": self.lens, "design": self.design, "basis": self.basis,
-                "grid": list(self.grid), "components": self.descriptor.shape[2],
-                "descriptor": [[[float(f"{v:.{DIGITS}g}") for v in cell] for cell in row]
-                               for row in self.descriptor],
-                "effects": list(self.effects), "fit": self.fit, "source": self.source}
-
-    def save(self, path) -> Path:
-        """Write the file atomically (ValueError above :data:`MAX_BYTES`)."""
-        from isp.io.files import write_bytes_atomic
-
-        text = json.dumps(self.to_dict(), separators=(",", ":")).encode()
-        if len(text) > MAX_BYTES:
-            raise ValueError(f"a {FORMAT} file of {len(text)} bytes exceeds {MAX_BYTES}: fewer components "
-                             "or a coarser grid")
-        return write_bytes_atomic(Path(path), text)
-
-    @classmethod
-    def load(cls, path) -> DeviceCalibration:
-        """Read and check a ``device/v1`` file; InputError naming the file
-        and the problem (absent, too large, not JSON, wrong schema or
-        shapes)."""
-        p = Path(path)
-        try:
-            size = p.stat().st_size
-        except FileNotFoundError:
-            raise InputError(p, "no such device calibration file") from None
-        if size > MAX_BYTES:
-            raise InputError(p, f"{size} bytes; a {FORMAT} file is at most {MAX_BYTES}")
-        try:
-            d = json.loads(p.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise InputError(p, f"not JSON ({e})") from None
-        if not isinstance(d, dict) or d.get("format") != FORMAT:
-            got = d.get("format") if isinstance(d, dict) else type(d).__name__
-            raise InputError(p, f"not a {FORMAT} file (format {got!r})")
-        try:
-            desc = np.asarray(d["descriptor"], dtype=np.float64)
-            if list(desc.shape[:2]) != list(d["grid"]) or desc.shape[2] != int(d["components"]):
-                raise ValueError(f"descriptor shape {desc.shape} against grid {d['grid']} and "
-                                 f"{d['components']} components")
-            return cls(str(d["lens"]), str(d["design"]), str(d["basis"]), desc, tuple(d.get("effects", ())),
-                       dict(d.get("fit", {})), dict(d.get("source", {})))
-        except KeyError as e:
-            raise InputError(p, f"{FORMAT} file without {e}") from None
-        except ValueError as e:
-            raise InputError(p, str(e)) from None
-
-    def check(self, basis: DescriptorBasis) -> None:
-        """ValueError (one line) where this file was not made with ``basis``."""
-        if self.design != basis.design:
-            raise ValueError(f"device calibration of lens {self.lens!r}, basis of lens {basis.lens!r}: "
-                             "another lens design")
-        if self.basis != basis.key:
-            raise ValueError(f"device calibration made with another basis of {self.lens!r} "
-                             f"({self.basis[:12]}…, this one {basis.key[:12]}…)")
-        if self.grid != basis.grid or self.descriptor.shape[2] > basis.size:
-            raise ValueError(f"descriptor {self.descriptor.shape} does not fit the basis "
-                             f"({basis.grid}, {basis.size} components)")
+def check_calibration(cal: DeviceCalibration, basis: DescriptorBasis) -> None:
+    """ValueError (one line) where a device file was not made with ``basis``."""
+    if cal.design != basis.design:
+        raise ValueError(f"device calibration of lens {cal.lens!r}, basis of lens {basis.lens!r}: "
+                         "another lens design")
+    if cal.basis != basis.key:
+        raise ValueError(f"device calibration made with another basis of {cal.lens!r} "
+                         f"({cal.basis[:12]}…, this one {basis.key[:12]}…)")
+    if cal.grid != basis.grid or cal.descriptor.shape[2] > basis.size:
+        raise ValueError(f"descriptor {cal.descriptor.shape} does not fit the basis "
+                         f"({basis.grid}, {basis.size} components)")
 
 
 def device_calibration(proxy, basis: DescriptorBasis, k: int = DEFAULT_COMPONENTS, *, fit: dict | None = None,

@@ -98,6 +98,9 @@ def add_correction_arguments(parser: argparse.ArgumentParser) -> None:
                              "the lens profile matching the file (`isp profiles`), none where no profile matches")
     parser.add_argument("--no-correction", dest="correction", action="store_const", const="none",
                         help="the same as --correction none")
+    parser.add_argument("--device", metavar="FILE",
+                        help="the camera module's calibration (device/v1 JSON, `isp calib fit --basis`) for a "
+                             "correction model shared by every module of its lens design")
 
 
 def add_look_argument(parser: argparse.ArgumentParser) -> None:
@@ -194,6 +197,13 @@ def pipeline_from_args(args: argparse.Namespace, output: str | None = None, *, b
             raise ConfigError(f"--correction {forced}: the pipeline has no correction stage")
         for e in slots:
             e["model"] = forced
+    device = getattr(args, "device", None)
+    if device is not None:
+        slots = [e for e in config.get("stage", []) if isinstance(e, dict) and e.get("name") == "correction"]
+        if not slots:
+            raise ConfigError(f"--device {device}: the pipeline has no correction stage")
+        for e in slots:
+            e["device"] = device
     if not build:
         return config, None
     try:

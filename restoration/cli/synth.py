@@ -82,6 +82,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="regions of the PSF map (default 15,20 as the paper; 30,40 cuts the blur's "
                         "interpolation error about 3x for 4x the PSFs)")
     g.add_argument("--psf-cache", metavar="DIR", help="PSF-map cache folder")
+    g = p.add_argument_group("device descriptors (for a network shared by every device of the design)")
+    g.add_argument("--basis", metavar="BASIS.npz",
+                   help="the design's descriptor basis (`isp calib basis`): each lens's device/v1 descriptor "
+                        "goes into the manifest, and a conditioned network (variant `device`) reads the "
+                        "pair's")
+    g.add_argument("--device-components", type=int, default=16, metavar="K",
+                   help="descriptor components kept (default 16)")
     p.add_argument("--force", action="store_true", help="replace a previous set in the output folder")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
@@ -100,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(args.lens, "no such lens file")
     if args.pixel_um is not None and not 0.2 <= args.pixel_um <= 20.0:
         raise ConfigError(f"--pixel-um {args.pixel_um:g}: between 0.2 and 20 µm")
+    if args.device_components < 1:
+        raise ConfigError(f"--device-components {args.device_components}: at least 1")
     cameras = args.camera or [str(DATA / c) for c in DEFAULT_CAMERAS]
     executor = pool_executor(args.workers, progress=not args.quiet)
     settings = SynthSettings(size=args.size, exposure_ev=args.exposure, cct_k=args.cct, noise_scale=args.noise_scale,
@@ -107,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
     p = plan(args.lens, samples=args.samples, latent_dir=args.latent, cameras=cameras, seed=args.seed,
              settings=settings, tolerance_scale=args.tolerance_scale,
              psf_options={"n": args.psf_n, "grid": args.psf_grid},
-             cache_dir=args.psf_cache, pixel_um=args.pixel_um, executor=executor)
+             cache_dir=args.psf_cache, pixel_um=args.pixel_um, executor=executor, basis=args.basis,
+             device_components=args.device_components)
     m = generate(p, args.output, args.pairs, shard_size=args.shard_size, force=args.force, executor=executor)
     print(f"wrote {m['pairs']} pairs of {m['size']}×{m['size']} in {len(m['shards'])} shards to {args.output} "
           f"({m['_seconds']:.1f} s; {len(p.maps)} lens{'es' if len(p.maps) > 1 else ''}; "

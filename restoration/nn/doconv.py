@@ -103,7 +103,7 @@ from isp.errors import ConfigError
 #: spatial-attention choices (see the module docstring)
 SPATIAL_MODES = ("none", "tap", "frozen")
 #: where the attention statistics come from
-POOL_MODES = ("local", "global")
+POOL_MODES = ("local", "global", "field")
 
 
 def choose(value: str, valid: tuple[str, ...], what: str) -> str:
@@ -181,8 +181,13 @@ class DOAttention(nn.Module):
         Drop the filter attention (it would repeat the channel attention).
     spatial : {"none", "tap", "frozen"}
         Whether to produce ``α_s`` (not for "none" or ``kernel_size = 1``).
-    pool : {"local", "global"}
-        Box mean of side ``window`` (tile-consistent) or the global mean.
+    pool : {"local", "global", "field"}
+        Box mean of side ``window`` (tile-consistent) or the global mean of
+        the content, plus the field features; or ``"field"``: the field
+        features alone (position and, for a device-conditioned network, the
+        device's descriptor), no image content. For one device and one
+        frame the ``"field"`` attention is then a fixed map that can be
+        computed once.
     window : int
         Box side in pixels of the layer's resolution, odd; 1: the pixel's own
         statistics (no box in the graph).
@@ -200,12 +205,14 @@ class DOAttention(nn.Module):
         self.pool = pool
         self.window = window
         self.temperature = 1.0
-        self.fc = nn.Conv2d(in_channels, hidden, 1)
-        self.field_fc = (nn.Conv2d(field_channels, hidden, 1, bias=False)
-                         if field_channels and pool == "local" else None)
+        if pool == "field" and not field_channels:
+            raise ConfigError("pool='field' takes its attention from the field features: field_channels > 0")
+        self.fc = nn.Conv2d(in_channels, hidden, 1) if pool != "field" else None
+        self.field_fc = (nn.Conv2d(field_channels, hidden, 1, bias=pool == "field")
+                         if field_channels and pool != "global" else None)
         # persistent: the ONNX exporter writes persistent buffers as initializers
         # (which INT8 quantisation needs) and the others as Constant nodes
-        if window > 1:  # window 1: the statistics are the pixel's own (box_mean is the identity)
+        if window > 1 and pool != "field":  # window 1: the statistics are the pixel's own (box_mean is the identity)
             self.register_buffer("box_v", torch.full((hidden, 1, window, 1), 1.0 / window))
             self.register_buffer("box_h", torch.full((hidden, 1, 1, window), 1.0 / window))
         # one 1×1 conv per attention: slicing one shared head's output cost
@@ -228,10 +235,14 @@ class DOAttention(nn.Module):
     def forward(self, x: Tensor, field: Tensor | None = None, *, want_spatial: bool = True) -> Attention:
         """Attentions for ``x`` (N, C_in, H, W); ``field`` (N, F, H, W) when
         the layer was built with field channels and local pooling."""
-        h = self.fc(x)
-        if self.pool == "global":
-            h = h.mean(dim=(2, 3), keepdim=True)
+        if self.pool == "field":
+            if field is None:
+                raise ConfigError("this DOConv layer takes its attention from the field features; pass `field`")
+            h = self.field_fc(field)
+        elif self.pool == "global":
+            h = self.fc(x).mean(dim=(2, 3), keepdim=True)
         else:
+            h = self.fc(x)
             h = box_mean(h, self.window, (self.box_v, self.box_h) if self.window > 1 else None)
             if self.field_fc is not None:
                 if field is None:

@@ -42,6 +42,13 @@ default 0, 4, 0; resolutions relative to the input)::
   enters as ``φ = (x, y, x² + y²)`` averaged to each resolution: into the
   stem, and into every DOConv's attention (spatially varying attention
   maps, tile-consistent by construction).
+* **Device descriptor** (``device = K > 0``): a network shared by every
+  module of a lens design reads the module's calibration, ``K`` numbers
+  per field region (``device/v1``, :mod:`isp.io.device`), interpolated to
+  each pixel and given as ``K`` more input channels after the field
+  position. They join ``φ``, so they enter the stem and every DOConv's
+  attention; with ``pool="field"`` the attention is driven by position and
+  descriptor alone, a fixed map for one device.
 * **Residual output**: the network predicts a correction added to the
   input RGB; the head starts small, so an untrained network is close to the
   identity.
@@ -62,7 +69,7 @@ default 0, 4, 0; resolutions relative to the input)::
   choice); ``"encoded"`` filters ``r`` itself, which keeps
   the means of ``u`` only.
 
-Input ``(N, 5, H, W)`` (``(N, 3, H, W)`` without field encoding), ``H`` and
+Input ``(N, 5 + K, H, W)`` (``(N, 3, H, W)`` without field encoding), ``H`` and
 ``W`` multiples of :attr:`DOConvUNet.input_multiple` (4); other sizes go
 through :func:`forward_padded`. Output ``(N, 3, H, W)``, float32 linear
 camera RGB, not clipped.
@@ -114,16 +121,20 @@ HIGHPASS_DOMAINS = ("encoded", "linear")
 
 
 def field_features(field: Tensor, factor: int) -> Tensor:
-    """Field features at ``1/factor`` resolution, (N, 2, H, W) → (N, 3, H/f, W/f).
+    """Field features at ``1/factor`` resolution, (N, 2 + K, H, W) → (N, 3 +
+    K, H/f, W/f).
 
     The mean over each ``factor × factor`` block of the coordinates (the
     block centre's position, exactly, for coordinates linear in the pixel
-    index), and the squared radius ``x² + y²`` (aberrations vary mostly with
-    the radius).
+    index), the squared radius ``x² + y²`` (aberrations vary mostly with
+    the radius), then the block mean of the ``K`` device-descriptor
+    channels, if any (:func:`isp.io.device.descriptor_map`).
     """
     f = F.avg_pool2d(field, factor) if factor > 1 else field
     r2 = f[:, :1] * f[:, :1] + f[:, 1:2] * f[:, 1:2]
-    return torch.cat([f, r2], dim=1)
+    if f.shape[1] == 2:   # a blind network's graph: no empty slice (export/int8_form reads its pattern)
+        return torch.cat([f, r2], dim=1)
+    return torch.cat([f[:, :2], r2, f[:, 2:]], dim=1)
 
 
 class ConvNeXtBlock(nn.Module):
@@ -232,10 +243,14 @@ class DOConvUNet(nn.Module):
         negatives included (the input passes untouched, not decoded). The
         same for ``encoding="linear"``.
 
+    device : int
+        Device-descriptor channels ``K`` after the field position (0: a
+        blind network; needs ``field``).
+
     Attributes
     ----------
     in_channels : int
-        5 with field encoding, else 3.
+        5 + K with field encoding, else 3.
     fov_encoding : {"xy", "none"}
         For the ONNX metadata read by the correction stage.
     input_multiple : int
@@ -248,8 +263,10 @@ class DOConvUNet(nn.Module):
                  expansion: int = 2, conv: str = "doconv", dilations: tuple[int, ...] = (1, 2, 3, 4),
                  spatial: str = "none", pool: str = "local", window: int = 7, field: bool = True,
                  kernel_size: int = 3, scale: int = 2, encoding: str = "linear", highpass: int = 0,
-                 highpass_domain: str = "encoded", group_width: int = 1):
+                 highpass_domain: str = "encoded", group_width: int = 1, device: int = 0):
         super().__init__()
+        if device < 0 or (device and not field):
+            raise ConfigError(f"device must be 0, or K > 0 descriptor channels with field encoding; got {device}")
         choose(encoding, ENCODINGS, "encoding")
         choose(highpass_domain, HIGHPASS_DOMAINS, "highpass_domain")
         choose(conv, CONV_KINDS, "conv")
@@ -263,16 +280,17 @@ class DOConvUNet(nn.Module):
                        "conv": conv, "dilations": tuple(dilations), "spatial": spatial, "pool": pool,
                        "window": window, "field": field, "kernel_size": kernel_size, "scale": scale,
                        "encoding": encoding, "highpass": highpass, "highpass_domain": highpass_domain,
-                       "group_width": group_width}
+                       "group_width": group_width, "device": device}
         self.encoding = encoding
         # the linear residual differs from the encoded one only when there is an encoding
         self.linear_residual = bool(highpass) and highpass_domain == "linear" and encoding == "sqrt"
         self.field = field
         self.scale = scale
         self.input_multiple = 2 * scale
-        self.in_channels = 5 if field else 3
+        self.device = int(device)
+        self.in_channels = 5 + self.device if field else 3
         self.fov_encoding = "xy" if field else "none"
-        nf = FIELD_FEATURES if field else 0
+        nf = FIELD_FEATURES + self.device if field else 0
         c1, c2 = widths
         block = {"expansion": expansion, "conv": conv, "kernel_size": kernel_size,
                  "dilations": tuple(dilations), "spatial": spatial, "pool": pool, "window": window,
@@ -303,7 +321,7 @@ class DOConvUNet(nn.Module):
         if not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
             self._check(x)
         s = self.scale
-        return self.run(x[:, :3], x[:, 3:5] if self.field else None, self.stem, self.head[0], s,
+        return self.run(x[:, :3], x[:, 3:] if self.field else None, self.stem, self.head[0], s,
                         highpass=self.highpass, pack=lambda u: 2 * F.pixel_unshuffle(u, s),
                         unpack=self.head[1])
 
@@ -344,6 +362,7 @@ class DOConvUNet(nn.Module):
     def _check(self, x: Tensor) -> None:
         if x.ndim != 4 or x.shape[1] != self.in_channels:
             what = "RGB + field (x, y)" if self.field else "RGB"
+            what += f" + {self.device} descriptor channels" if self.device else ""
             raise ConfigError(f"expected input (N, {self.in_channels}, H, W) ({what}); got {tuple(x.shape)}")
         m = self.input_multiple
         if x.shape[2] % m or x.shape[3] % m:
@@ -472,9 +491,10 @@ class SpaceToDepthForm(nn.Module):
     project's 2-core machine; the stage packs and unpacks while it copies
     the tile anyway (:mod:`modules.common.tiling`).
 
-    Input ``(N, 3s² [+ 2], H/s, W/s)``: channel ``(dy·s + dx)·3 + c`` is
+    Input ``(N, 3s² [+ 2 + K], H/s, W/s)``: channel ``(dy·s + dx)·3 + c`` is
     colour ``c`` of pixel ``(s·i + dy, s·j + dx)``; then the field ``(x, y)``
-    of each block's centre (the mean of its pixels' positions). Output
+    of each block's centre (the mean of its pixels' positions) and the ``K``
+    descriptor channels' block means. Output
     ``(N, 3s², H/s, W/s)`` packed the same way
     (:func:`modules.correction.pack_input`, :func:`~modules.correction.unpack_output`).
     """
@@ -513,7 +533,7 @@ class SpaceToDepthForm(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         k = 3 * self.packing ** 2
         m = self.model
-        return m.run(x[:, :k], x[:, k:k + 2] if m.field else None, self.stem, self.head, 1,
+        return m.run(x[:, :k], x[:, k:] if m.field else None, self.stem, self.head, 1,
                      highpass=self.highpass, pack=lambda u: F.conv2d(u, self.twice),
                      unpack=lambda y: y[:, :self.channels])
 
@@ -639,6 +659,21 @@ def doconv_spatial_frozen(**kw) -> DOConvUNet:
     """Spatial attention trained per pixel, frozen to its running mean (folded
     into the weights) in eval mode and export."""
     return DOConvUNet(**{**DEFAULT, "spatial": "frozen", **kw})
+
+
+@register_model
+def device(**kw) -> DOConvUNet:
+    """A network for every device of a design: the device's 16-number
+    descriptor per field region as input channels beside the field
+    (:mod:`isp.io.device`), into the stem and the attention."""
+    return DOConvUNet(**{**DEFAULT, "device": 16, **kw})
+
+
+@register_model
+def device_attention(**kw) -> DOConvUNet:
+    """As ``device``, its DOConv attention driven by field position and
+    descriptor alone (no image content): for one device a fixed map."""
+    return DOConvUNet(**{**DEFAULT, "device": 16, "pool": "field", **kw})
 
 
 @register_model

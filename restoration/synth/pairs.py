@@ -386,7 +386,7 @@ def sensor_geometry(plan: SynthPlan):
 
 def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings: SynthSettings | None = None,
          tolerance_scale: float = 1.0, psf_options: dict | None = None, cache_dir=None,
-         pixel_um: float | None = None, executor=None) -> SynthPlan:
+         pixel_um: float | None = None, executor=None, basis=None, device_components: int = 16) -> SynthPlan:
     """Read the inputs and compute (or read from the cache) the PSF maps.
 
     Parameters
@@ -415,6 +415,14 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
     executor : isp.runtime.executor.Executor, optional
         Runs the PSF maps' regions (default psf_map's: up to 2 worker
         processes, with progress bars).
+    basis : path, optional
+        The design's descriptor basis (``isp calib basis``): each lens's
+        ``device/v1`` descriptor is computed on it and written to the
+        manifest (``device``), so that a network conditioned on the device
+        learns from pairs that carry their lens's descriptor
+        (:class:`restoration.train.trainer.PairBank`).
+    device_components : int
+        Descriptor components kept (≤ the basis's).
     """
     from calibration.optics.perturb import apply
 
@@ -448,9 +456,27 @@ def plan(lens, *, samples: int = 1, latent_dir, cameras, seed: int = 0, settings
         "psf_map": maps[0].settings,
         "noise_profile_source": "file" if prof else "default (the sensor camera has no NoiseProfile)",
     }
+    if basis is not None:
+        info["device"] = lens_descriptors(lenses, basis, device_components, executor=executor, cache_dir=cache_dir)
     colours = colour_table(list(cams), settings.cct_k, settings.cct_steps)
     return SynthPlan(maps, cams, colours, tuple(str(p) for p in latents), (sensor.height_px, sensor.width_px), int(seed),
                      settings, prof or DEFAULT_NOISE_PROFILE, info)
+
+
+def lens_descriptors(lenses, basis, components: int = 16, *, executor=None, cache_dir=None) -> dict:
+    """The ``device/v1`` descriptor of each lens on a basis file, as the
+    manifest's ``device`` entry: the basis's lens, design and key, the grid,
+    ``components`` and one ``rows × cols × K`` list per lens (4 significant
+    digits, as a device file holds them)."""
+    from calibration.fit.device import describe, load_basis
+    from isp.io.device import DIGITS
+
+    b = load_basis(basis, lenses[0])
+    k = min(int(components), b.size)
+    return {"lens": b.lens, "design": b.design, "basis": b.key, "basis_file": str(basis), "grid": list(b.grid),
+            "components": k,
+            "descriptors": [np.vectorize(lambda v: float(f"{v:.{DIGITS}g}"))(
+                describe(pl, b, k, executor=executor, cache_dir=cache_dir)).tolist() for pl in lenses]}
 
 
 # -- many pairs ----------------------------------------------------------------------------

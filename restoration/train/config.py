@@ -38,6 +38,9 @@ class DataConfig:
     val_pairs: int = 32
     #: seed of the held-out draw; -1: ``run.seed`` (so a second run seed can keep the test set)
     split_seed: int = -1
+    #: σ of the noise added to each pair's device descriptor (units of its spread over the tolerances):
+    #: a fitted descriptor's own error, so a conditioned network trusts it as far as a fit deserves
+    descriptor_noise: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,8 @@ class SynthConfig:
     psf_n: int = 0                  # PSF window, half-pixel samples; 0: 32 µm (64 on 1 µm pixels)
     psf_grid: list = field(default_factory=lambda: list(PSF_DEFAULTS["grid"]))
     shard_size: int = 100
+    basis: str = ""                 # the design's descriptor basis: each lens's descriptor in the manifest
+    device_components: int = 16
 
 
 #: ``model.placement``: (domain, placement text) of where the model runs, and

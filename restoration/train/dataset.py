@@ -80,7 +80,9 @@ class SynthPairs:
     input), ``target`` (H, W, 3) float32 sRGB in [0, 1], ``fov`` (2, H, W)
     float32, ``ccm`` (3, 3), ``exposure_ev``, ``luma_weights`` (3,),
     ``neutral`` (3,), ``origin`` (2,), ``index``, ``lens``, ``camera``,
-    ``noise_profile`` (2,).
+    ``noise_profile`` (2,); for a set synthesised with a descriptor basis,
+    ``descriptor`` (K, H, W) float32, the pair's lens descriptor at each
+    pixel (:func:`isp.io.device.descriptor_map`).
 
     Parameters
     ----------
@@ -101,6 +103,8 @@ class SynthPairs:
         self.full_size = tuple(self.manifest["full_size"])
         lum = self.manifest["process"]["luminance"]
         self.tone, self.white = lum["tone"], float(lum["white"])
+        dev = self.manifest.get("device")
+        self.descriptors = None if dev is None else np.asarray(dev["descriptors"], np.float32)
 
     def __len__(self) -> int:
         return int(self._starts[-1])
@@ -133,6 +137,13 @@ class SynthPairs:
         for key in ("ccm", "exposure_ev", "luma_weights", "neutral", "origin", "index", "lens", "camera",
                     "noise_profile", "cct"):
             out[key] = s[key][j]
+        if self.descriptors is not None:
+            from isp.io.device import descriptor_map
+
+            o = [int(v) for v in s["origin"][j]]
+            h, w = x.shape[:2]
+            out["descriptor"] = descriptor_map(self.descriptors[int(s["lens"][j])], np.arange(h) + o[0],
+                                               np.arange(w) + o[1], self.full_size)
         return out
 
     def process(self, x, item: dict, channel_axis: int = -1):

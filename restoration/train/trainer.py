@@ -66,6 +66,12 @@ key                            default              meaning
                                                     (64 on 1 µm pixels)
 ``synth.psf_grid``             [15, 20]             PSF-map regions (rows, cols)
 ``synth.shard_size``           100                  pairs per shard
+``synth.basis``                ""                   descriptor basis (``isp calib basis``): the
+                                                    pairs carry their lens's ``device/v1``
+                                                    descriptor, for a conditioned network
+``synth.device_components``    16                   descriptor components kept
+``data.descriptor_noise``      0                    σ of the noise on each pair's descriptor
+                                                    (spread units): the fitted one's error
 ``model.variant``              ``"doconv"``         :func:`restoration.nn.network.build_model` name
 ``model.kwargs``               {}                   its overrides, e.g. ``{depths = [1, 2, 1]}``
 ``model.placement``            ``"pipeline"``       where the model runs and what the loss sees:
@@ -172,6 +178,8 @@ def synth_argv(config: TrainConfig) -> list[str]:
         argv.append("--no-noise")
     if s.pixel_um:
         argv += ["--pixel-um", repr(float(s.pixel_um))]
+    if s.basis:
+        argv += ["--basis", str(resolve_path(s.basis)), "--device-components", str(s.device_components)]
     return argv
 
 
@@ -204,6 +212,8 @@ def _synth_mismatch(manifest: dict, config: TrainConfig) -> list[str]:
             "psf_grid": (list(pm.get("grid", [])), list(map(int, s.psf_grid)))}
     if s.pixel_um:
         want["pixel_um"] = (pm.get("sensor", {}).get("pixel_pitch_um"), float(s.pixel_um))
+    dev = manifest.get("device") or {}
+    want["device_components"] = (dev.get("components"), s.device_components if s.basis else None)
     return [f"{k} {have!r} ≠ {need!r}" for k, (have, need) in want.items() if have != need]
 
 
@@ -240,7 +250,8 @@ def synthesise(config: TrainConfig, *, executor=None, log=print) -> dict:
     p = plan(str(lens), samples=s.samples, latent_dir=str(resolve_path(s.latent)), cameras=cameras, seed=s.seed,
              settings=settings, tolerance_scale=float(s.tolerance_scale),
              psf_options={"n": s.psf_n or PSF_DEFAULTS["n"], "grid": tuple(int(v) for v in s.psf_grid)},
-             pixel_um=float(s.pixel_um) if s.pixel_um else None, executor=ex)
+             pixel_um=float(s.pixel_um) if s.pixel_um else None, executor=ex,
+             basis=str(resolve_path(s.basis)) if s.basis else None, device_components=s.device_components)
     m = generate(p, str(out), s.pairs, shard_size=s.shard_size, executor=ex)
     log(f"wrote {m['pairs']} pairs of {m['size']}×{m['size']} in {len(m['shards'])} shards to {out} "
         f"({m['_seconds']:.1f} s; {len(p.maps)} lens{'es' if len(p.maps) > 1 else ''}; "
@@ -359,6 +370,12 @@ class PairBank:
     ccm : (N, 3, 3), exposure_ev : (N,), luma_weights : (N, 3), white : (N,)
     tone : list of str
         ``Process`` settings per pair.
+    descriptor : (N, R, C, K) float32 or None
+        Each pair's lens descriptor (``device/v1``, from the manifest's
+        ``device`` entry; :func:`restoration.synth.pairs.lens_descriptors`),
+        None where the sets carry none.
+    device : dict or None
+        The sets' descriptor basis: ``lens``, ``design``, ``basis``, ``components``.
     """
 
     input: np.ndarray
@@ -371,6 +388,8 @@ class PairBank:
     luma_weights: np.ndarray
     white: np.ndarray
     tone: list
+    descriptor: np.ndarray | None = None
+    device: dict | None = None
 
     def __len__(self) -> int:
         return len(self.input)
@@ -388,13 +407,16 @@ class PairBank:
         for k, i in pairs:
             want.setdefault(k, set()).add(i)
         cols = {n: [] for n in ("input", "target", "target_max", "origin", "full_size", "ccm", "exposure_ev",
-                                "luma_weights", "white", "tone")}
-        order = []
+                                "luma_weights", "white", "tone", "descriptor")}
+        order, devices = [], set()
         for k, d in enumerate(dirs):
             if k not in want:
                 continue
             m = read_manifest(d)
             lum = m["process"]["luminance"]
+            dev = m.get("device")
+            devices.add(None if dev is None else (dev["lens"], dev["design"], dev["basis"], dev["components"]))
+            lens_desc = None if dev is None else np.asarray(dev["descriptors"], np.float32)
             for s in m["shards"]:
                 first, n = s["first_index"], s["pairs"]
                 rows = [j for j in range(n) if first + j in want[k]]
@@ -412,13 +434,21 @@ class PairBank:
                 cols["full_size"].append(np.tile(np.asarray(m["full_size"], np.int64), (len(rows), 1)))
                 cols["white"].append(np.full(len(rows), float(lum["white"])))
                 cols["tone"] += [lum["tone"]] * len(rows)
+                if lens_desc is not None:
+                    cols["descriptor"].append(lens_desc[np.asarray(z["lens"])[rows]])
                 order += [(k, first + j) for j in rows]
         if not order:
             raise ConfigError("no pairs selected")
         sizes = {a.shape[1:] for a in cols["input"]}
         if len(sizes) != 1:
             raise ConfigError(f"the sets' pairs differ in size ({sorted(sizes)}); train on sets of one size")
-        bank = cls(**{k: (v if k == "tone" else np.concatenate(v)) for k, v in cols.items()})
+        if len(devices) != 1:
+            raise ConfigError("the sets differ in their device descriptors (some without, or on other bases): "
+                              "train on sets synthesised with one basis, or all without")
+        dev = next(iter(devices))
+        device = None if dev is None else dict(zip(("lens", "design", "basis", "components"), dev))
+        bank = cls(**{k: (v if k == "tone" else np.concatenate(v) if v else None) for k, v in cols.items()},
+                     device=device)
         # back to the order asked for (shards are read in file order)
         pos = {p: n for n, p in enumerate(order)}
         perm = np.asarray([pos[tuple(p)] for p in pairs])
@@ -426,7 +456,16 @@ class PairBank:
 
     def take(self, idx) -> PairBank:
         idx = np.asarray(idx, dtype=np.int64)
-        return PairBank(**{k: ([v[i] for i in idx] if k == "tone" else v[idx]) for k, v in vars(self).items()})
+
+        def pick(k, v):
+            return v if k == "device" or v is None else [v[i] for i in idx] if k == "tone" else v[idx]
+
+        return PairBank(**{k: pick(k, v) for k, v in vars(self).items()})
+
+    @property
+    def channels(self) -> int:
+        """Model-input channels of a batch: RGB, field, and the descriptor's."""
+        return 5 + (0 if self.descriptor is None else self.descriptor.shape[-1])
 
     def offsets(self, i: int, crop: int, multiple: int) -> np.ndarray:
         """Crop offsets (per axis) of pair ``i`` that put the crop's origin
@@ -438,19 +477,30 @@ class PairBank:
             out.append(np.arange(first, last + 1, multiple) if first <= last else np.arange(0, last + 1))
         return out
 
-    def batch(self, idx, offsets, crop: int):
-        """Model input ``(B, 5, crop, crop)``, target ``(B, 3, crop, crop)``
-        (float32 numpy) and the per-pair ``Process`` metadata."""
+    def batch(self, idx, offsets, crop: int, descriptor_noise: float = 0.0, rng=None):
+        """Model input ``(B, 5 [+ K], crop, crop)``, target ``(B, 3, crop,
+        crop)`` (float32 numpy) and the per-pair ``Process`` metadata. With
+        descriptors, channels 5… hold the pair's lens descriptor at each
+        pixel (:func:`isp.io.device.descriptor_map`, as the correction stage
+        fills them), plus Gaussian noise of ``descriptor_noise`` per region
+        and component (a fitted descriptor's own error), drawn from ``rng``."""
+        from isp.io.device import descriptor_map
         from modules.correction import field_coordinates
 
         b = len(idx)
-        x = np.empty((b, 5, crop, crop), np.float32)
+        x = np.empty((b, self.channels, crop, crop), np.float32)
         y = np.empty((b, 3, crop, crop), np.float32)
         for n, (i, (r, c)) in enumerate(zip(idx, offsets)):
             x[n, :3] = self.input[i, r:r + crop, c:c + crop].transpose(2, 0, 1)
             y[n] = self.target[i, r:r + crop, c:c + crop].transpose(2, 0, 1) / self.target_max[i]
             o = (int(self.origin[i, 0]) + r, int(self.origin[i, 1]) + c)
-            x[n, 3:] = field_coordinates((crop, crop), o, tuple(int(v) for v in self.full_size[i]))
+            full = tuple(int(v) for v in self.full_size[i])
+            x[n, 3:5] = field_coordinates((crop, crop), o, full)
+            if self.descriptor is not None:
+                d = self.descriptor[i]
+                if descriptor_noise:
+                    d = d + rng.normal(0.0, descriptor_noise, d.shape)
+                x[n, 5:] = descriptor_map(d, np.arange(crop) + o[0], np.arange(crop) + o[1], full)
         return x, y, self.meta(idx)
 
     def meta(self, idx) -> list[dict]:
@@ -518,8 +568,10 @@ def unprocess_batch(y, meta: list[dict]):
 
 
 def model_input(model, x):
-    """``x`` (B, 5, H, W: RGB and field) cut to the channels ``model`` takes
-    (3 for a model without field encoding, the ablation ``no_field``)."""
+    """``x`` (B, 5 [+ K], H, W: RGB, field, descriptor) cut to the channels
+    ``model`` takes (3 for a model without field encoding, the ablation
+    ``no_field``; 5 for a blind one; the first K' descriptor components for
+    one conditioned on K' ≤ K)."""
     n = getattr(model, "in_channels", x.shape[1])
     return x if n == x.shape[1] else x[:, :n]
 
@@ -759,6 +811,11 @@ def train(config: TrainConfig, *, resume=None, executor=None, log=print) -> dict
     mult = int(model.input_multiple)
     if d.crop % mult:
         raise ConfigError(f"data.crop ({d.crop}) must be a multiple of the model's input multiple ({mult})")
+    k_dev = getattr(model, "device", 0)
+    if k_dev and (bank.device is None or bank.device["components"] < k_dev):
+        have = "no descriptors" if bank.device is None else f"{bank.device['components']} descriptor components"
+        raise ConfigError(f"model {config.model.variant} reads {k_dev} device-descriptor channels; the training "
+                          f"pairs carry {have} (synthesise with synth.basis and synth.device_components ≥ {k_dev})")
     kmac = macs_per_pixel(ref, (32, 32)) / 1e3
     old_md = (ckpt or {}).get("metadata") or {}
     radius = old_md.get("receptive_radius") or _receptive_radius(ref, receptive_radius)
@@ -798,6 +855,8 @@ def train(config: TrainConfig, *, resume=None, executor=None, log=print) -> dict
         "receptive_radius": radius, "attention": model.config.get("pool", "local"),
         "process": {"stages": ["luminance", "ccm", "gamma"], "tone": bank.tone[0], "white": float(bank.white[0])},
         # provenance, and what lets an evaluation check that its lenses were not trained on (psf_map_key)
+        **({"device_components": k_dev, "device_design": bank.device["design"],
+            "device_basis": bank.device["basis"]} if k_dev else {}),
         "training_sets": [{"dir": str(x), "data_sha256": m["data_sha256"], "pairs": m["pairs"], "size": m["size"],
                            "seed": m["seed"], "lens": m.get("lens"), "psf_map": m.get("psf_map"),
                            "settings": m.get("settings")} for x, m in zip(dirs, manifests)],
@@ -856,7 +915,8 @@ def train(config: TrainConfig, *, resume=None, executor=None, log=print) -> dict
                 g["lr"] = lr
             set_temperature(model, temp)
             idx = batch_plan(step, len(bank), d.batch, r.seed)
-            x, y, meta = bank.batch(idx, crop_plan(step, bank, idx, d.crop, mult, r.seed), d.crop)
+            x, y, meta = bank.batch(idx, crop_plan(step, bank, idx, d.crop, mult, r.seed), d.crop,
+                                    d.descriptor_noise, _rng(r.seed, 3, step))
             x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
             loss = placed_loss(loss_of, model, x, y, meta, placement)
             objective = loss + o.highpass_penalty * highpass_removed_power(model) if o.highpass_penalty else loss

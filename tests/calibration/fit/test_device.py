@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from calibration.fit.device import (MAX_BYTES, DescriptorBasis, DeviceCalibration, basis_from_psfs,
-                                    design_key, pixel_psfs)
+                                    check_calibration, design_key, pixel_psfs)
 from calibration.optics.lens import Sensor
 from calibration.optics.psf.map import PSFMap
 from isp.cli.main import main
@@ -99,16 +99,16 @@ def test_basis_and_device_files_round_trip(tmp_path, known_stack):
     cal = DeviceCalibration("x", "d", b.key, d, fit={"sfra_rms_after": 0.0061},
                             source={"measured": "c.dng"})
     back = DeviceCalibration.load(cal.save(tmp_path / "device.json"))
-    back.check(b2)
+    check_calibration(back, b2)
     # four significant digits of unit-spread numbers
     assert np.max(np.abs(back.descriptor - d) / np.maximum(np.abs(d), 1e-3)) < 6e-4
     assert back.fit == {"sfra_rms_after": 0.0061} and json.loads((tmp_path / "device.json").read_text())[
         "format"] == "device/v1"
     # another design's or another basis's file is refused, in one line
     with pytest.raises(ValueError, match="another lens design"):
-        DeviceCalibration("y", "e", b.key, d).check(b2)
+        check_calibration(DeviceCalibration("y", "e", b.key, d), b2)
     with pytest.raises(ValueError, match="another basis"):
-        DeviceCalibration("x", "d", "f" * 64, d).check(b2)
+        check_calibration(DeviceCalibration("x", "d", "f" * 64, d), b2)
 
 
 def test_a_file_over_64_kb_is_neither_written_nor_read(tmp_path):
@@ -172,7 +172,7 @@ def test_calib_basis_then_fit_writes_the_device_file(capsys, tmp_path, e9_zmx):
     out = capsys.readouterr()
     assert code == 0, out.err
     cal = DeviceCalibration.load(dev / "device.json")
-    cal.check(DescriptorBasis.load(basis_path))
+    check_calibration(cal, DescriptorBasis.load(basis_path))
     assert cal.grid == (2, 2) and cal.descriptor.shape[2] == 2 and cal.lens == lens.name
     assert cal.source["measured"] == "obs.json" and len(cal.source["sha256"]) == 64
     assert "device.json" in out.out

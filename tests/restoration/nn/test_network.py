@@ -218,7 +218,8 @@ def test_sqrt_encoding_is_the_identity_without_a_correction():
                                 {"scale": 4, "highpass": 3},
                                 {"encoding": "sqrt", "highpass": 9, "highpass_domain": "linear"},
                                 {"encoding": "sqrt", "scale": 4, "highpass": 3, "highpass_domain": "linear"},
-                                {"group_width": 16}, {"conv": "static", "group_width": 4}])
+                                {"group_width": 16}, {"conv": "static", "group_width": 4},
+                                {"device": 4}, {"device": 3, "pool": "field", "scale": 4, "depths": (1, 1, 1)}])
 def test_space_to_depth_form_is_the_same_function(kw):
     """The export's packed form (stem and head reindexed) equals the model on
     the packed input, to float rounding; built here with plain reshapes."""
@@ -233,7 +234,11 @@ def test_space_to_depth_form_is_the_same_function(kw):
     x[:, 3:] = x[:, 3:] * 2 - 1
     n, _, h, w = x.shape
     rgb = x[:, :3].reshape(n, 3, h // s, s, w // s, s).permute(0, 3, 5, 1, 2, 4).reshape(n, 3 * s * s, h // s, w // s)
-    packed = torch.cat([rgb, field_features(x[:, 3:5], s)[:, :2]], 1) if model.field else rgb
+    if model.field:   # the block means of the field and descriptor channels
+        f = field_features(x[:, 3:], s)
+        packed = torch.cat([rgb, f[:, :2], f[:, 3:]], 1)
+    else:
+        packed = rgb
     with torch.no_grad():
         ref = model(x)
         got = SpaceToDepthForm(model)(packed)
@@ -382,3 +387,37 @@ def test_highpass_rejects_other_windows():
         build_model("doconv", highpass=8)
     with pytest.raises(ConfigError, match="highpass"):
         build_model("doconv", highpass=5)
+
+
+def test_a_device_network_reads_its_descriptor_and_field_attention_ignores_content():
+    """The descriptor channels change the output; with ``pool="field"`` a
+    DOConv's attention is the same whatever the image (a fixed map per
+    device), with content pooling it is not."""
+    from restoration.nn.network import field_features
+
+    torch.manual_seed(4)
+    h, w = 16, 24
+    field = _field(1, h, w)
+    desc = torch.rand(1, 4, h, w) * 2 - 1
+    x1 = torch.cat([torch.rand(1, 3, h, w), field, desc], 1)
+    x2 = torch.cat([torch.rand(1, 3, h, w), field, desc], 1)
+    for pool, fixed in (("field", True), ("local", False)):
+        model = build_model("device", device=4, pool=pool, **SMALL).eval()
+        for blk in model.modules():
+            if isinstance(blk, DOConv2d):
+                _randomise_attention(blk, std=0.3)
+        layer = model.mid[0].conv
+        f2 = field_features(x1[:, 3:], 2 * model.scale)
+        feats = [model.down(model.stem(x[:, :3]) + model.stem_field(field_features(x[:, 3:], model.scale)))
+                 for x in (x1, x2)]
+        with torch.no_grad():
+            a1, a2 = (layer.attention(f, f2).channel for f in feats)
+            other = torch.cat([x1[:, :5], -desc], 1)
+            assert (model(x1) - model(other)).abs().max() > 1e-4       # the descriptor matters
+        assert torch.equal(a1, a2) == fixed, pool
+
+
+def test_a_device_network_needs_the_field():
+    with pytest.raises(ConfigError, match="field encoding"):
+        build_model("device", field=False)
+    assert build_model("device").in_channels == 5 + 16 and build_model("device_attention").config["pool"] == "field"

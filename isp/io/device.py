@@ -1,0 +1,198 @@
+"""The ``device/v1`` file: one camera module's calibration, as the
+correction stage reads it.
+
+On a production line every module is measured on its chart; the fit of
+that measurement (``isp calib fit --basis``, :mod:`calibration.fit.device`)
+reduces the module's lens to a short *descriptor* per field region: the
+coordinates of its PSFs on the principal components of its design's PSFs
+over the tolerances, each of unit spread over those tolerances. A shared
+correction model trained on many such lenses reads the descriptor beside
+the field position (:func:`descriptor_map`), so one model corrects every
+module of the design and nothing is trained per module.
+
+The file is JSON, at most :data:`MAX_BYTES`:
+
+==============  ==============================================================
+key             value
+==============  ==============================================================
+``format``      ``"device/v1"``
+``lens``        the design's name (the lens profile's LensModel)
+``design``      SHA-256 of the design's prescription (``calibration.fit.device.design_key``)
+``basis``       SHA-256 of the basis the descriptor is on
+``grid``        ``[rows, cols]`` of equal field regions over the sensor
+``components``  K, numbers per region
+``descriptor``  ``rows × cols × K`` numbers, 4 significant digits
+``effects``     the loop's kept effects, ``{"name", "params"}`` each (may be empty)
+``fit``         the fit's errors (SFRA RMS before and after, χ² per observation)
+``source``      the measurement (file name, SHA-256) and the fitted perturbation
+==============  ==============================================================
+
+This module reads and writes the file and interpolates the descriptor over
+the frame; making one (the basis, the PSF maps) is the calibration
+toolkit's.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from isp.errors import InputError
+from isp.io.files import write_bytes_atomic
+
+__all__ = ["DIGITS", "FORMAT", "MAX_BYTES", "DeviceCalibration", "descriptor_map"]
+
+#: schema of the file
+FORMAT = "device/v1"
+#: the largest file written or read, bytes
+MAX_BYTES = 64 * 1024
+#: significant digits of the descriptor (unit-spread numbers: 1e-4 of their spread)
+DIGITS = 4
+
+
+def descriptor_map(descriptor: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                   full_size: tuple[int, int]) -> np.ndarray:
+    """A per-region descriptor interpolated to pixels of the full frame.
+
+    Parameters
+    ----------
+    descriptor : (R, C, K) array
+        One K-vector per region of an ``R × C`` grid of equal regions over
+        the frame.
+    rows, cols : (h,), (w,) arrays
+        Row and column of each pixel (or block centre: fractional) in the
+        full frame.
+    full_size : (H, W)
+
+    Returns
+    -------
+    (K, h, w) float32: bilinear between the region centres, constant past
+    the outermost ones. Pixel ``i`` of ``N`` sits at grid coordinate
+    ``(i + ½)·R/N − ½``, so this equals torch's ``grid_sample(...,
+    align_corners=False, padding_mode="border")`` at the field position
+    :func:`modules.correction.field_coordinates_at` gives the pixel (the
+    network's twin, tested).
+
+    >>> d = np.arange(2.0).reshape(1, 2, 1)            # two regions side by side: 0, 1
+    >>> descriptor_map(d, np.array([0]), np.array([0, 1, 2, 3]), (1, 4))[0]
+    array([[0.  , 0.25, 0.75, 1.  ]], dtype=float32)
+    """
+    d = np.asarray(descriptor, dtype=np.float64)
+    if d.ndim != 3:
+        raise ValueError(f"descriptor must be (rows, cols, K), got shape {d.shape}")
+    R, C, _ = d.shape
+    H, W = full_size
+
+    def axis(idx, n, m):
+        g = np.clip((np.asarray(idx, dtype=np.float64) + 0.5) * m / n - 0.5, 0.0, m - 1)
+        i0 = np.minimum(np.floor(g).astype(np.intp), max(m - 2, 0))
+        t = g - i0 if m > 1 else np.zeros_like(g)
+        return i0, np.minimum(i0 + 1, m - 1), t
+
+    r0, r1, ty = axis(rows, H, R)
+    c0, c1, tx = axis(cols, W, C)
+    top = d[r0][:, c0] * (1 - tx)[None, :, None] + d[r0][:, c1] * tx[None, :, None]
+    bottom = d[r1][:, c0] * (1 - tx)[None, :, None] + d[r1][:, c1] * tx[None, :, None]
+    out = top * (1 - ty)[:, None, None] + bottom * ty[:, None, None]
+    return np.ascontiguousarray(out.transpose(2, 0, 1), dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class DeviceCalibration:
+    """One device's calibration, the ``device/v1`` file (module docstring).
+
+    Attributes
+    ----------
+    lens : str
+        The design's name (the lens profile's LensModel).
+    design : str
+        :func:`design_key`.
+    basis : str
+        :attr:`DescriptorBasis.key` of the basis the descriptor is on.
+    descriptor : (rows, cols, k) ndarray
+    effects : tuple of dict
+        The loop's kept effects (``{"name", "params"}``), empty from a fit alone.
+    fit : dict
+        The fit's summary (SFRA RMS before/after, χ² per observation, noise floor).
+    source : dict
+        The measurement (file name, SHA-256) and the proxy's perturbation.
+    """
+
+    lens: str
+    design: str
+    basis: str
+    descriptor: np.ndarray
+    effects: tuple = ()
+    fit: dict = field(default_factory=dict)
+    source: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        d = np.asarray(self.descriptor, dtype=np.float64)
+        if d.ndim != 3 or min(d.shape) < 1 or not np.all(np.isfinite(d)):
+            raise ValueError(f"descriptor must be a finite (rows, cols, k) array, got shape {d.shape}")
+        object.__setattr__(self, "descriptor", d)
+        object.__setattr__(self, "effects", tuple(self.effects))
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        """(rows, cols) of field regions."""
+        return self.descriptor.shape[0], self.descriptor.shape[1]
+
+    @property
+    def components(self) -> int:
+        """Numbers per region (K)."""
+        return self.descriptor.shape[2]
+
+    def field_map(self, rows: np.ndarray, cols: np.ndarray, full_size: tuple[int, int]) -> np.ndarray:
+        """The descriptor at pixels ``rows × cols`` of a full frame:
+        ``(K, h, w)`` float32 (:func:`descriptor_map`)."""
+        return descriptor_map(self.descriptor, rows, cols, full_size)
+
+    def to_dict(self) -> dict:
+        return {"format": FORMAT, "lens": self.lens, "design": self.design, "basis": self.basis,
+                "grid": list(self.grid), "components": self.descriptor.shape[2],
+                "descriptor": [[[float(f"{v:.{DIGITS}g}") for v in cell] for cell in row]
+                               for row in self.descriptor],
+                "effects": list(self.effects), "fit": self.fit, "source": self.source}
+
+    def save(self, path) -> Path:
+        """Write the file atomically (ValueError above :data:`MAX_BYTES`)."""
+        text = json.dumps(self.to_dict(), separators=(",", ":")).encode()
+        if len(text) > MAX_BYTES:
+            raise ValueError(f"a {FORMAT} file of {len(text)} bytes exceeds {MAX_BYTES}: fewer components "
+                             "or a coarser grid")
+        return write_bytes_atomic(Path(path), text)
+
+    @classmethod
+    def load(cls, path) -> DeviceCalibration:
+        """Read and check a ``device/v1`` file; InputError naming the file
+        and the problem (absent, too large, not JSON, wrong schema or
+        shapes)."""
+        p = Path(path)
+        try:
+            size = p.stat().st_size
+        except FileNotFoundError:
+            raise InputError(p, "no such device calibration file") from None
+        if size > MAX_BYTES:
+            raise InputError(p, f"{size} bytes; a {FORMAT} file is at most {MAX_BYTES}")
+        try:
+            d = json.loads(p.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise InputError(p, f"not JSON ({str(e)[:80]})") from None
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            got = d.get("format") if isinstance(d, dict) else type(d).__name__
+            raise InputError(p, f"not a {FORMAT} file (format {got!r})")
+        try:
+            desc = np.asarray(d["descriptor"], dtype=np.float64)
+            if list(desc.shape[:2]) != list(d["grid"]) or desc.shape[2] != int(d["components"]):
+                raise ValueError(f"descriptor shape {desc.shape} against grid {d['grid']} and "
+                                 f"{d['components']} components")
+            return cls(str(d["lens"]), str(d["design"]), str(d["basis"]), desc, tuple(d.get("effects", ())),
+                       dict(d.get("fit", {})), dict(d.get("source", {})))
+        except KeyError as e:
+            raise InputError(p, f"{FORMAT} file without {e}") from None
+        except ValueError as e:
+            raise InputError(p, str(e)) from None

@@ -1,0 +1,47 @@
+"""The device/v1 file as the correction stage reads it (kind: property):
+the descriptor's interpolation over the frame against torch's
+``grid_sample`` (the network side's oracle), and its edges."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from isp.io.device import DeviceCalibration, descriptor_map
+from modules.correction import field_coordinates_at
+
+pytestmark = pytest.mark.property
+
+
+@pytest.mark.parametrize("grid, size", [((5, 7), (30, 44)), ((2, 3), (17, 9)), ((1, 4), (6, 20))])
+def test_descriptor_map_is_grid_sample_at_the_field_position(grid, size):
+    torch = pytest.importorskip("torch")
+    import torch.nn.functional as F
+
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(*grid, 3))
+    rows, cols = np.arange(size[0]), np.arange(size[1])
+    ours = descriptor_map(d, rows, cols, size)
+    f = field_coordinates_at(rows, cols, size)                       # (2, h, w): x, y in (-1, 1)
+    g = torch.from_numpy(np.stack([f[0], f[1]], axis=-1)[None]).double()
+    ref = F.grid_sample(torch.from_numpy(d.transpose(2, 0, 1)[None]).double(), g, mode="bilinear",
+                        padding_mode="border", align_corners=False)[0].numpy()
+    assert ours.shape == (3, *size)
+    assert np.allclose(ours, ref, atol=1e-6)
+
+
+def test_descriptor_map_holds_region_centres_and_is_flat_past_the_outer_ones():
+    d = np.arange(6.0).reshape(2, 3, 1)
+    h, w = 20, 30                        # regions of 10 × 10 px: centres at 4.5 and 14.5, ...
+    m = descriptor_map(d, np.array([4.5, 14.5, 0, 19]), np.array([4.5, 14.5, 24.5, 0, 29]), (h, w))[0]
+    assert m[0, :3].tolist() == [0, 1, 2] and m[1, :3].tolist() == [3, 4, 5]
+    assert m[2, 3] == 0 and m[3, 4] == 5                             # corners: the corner region's value
+
+
+def test_a_calibration_interpolates_its_own_descriptor(tmp_path):
+    d = np.random.default_rng(2).normal(size=(5, 7, 4))
+    cal = DeviceCalibration("lens", "design", "basis", d)
+    back = DeviceCalibration.load(cal.save(tmp_path / "dev.json"))
+    rows, cols = np.arange(0, 40, 3), np.arange(0, 56, 5)
+    assert back.components == 4 and back.grid == (5, 7)
+    assert np.allclose(back.field_map(rows, cols, (40, 56)), descriptor_map(d, rows, cols, (40, 56)), atol=1e-3)

@@ -1,0 +1,170 @@
+"""A correction network conditioned on the device, from pairs to the stage
+(kind: property).
+
+A tiny set is synthesised through two lenses (a mild and a strong blur
+widening over the field), each carrying its own device descriptor in the
+manifest, as ``isp synth --basis`` writes it. Checked: every pair's batch
+carries its own lens's descriptor at each pixel (the stage's function),
+with the configured noise; a tiny ``device`` network trains on it and its
+checkpoint and ONNX export name the design and basis; the correction stage
+reads a ``device/v1`` file, its tiles equal its whole frame, a file of
+another design is refused in one line, and a run without one says so; a
+blind model says it ignores one; a conditioned model cannot be trained on
+a set without descriptors.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from tests.helpers import TINY_UNET_KW as TINY
+from tests.helpers import data_file, kernel_psf_map, latent_pngs, make_frame, widening_gaussian_map, write_toml
+
+pytestmark = pytest.mark.property
+
+torch = pytest.importorskip("torch")
+
+from isp.cli.main import main
+from isp.errors import ConfigError
+from isp.io.device import DeviceCalibration, descriptor_map
+from isp.runtime.executor import create_executor
+
+DESIGN, BASIS = "d" * 64, "b" * 64
+K = 3
+#: each lens's descriptor on a 2 × 2 grid, K numbers per region
+DESCRIPTORS = np.array([np.full((2, 2, K), -0.5), np.arange(2 * 2 * K, dtype=float).reshape(2, 2, K) / 6])
+
+
+def _strong_map():
+    def kernel(r, c, ch, xx, yy):
+        s = 1.4 + 0.5 * (r + c)
+        return np.exp(-(xx ** 2 + yy ** 2) / (2 * s * s))
+
+    return kernel_psf_map(kernel, height=96, width=128, grid=(3, 4), n=16)
+
+
+@pytest.fixture(scope="module")
+def device_pairs(tmp_path_factory):
+    from restoration.synth.colour import colour_table, read_camera
+    from restoration.synth.pairs import SynthPlan, SynthSettings, find_latents, generate
+
+    tmp = tmp_path_factory.mktemp("device_pairs")
+    cams = (read_camera(data_file("raw", "SYNTHETIC_phone_S6meta_512x384.dng")),)
+    st = SynthSettings(size=64, cct_steps=4)
+    lat = tuple(str(p) for p in find_latents(latent_pngs(tmp / "latent")))
+    info = {"device": {"lens": "test-lens", "design": DESIGN, "basis": BASIS, "basis_file": "b.npz",
+                       "grid": [2, 2], "components": K, "descriptors": DESCRIPTORS.tolist()}}
+    plan = SynthPlan((widening_gaussian_map(), _strong_map()), cams, colour_table(list(cams), st.cct_k, st.cct_steps),
+                     lat, (96, 128), 0, st, (4e-4, 1e-6), info)
+    generate(plan, tmp / "pairs", 16, shard_size=8, executor=create_executor("serial"))
+    return tmp / "pairs"
+
+
+def test_each_pair_carries_its_lens_descriptor(device_pairs):
+    from restoration.train.trainer import PairBank
+
+    bank = PairBank.load([device_pairs], [(0, i) for i in range(16)])
+    assert bank.device == {"lens": "test-lens", "design": DESIGN, "basis": BASIS, "components": K}
+    assert bank.channels == 5 + K
+    lens = np.arange(16) % 2                                     # pair i went through lens i mod 2
+    assert np.array_equal(bank.descriptor, DESCRIPTORS[lens].astype(np.float32))
+    x, _, _ = bank.batch([3, 4], [(4, 8), (0, 0)], 32)
+    for n, (i, (r, c)) in enumerate(zip([3, 4], [(4, 8), (0, 0)])):
+        o = bank.origin[i] + (r, c)
+        want = descriptor_map(DESCRIPTORS[lens[i]], np.arange(32) + o[0], np.arange(32) + o[1], (96, 128))
+        assert np.allclose(x[n, 5:], want, atol=1e-6)
+    noisy, _, _ = bank.batch([3], [(4, 8)], 32, 0.3, np.random.default_rng(0))
+    assert 0.01 < np.std(noisy[0, 5:] - x[0, 5:]) < 0.3         # per-region noise, interpolated
+
+
+@pytest.fixture(scope="module")
+def device_model(device_pairs, tmp_path_factory):
+    """A tiny ``device`` network trained 4 steps, exported (its margin: the receptive radius)."""
+    from export.onnx_export import export_onnx
+
+    tmp = tmp_path_factory.mktemp("device_model")
+    cfg = {"data": {"dirs": [str(device_pairs)], "crop": 32, "batch": 4, "val_latents": 1, "val_pairs": 2,
+                    "descriptor_noise": 0.1},
+           "model": {"variant": "device", "kwargs": {**TINY, "device": K}},
+           "optim": {"lr": 3e-3}, "run": {"steps": 4, "seed": 0, "device": "cpu", "threads": 1,
+                                          "checkpoint_every": 4, "out": str(tmp / "out")}}
+    assert main(["train", "--config", str(write_toml(tmp / "cfg.toml", cfg)), "-q"]) == 0
+    report = export_onnx(tmp / "out" / "model.pt", tmp / "device.onnx", tile_size=0, measure_overlap=False)
+    return tmp, report
+
+
+def test_the_checkpoint_and_export_name_the_design_and_basis(device_model):
+    from restoration.nn.checkpoint import load_model
+
+    tmp, report = device_model
+    model, info = load_model(tmp / "out" / "model.pt")
+    md = info["metadata"]
+    assert model.in_channels == 5 + K and md["device_components"] == K
+    assert md["device_design"] == DESIGN and md["device_basis"] == BASIS
+    meta = report["metadata"]
+    assert meta["device_components"] == str(K) and meta["device_design"] == DESIGN
+    assert meta["device_basis"] == BASIS and report["parity_max_abs"] < 1e-4
+
+
+def test_the_stage_reads_the_device_file_and_its_tiles_are_the_whole_frame(device_model, tmp_path):
+    from isp import Domain
+    from modules.correction import Correction
+
+    tmp, report = device_model
+    radius = int(report["metadata"]["receptive_radius"])
+    tile = 2 * radius + 32
+    rng = np.random.default_rng(5)
+    frame = make_frame(rng.random((96, 3 * tile, 3)), Domain.CAMERA_RGB)
+    dev = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1]).save(tmp_path / "dev.json")
+    model = tmp / "device.onnx"
+    whole = Correction(model=model, device=dev, tile_size=0).process(frame)
+    tiled = Correction(model=model, device=dev, tile_size=tile).process(frame)
+    assert "device dev.json" in tiled.history[-1].note and "tiles" in tiled.history[-1].note
+    assert np.abs(whole.data - tiled.data).max() < 1e-5
+    mean = Correction(model=model, tile_size=0).process(frame)
+    assert "descriptor 0" in mean.history[-1].note
+    assert np.abs(mean.data - whole.data).max() > 1e-6            # the descriptor reaches the output
+    other = DeviceCalibration("other-lens", "e" * 64, BASIS, DESCRIPTORS[1]).save(tmp_path / "other.json")
+    with pytest.raises(ConfigError) as e:
+        Correction(model=model, device=other, tile_size=0).process(frame)
+    assert "other.json" in str(e.value) and "lens design" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_blind_model_says_it_ignores_a_device_file(exported_blind, tmp_path):
+    from isp import Domain
+    from modules.correction import Correction
+
+    dev = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0]).save(tmp_path / "dev.json")
+    out = Correction(model=exported_blind, device=dev, tile_size=0).process(
+        make_frame(np.random.default_rng(1).random((32, 48, 3)), Domain.CAMERA_RGB))
+    assert "dev.json ignored" in out.history[-1].note
+
+
+@pytest.fixture(scope="module")
+def exported_blind(tmp_path_factory):
+    from export.onnx_export import export_onnx
+    from restoration.nn.checkpoint import save_checkpoint
+    from restoration.nn.network import build_model
+    from tests.helpers import EXPORT_META
+
+    d = tmp_path_factory.mktemp("blind")
+    ckpt = save_checkpoint(d / "b.pt", build_model("doconv", **TINY), variant="doconv", model_kwargs=TINY, step=1,
+                           metadata=EXPORT_META)
+    export_onnx(ckpt, d / "b.onnx", tile_size=0, measure_overlap=False)
+    return d / "b.onnx"
+
+
+def test_a_conditioned_model_needs_pairs_with_descriptors(pairs, tmp_path):
+    cfg = {"data": {"dirs": [str(pairs)], "crop": 32, "batch": 4, "val_latents": 1, "val_pairs": 2},
+           "model": {"variant": "device", "kwargs": {**TINY, "device": K}},
+           "run": {"steps": 1, "seed": 0, "device": "cpu", "threads": 1, "out": str(tmp_path / "out")}}
+    code = main(["train", "--config", str(write_toml(tmp_path / "cfg.toml", cfg)), "-q"])
+    assert code == 2
+    assert not (tmp_path / "out" / "model.pt").exists()
+
+
+def test_manifest_descriptors_round_to_the_file_digits(device_pairs):
+    m = json.loads((device_pairs / "manifest.json").read_text())
+    assert np.array(m["device"]["descriptors"]).shape == (2, 2, 2, K)
