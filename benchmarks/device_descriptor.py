@@ -8,9 +8,10 @@ design's PSFs over its tolerances. This script learns the basis from
 ``--test`` other draws (seed 1), never seen by the PCA:
 
 * **variance held**: the share of the held-out devices' PSF deviations from
-  the design's mean PSF that ``k`` components reconstruct, for the basis
-  pooled over the regions (the file's) and, as the alternative, one basis
-  per region (35 × more basis, the same descriptor size);
+  the design's mean PSF that ``k`` components reconstruct, for the file's
+  basis (each region's own span, aligned to the pooled directions) and, as
+  the alternative, one basis pooled over the regions (1/35 of the basis, the
+  same descriptor size);
 * **gain kept**: what the knowledge is worth to a restoration that uses it,
   without a network in the way. Each region's PSF (R, G, B) blurs a crop of
   a Kodak image (linear, the crop's own channel), Gaussian noise is added
@@ -22,8 +23,13 @@ design's PSFs over its tolerances. This script learns the basis from
   crop's radially averaged power), so they differ only in the kernel. The
   gain kept is ``(PSNR_k − PSNR_mean) / (PSNR_true − PSNR_mean)``, pooled
   over devices, regions and channels, and per field ring;
+* **the alternative descriptor**: sagittal and tangential MTF at 8
+  frequencies (0.05–0.4 cycles/pixel) per region and channel (48 numbers per
+  region, three times the 16-component file), from which a PSF is estimated
+  as the mean of the 3 training lenses nearest in those numbers, region by
+  region, and scored by the same Wiener gain;
 * **size**: bytes of the ``device/v1`` file for each ``k``;
-* with ``--proxy-results benchmarks/results/proxy.json``, **the fitted
+* with ``--proxy-results benchmarks/results/proxy_parts/*.log``, **the fitted
   descriptors**: each device of the proxy-fit benchmark of this lens, its
   descriptor from the proxy fitted to its simulated capture (``ours_shape``)
   against its true lens's, as the same Wiener gain kept (the descriptor's
@@ -44,6 +50,7 @@ if __name__ == "__main__":
     _harness.pin_threads(2, blas=1)
 
 import json  # noqa: E402
+import math  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -64,17 +71,55 @@ def stack_of(lenses, grid, sensor=None, executor=None):
     return np.stack([pixel_psfs(psf_map(pl, s, sensor=sensor, executor=executor)) for pl in lenses])
 
 
-def per_region_basis(train: np.ndarray, k: int):
-    """Alternative: one PCA per region, ``(rows, cols, k, D)`` components."""
-    n, r, c = train.shape[:3]
+def pooled_basis(train: np.ndarray, k: int):
+    """Alternative: one PCA pooled over the regions, ``(k, D)`` components."""
+    n = train.shape[0]
     mean = train.mean(axis=0)
-    dev = (train - mean).reshape(n, r, c, -1)
-    comps = np.zeros((r, c, k, dev.shape[-1]))
-    for i in range(r):
-        for j in range(c):
-            _, _, vt = np.linalg.svd(dev[:, i, j], full_matrices=False)
-            comps[i, j, :min(k, len(vt))] = vt[:k]
-    return mean, comps
+    dev = (train - mean).reshape(n * train.shape[1] * train.shape[2], -1)
+    _, _, vt = np.linalg.svd(dev, full_matrices=False)
+    return mean, vt[:k]
+
+
+MTF_FREQS = np.linspace(0.05, 0.4, 8)
+
+
+def mtf_samples(psfs: np.ndarray, sensor, grid) -> np.ndarray:
+    """Sagittal and tangential MTF of pixel PSFs ``(..., rows, cols, 3, m,
+    m)`` at :data:`MTF_FREQS`: ``(..., rows, cols, 48)``. By the
+    projection-slice theorem the MTF along a direction ``n`` is ``|Σ_p h(p)
+    exp(−2πi f p·n)|``; ``n`` is the region centre's radial direction
+    (sagittal) and its normal (tangential)."""
+    from calibration.optics.psf.map import region_centers_mm
+
+    m = psfs.shape[-1]
+    o = np.arange(m) - m // 2
+    yy, xx = np.meshgrid(o, o, indexing="ij")
+    centres = region_centers_mm(sensor, grid)
+    out = np.empty(psfs.shape[:-3] + (2 * 3 * len(MTF_FREQS),))
+    for r in range(grid[0]):
+        for c in range(grid[1]):
+            th = math.atan2(centres[r, c, 1], centres[r, c, 0]) if np.any(centres[r, c]) else 0.0
+            feats = []
+            for a in (th, th + math.pi / 2):
+                u = xx * math.cos(a) + yy * math.sin(a)
+                basis = np.exp(-2j * math.pi * MTF_FREQS[:, None, None] * u[None])      # (F, m, m)
+                h = psfs[..., r, c, :, :, :]                                          # (..., 3, m, m)
+                feats.append(np.abs(np.einsum("...kij,fij->...kf", h, basis)))
+            out[..., r, c, :] = np.concatenate(feats, axis=-1).reshape(psfs.shape[:-5] + (-1,))
+    return out
+
+
+def mtf_knn(train, test, sensor, grid, k: int = 3) -> np.ndarray:
+    """Each test region's PSF as the mean of the ``k`` training lenses
+    nearest in that region's MTF samples."""
+    ft, fs = mtf_samples(train, sensor, grid), mtf_samples(test, sensor, grid)
+    est = np.empty_like(test)
+    for r in range(grid[0]):
+        for c in range(grid[1]):
+            d = np.linalg.norm(fs[:, None, r, c] - ft[None, :, r, c], axis=-1)   # (test, train)
+            near = np.argsort(d, axis=1)[:, :k]
+            est[:, r, c] = train[near, r, c].mean(axis=1)
+    return est
 
 
 def held_variance(test, mean, recon) -> float:
@@ -140,6 +185,8 @@ def gain_study(true_psfs, estimates: dict, sensor, grid, noise: float, seed: int
     centres = region_centers_mm(sensor, grid)
     half_diag = 0.5 * np.hypot(sensor.width_px, sensor.height_px) * sensor.pixel_pitch_um * 1e-3
     radius = np.hypot(centres[..., 0], centres[..., 1]) / half_diag
+    if {"uncorrected", "true"} & set(estimates):
+        raise ValueError("'uncorrected' and 'true' name the study's own rows, not estimates")
     psnr = {name: np.empty((n, r, c, 3)) for name in ("uncorrected", "true", *estimates)}
     for i in range(n):
         x = crops(r * c, rng).reshape(r, c, 3, CROP, CROP)
@@ -164,14 +211,20 @@ def gain_study(true_psfs, estimates: dict, sensor, grid, noise: float, seed: int
     return out
 
 
-def proxy_devices(path, lens_name: str, lens):
-    """(true, fitted) lenses of the proxy benchmark's devices of ``lens``."""
+def proxy_devices(paths, lens_name: str, lens):
+    """(device, true lens, fitted lens) of the proxy benchmark's devices of
+    ``lens``, from its results files (``proxy.json``, or the logs of
+    ``--only`` runs, whose last line is the record)."""
     from calibration.fit.proxy import parameter_space
     from calibration.optics.perturb import default_names
 
-    doc = json.loads(open(path).read())
+    cases = []
+    for path in paths:
+        lines = [ln for ln in open(path).read().splitlines() if ln.startswith("{")]
+        if lines:
+            cases += json.loads(lines[-1])["results"]["cases"]
     out = []
-    for case in doc["results"]["cases"]:
+    for case in cases:
         if case["lens"] != lens_name or "ours_shape" not in case["methods"]:
             continue
         space = parameter_space(lens, case.get("all_names") or default_names(lens))
@@ -188,10 +241,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--train", type=int, default=120, help="lenses the basis is learned from (seed 0)")
     ap.add_argument("--test", type=int, default=24, help="held-out lenses (seed 1)")
     ap.add_argument("--noise", type=float, default=0.01, help="σ of the Wiener study's noise (0..1 range)")
-    ap.add_argument("--proxy-results", help="proxy.json of benchmarks/proxy.py: its fitted devices too")
+    ap.add_argument("--proxy-results", nargs="+", metavar="FILE",
+                    help="results of benchmarks/proxy.py (proxy.json or its --only logs): its fitted devices too")
     args = ap.parse_args(argv)
 
-    from calibration.fit.device import (DEFAULT_GRID, DeviceCalibration, basis_from_psfs, design_key)
+    from calibration.fit.device import DEFAULT_COMPONENTS, DEFAULT_GRID, DeviceCalibration, basis_from_psfs, design_key
     from calibration.optics.perturb import nominal
     from isp.runtime.executor import pool_executor
     from calibration.simulate.device import draw_lenses
@@ -211,28 +265,31 @@ def main(argv=None) -> dict:
                             channels=("R", "G", "B"), components=max(KS), sensor=sensor)
     r, c = grid
 
-    held = {"pooled": {}, "per_region": {}}
-    estimates = {"mean": basis.mean, "nominal": nom}
+    held = {"file": {}, "pooled": {}}
+    estimates = {"mean": basis.mean, "nominal": nom, "mtf_knn": mtf_knn(train, test, sensor, grid)}
     for k in KS:
-        rec = np.stack([basis.reconstruct(basis.project(t, k)) for t in test])
-        held["pooled"][k] = round(held_variance(test, basis.mean, rec), 4)
-        estimates[f"pooled_k{k}"] = rec
-        mean, comps = per_region_basis(train, k)
-        dev = (test - mean).reshape(len(test), r, c, -1)
-        coef = np.einsum("nrcd,rckd->nrck", dev, comps)
-        rec2 = mean + np.einsum("nrck,rckd->nrcd", coef, comps).reshape(test.shape)
-        held["per_region"][k] = round(held_variance(test, mean, rec2), 4)
-        if k in (4, 8, 16):
-            estimates[f"per_region_k{k}"] = rec2
-    print("variance held (pooled / per region): "
-          + ", ".join(f"k={k} {held['pooled'][k]:.3f} / {held['per_region'][k]:.3f}" for k in KS), flush=True)
+        sub = basis_from_psfs(train, lens=basis.lens, design=basis.design, grid=grid, channels=basis.channels,
+                              components=k, sensor=sensor)
+        rec = np.stack([sub.reconstruct(sub.project(t)) for t in test])
+        held["file"][k] = round(held_variance(test, sub.mean, rec), 4)
+        estimates[f"file_k{k}"] = rec
+        mean, comps = pooled_basis(train, k)
+        dev = (test - mean).reshape(len(test), r * c, -1)
+        rec2 = mean + ((dev @ comps.T) @ comps).reshape(test.shape)
+        held["pooled"][k] = round(held_variance(test, mean, rec2), 4)
+        if k in (8, 16, 32):
+            estimates[f"pooled_k{k}"] = rec2
+    print("variance held (file's per-region basis / one pooled basis): "
+          + ", ".join(f"k={k} {held['file'][k]:.3f} / {held['pooled'][k]:.3f}" for k in KS), flush=True)
     gains = gain_study(test, estimates, sensor, grid, args.noise, seed=7)
     for ring, g in gains.items():
         print(f"  ring {ring}: PSNR true {g['psnr_db']['true']:.2f}, mean {g['psnr_db']['mean']:.2f}, "
               f"uncorrected {g['psnr_db']['uncorrected']:.2f} dB; kept: "
               + ", ".join(f"{k} {v:.2f}" for k, v in g["gain_kept"].items() if v is not None), flush=True)
+    basis = basis_from_psfs(train, lens=basis.lens, design=basis.design, grid=grid, channels=basis.channels,
+                            components=DEFAULT_COMPONENTS, sensor=sensor)
     sizes = {}
-    for k in (4, 8, 16, 32):
+    for k in (4, 8, 16):
         cal = DeviceCalibration(basis.lens, basis.design, basis.key, basis.project(test[0], k),
                                 fit={"sfra_rms_before": 0.05, "sfra_rms_after": 0.005, "chi2_per_obs": 1.2,
                                      "parameters": 24},
@@ -249,26 +306,26 @@ def main(argv=None) -> dict:
             with pool_executor(None) as ex:
                 true_s = stack_of([t for _, t, _ in devs], grid, sensor=sensor, executor=ex)
                 fit_s = stack_of([f for _, _, f in devs], grid, sensor=sensor, executor=ex)
-            est = {"mean": basis.mean}
-            for k in (8, 16, 32):
-                est[f"fitted_k{k}"] = np.stack([basis.reconstruct(basis.project(f, k)) for f in fit_s])
-                est[f"true_k{k}"] = np.stack([basis.reconstruct(basis.project(t, k)) for t in true_s])
-            est["fitted_full"] = fit_s
-            dist = [float(np.sqrt(np.mean((basis.project(f, 16) - basis.project(t, 16)) ** 2)))
+            est = {"mean": basis.mean,
+                   "fitted_descriptor": np.stack([basis.reconstruct(basis.project(f)) for f in fit_s]),
+                   "true_descriptor": np.stack([basis.reconstruct(basis.project(t)) for t in true_s]),
+                   "fitted_lens": fit_s}
+            dist = [float(np.sqrt(np.mean((basis.project(f) - basis.project(t)) ** 2)))
                     for f, t in zip(fit_s, true_s)]
-            fitted = {"devices": [d for d, _, _ in devs], "descriptor_rms_k16": [round(v, 3) for v in dist],
-                      "descriptor_spread_k16": [round(float(np.sqrt(np.mean(basis.project(t, 16) ** 2))), 3)
-                                                for t in true_s],
+            fitted = {"devices": [d for d, _, _ in devs], "descriptor_rms": [round(v, 3) for v in dist],
+                      "descriptor_spread": [round(float(np.sqrt(np.mean(basis.project(t) ** 2))), 3)
+                                            for t in true_s],
                       "gain": gain_study(true_s, est, sensor, grid, args.noise, seed=11)}
             g = fitted["gain"]["all"]
-            print(f"fitted proxies ({len(devs)} devices): descriptor RMS error (k=16) "
+            print(f"fitted proxies ({len(devs)} devices): descriptor RMS error (k={basis.size}) "
                   f"{np.mean(dist):.2f} spreads; kept: "
                   + ", ".join(f"{k} {v:.2f}" for k, v in g["gain_kept"].items() if v is not None), flush=True)
         else:
             print(f"{args.proxy_results}: no ours_shape case of {LENSES[args.lens]}")
 
     results = {"lens": LENSES[args.lens], "grid": list(grid), "train": len(train), "test": len(test),
-               "noise": args.noise, "explained_train": [round(float(v), 4) for v in basis.explained],
+               "noise": args.noise, "components": basis.size,
+               "explained_train": [round(float(v), 4) for v in basis.explained],
                "variance_held": held, "wiener": gains, "device_json_bytes": sizes, "fitted": fitted,
                "seconds": round(time.perf_counter() - t0, 1)}
     return _harness.publish("device_descriptor", results, args, argv)

@@ -21,22 +21,29 @@ assembly does):
 1. each lens's PSF map on a coarse grid of field regions (default 5 × 7),
    integrated over the pixel cells (:func:`pixel_psfs`), R, G and B;
 2. the mean over the draws of each region's PSFs, ``μ_r``;
-3. the principal components of the deviations ``h − μ_r``, pooled over
-   the regions and the draws, the three channels as one vector (so a
-   component holds a colour's shift as well as its blur): ``V_k``, with
-   ``s_k`` the spread of the ``k``-th coefficient over the draws.
+3. per region, the principal components of the deviations ``h − μ_r``
+   over the draws, the three channels as one vector (so a component holds
+   a colour's shift as well as its blur): the region's best
+   ``K``-dimensional span;
+4. each region's span rotated (orthogonal Procrustes) onto the principal
+   directions pooled over all regions, ``V_{r,k}``, so that channel ``k``
+   of the descriptor means nearly the same change of the PSF in every
+   region and interpolating it between regions means something (a region's
+   own PCA has arbitrary signs and order); ``s_{r,k}`` the spread of its
+   coefficient over the draws.
 
 A device's descriptor is then, per region ``r`` and component ``k``,
 
 .. math::
 
-    d_{r,k} = \\frac{\\langle h_r - \\mu_r, V_k\\rangle}{s_k},
+    d_{r,k} = \\frac{\\langle h_r - \\mu_r, V_{r,k}\\rangle}{s_{r,k}},
 
 dimensionless, of unit spread over the tolerance distribution (what a
 network input wants), and its PSFs are recovered as ``μ_r + Σ_k d_{r,k}
-s_k V_k`` (:meth:`DescriptorBasis.reconstruct`). How many components are
-worth keeping, and how much of what a device-specific deconvolution gains
-they keep, is measured in ``benchmarks/device_descriptor.py``.
+s_{r,k} V_{r,k}`` (:meth:`DescriptorBasis.reconstruct`). The rotation
+leaves each region's span, so what it reconstructs, unchanged. How many
+components are worth keeping, against one basis pooled over the regions and
+against MTF samples, is measured in ``benchmarks/device_descriptor.py``.
 
 The file
 --------
@@ -52,7 +59,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -136,12 +142,13 @@ class DescriptorBasis:
     channels : tuple of str
     mean : (rows, cols, channels, m, m) float64
         Each region's mean pixel PSF over the draws.
-    components : (K, channels·m·m) float64
-        Orthonormal, by decreasing spread.
-    scales : (K,) float64
+    components : (rows, cols, K, channels·m·m) float64
+        Each region's directions, orthonormal (stored as float32).
+    scales : (rows, cols, K) float64
         Spread (standard deviation) of each coefficient over the draws.
     explained : (K,) float64
-        Fraction of the deviations' variance the first ``k + 1`` components hold.
+        Fraction of the deviations' variance the first ``k + 1`` components
+        hold, over all regions.
     draws : int
         Lenses the basis was learned from.
     sensor : Sensor
@@ -180,13 +187,14 @@ class DescriptorBasis:
 
     @property
     def size(self) -> int:
-        """Components held (K)."""
-        return self.components.shape[0]
+        """Components held per region (K)."""
+        return self.components.shape[2]
 
     def project(self, psfs: np.ndarray, k: int | None = None) -> np.ndarray:
         """The descriptor of pixel PSFs ``(rows, cols, channels, m, m)``
         (:func:`pixel_psfs` of a map on this basis's grid): ``(rows, cols,
-        k)`` float64, unit spread over the tolerance distribution."""
+        k)`` float64, each number of unit spread over the tolerances (the
+        first ``k`` components; all by default)."""
         psfs = np.asarray(psfs, dtype=np.float64)
         if psfs.shape != self.mean.shape:
             raise ValueError(f"PSFs of shape {psfs.shape}; this basis takes {self.mean.shape}")
@@ -194,18 +202,18 @@ class DescriptorBasis:
         if not 1 <= k <= self.size:
             raise ValueError(f"k must be between 1 and {self.size}, got {k}")
         r, c = self.grid
-        dev = (psfs - self.mean).reshape(r * c, -1)
-        return (dev @ self.components[:k].T / self.scales[:k]).reshape(r, c, k)
+        dev = (psfs - self.mean).reshape(r, c, -1)
+        return np.einsum("rcd,rckd->rck", dev, self.components[:, :, :k]) / self.scales[:, :, :k]
 
     def reconstruct(self, descriptor: np.ndarray) -> np.ndarray:
         """Pixel PSFs ``(rows, cols, channels, m, m)`` from a descriptor
-        ``(rows, cols, k)``: the mean plus the first ``k`` components."""
+        ``(rows, cols, k)``: each region's mean plus its first ``k`` components."""
         d = np.asarray(descriptor, dtype=np.float64)
         r, c = self.grid
         if d.ndim != 3 or d.shape[:2] != (r, c) or not 1 <= d.shape[2] <= self.size:
             raise ValueError(f"descriptor of shape {d.shape}; this basis takes ({r}, {c}, ≤ {self.size})")
         k = d.shape[2]
-        dev = (d.reshape(r * c, k) * self.scales[:k]) @ self.components[:k]
+        dev = np.einsum("rck,rckd->rcd", d * self.scales[:, :, :k], self.components[:, :, :k])
         return self.mean + dev.reshape(self.mean.shape)
 
     def save(self, path) -> Path:
@@ -215,7 +223,7 @@ class DescriptorBasis:
         meta = {"format": BASIS_FORMAT, "lens": self.lens, "design": self.design, "grid": list(self.grid),
                 "channels": list(self.channels), "draws": self.draws, "sensor": self._sensor_dict(),
                 "meta": self.meta}
-        return write_npz(path, {"mean": self.mean, "components": self.components,
+        return write_npz(path, {"mean": self.mean, "components": self.components.astype(np.float32),
                                           "scales": self.scales, "explained": self.explained,
                                           "info": np.array(json.dumps(meta))})
 
@@ -232,8 +240,8 @@ class DescriptorBasis:
                     raise InputError(p, f"not a {BASIS_FORMAT} file (format {info.get('format')!r})")
                 sensor = Sensor(**info["sensor"]) if info.get("sensor") else None
                 return cls(info["lens"], info["design"], tuple(info["grid"]), tuple(info["channels"]),
-                           z["mean"], z["components"], z["scales"], z["explained"], int(info["draws"]),
-                           sensor, info.get("meta", {}))
+                           z["mean"], z["components"].astype(np.float64), z["scales"], z["explained"],
+                           int(info["draws"]), sensor, info.get("meta", {}))
         except FileNotFoundError:
             raise InputError(p, "no such basis file") from None
         except (OSError, ValueError, KeyError) as e:
@@ -253,7 +261,7 @@ def load_basis(path, lens=None) -> DescriptorBasis:
 
 
 def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] = DEFAULT_GRID,
-                components: int = 32, tolerance_scale: float = 1.0, executor=None,
+                components: int = DEFAULT_COMPONENTS, tolerance_scale: float = 1.0, executor=None,
                 cache_dir=None, progress: bool = False) -> DescriptorBasis:
     """Learn a design's descriptor basis from lenses drawn within tolerance.
 
@@ -268,7 +276,7 @@ def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] 
         Of the draws.
     grid : (rows, cols)
     components : int
-        Principal components kept (K).
+        Principal components kept per region (K).
     tolerance_scale : float
         Multiplies every tolerance.
     executor : isp.runtime.executor.Executor, optional
@@ -300,22 +308,37 @@ def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] 
                            meta={"tolerance_scale": tolerance_scale, "seed": seed, "psf": settings.__dict__})
 
 
-def basis_from_psfs(stack: np.ndarray, *, lens: str, design: str, grid, channels, components: int = 32,
+def basis_from_psfs(stack: np.ndarray, *, lens: str, design: str, grid, channels, components: int = 16,
                     sensor=None, meta: dict | None = None) -> DescriptorBasis:
     """The basis of a stack of pixel PSF maps ``(draws, rows, cols,
-    channels, m, m)`` (:func:`learn_basis` without the optics)."""
+    channels, m, m)`` (:func:`learn_basis` without the optics): per region,
+    the top ``components`` principal directions of the deviations, rotated
+    within their span onto the pooled directions (module docstring)."""
     stack = np.asarray(stack, dtype=np.float64)
-    n = stack.shape[0]
+    n, rows, cols = stack.shape[:3]
+    k = int(components)
+    if not 1 <= k <= n - 1:
+        raise ValueError(f"components must be between 1 and draws − 1 = {n - 1}, got {k}")
     mean = stack.mean(axis=0)
-    x = (stack - mean).reshape(n * stack.shape[1] * stack.shape[2], -1)
-    # principal directions from the Gram matrix of the features when there are fewer of them
-    _, s, vt = np.linalg.svd(x, full_matrices=False)
-    k = min(int(components), vt.shape[0])
-    var = s ** 2
-    comps = vt[:k]
-    coeff_std = s[:k] / math.sqrt(x.shape[0])
-    return DescriptorBasis(lens, design, tuple(int(v) for v in grid), tuple(channels), mean, comps,
-                           coeff_std, np.cumsum(var[:k]) / var.sum(), n, sensor, dict(meta or {}))
+    dev = (stack - mean).reshape(n, rows, cols, -1)
+    _, _, pooled = np.linalg.svd(dev.reshape(n * rows * cols, -1), full_matrices=False)
+    pooled = pooled[:k]
+    comps = np.empty((rows, cols, k, dev.shape[-1]))
+    for r in range(rows):
+        for c in range(cols):
+            _, _, v = np.linalg.svd(dev[:, r, c], full_matrices=False)
+            v = v[:k]
+            # orthogonal Procrustes: the rotation of the region's span closest to the pooled directions
+            u, _, wt = np.linalg.svd(pooled @ v.T)
+            comps[r, c] = (u @ wt) @ v
+    comps = comps.astype(np.float32).astype(np.float64)     # as the file stores them: the same basis, the same key
+    coef = np.einsum("nrcd,rckd->nrck", dev, comps)
+    var = coef.var(axis=0)                                         # (rows, cols, k)
+    total = dev.var(axis=0).sum()
+    explained = np.cumsum(var.sum(axis=(0, 1))) / total
+    scales = np.sqrt(np.maximum(var, 1e-30))
+    return DescriptorBasis(lens, design, tuple(int(v) for v in grid), tuple(channels), mean, comps, scales,
+                           explained, n, sensor, dict(meta or {}))
 
 
 def describe(lens, basis: DescriptorBasis, k: int | None = None, *, executor=None, cache_dir=None) -> np.ndarray:
