@@ -23,7 +23,7 @@ EPILOG = """examples:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``isp calib basis``."""
-    from calibration.fit.device import DEFAULT_GRID
+    from calibration.fit.device import DEFAULT_COMPONENTS, DEFAULT_GRID
 
     p.description = __doc__.split("\n\n")[0].replace("``", "`")
     p.epilog = EPILOG
@@ -32,7 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT.npz", help="the basis file")
     p.add_argument("--draws", type=int, default=150,
                    help="lenses drawn within tolerance (default 150; a PSF map each, cached on disk)")
-    p.add_argument("--components", type=int, default=32, help="principal components kept (default 32)")
+    p.add_argument("--components", type=int, default=DEFAULT_COMPONENTS,
+                   help=f"principal components kept per region (default {DEFAULT_COMPONENTS})")
     p.add_argument("--grid", type=int, nargs=2, default=list(DEFAULT_GRID), metavar=("R", "C"),
                    help=f"field regions (default {DEFAULT_GRID[0]} {DEFAULT_GRID[1]})")
     p.add_argument("--seed", type=int, default=0, help="of the draws (default 0)")
@@ -59,9 +60,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{out}: the basis is a .npz file")
     t0 = time.perf_counter()
     lens = read_lens(args.lens)
+    # the file's stem names the design: a patent's embodiments share the prescription's name
     basis = learn_basis(lens, args.draws, seed=args.seed, grid=tuple(args.grid), components=args.components,
                         tolerance_scale=args.tolerance_scale, executor=pool_executor(args.workers),
-                        progress=True)
+                        progress=True, name=Path(args.lens).stem)
     basis.save(out)
     ex = basis.explained
     marks = ", ".join(f"{k} components {ex[k - 1]:.1%}" for k in (1, 4, 8, 16, 32) if k <= basis.size)

@@ -262,7 +262,7 @@ def load_basis(path, lens=None) -> DescriptorBasis:
 
 def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] = DEFAULT_GRID,
                 components: int = DEFAULT_COMPONENTS, tolerance_scale: float = 1.0, executor=None,
-                cache_dir=None, progress: bool = False) -> DescriptorBasis:
+                cache_dir=None, progress: bool = False, name: str | None = None) -> DescriptorBasis:
     """Learn a design's descriptor basis from lenses drawn within tolerance.
 
     Parameters
@@ -285,6 +285,9 @@ def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] 
         PSF map cache (psf_map's default otherwise).
     progress : bool
         A bar over the draws on stderr.
+    name : str, optional
+        The design's name in the files (default the lens's own; the command
+        line gives the lens file's stem, what lens profiles match).
 
     Returns
     -------
@@ -303,7 +306,7 @@ def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] 
 
     stack = np.stack([pixel_psfs(psf_map(d, settings, cache_dir=cache_dir, executor=executor))
                       for d in tqdm(lenses, desc="PSF maps of drawn lenses", unit="lens", disable=not progress)])
-    return basis_from_psfs(stack, lens=pl.nominal.name or "lens", design=design_key(pl), grid=grid,
+    return basis_from_psfs(stack, lens=name or pl.nominal.name or "lens", design=design_key(pl), grid=grid,
                            channels=settings.channels, components=components, sensor=pl.lens.sensor,
                            meta={"tolerance_scale": tolerance_scale, "seed": seed, "psf": settings.__dict__})
 
