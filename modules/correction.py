@@ -465,9 +465,10 @@ class Correction(StageBase):
     progress : bool, optional
         Progress bar on stderr; by default when stderr is a terminal and the
         frame takes at least 4 tiles.
-    device : path, optional
+    device : path or DeviceCalibration, optional
         The module's calibration (``device/v1``) for a model conditioned on
-        it (module notes; ``isp process --device FILE``).
+        it (module notes; ``isp process --device FILE``), a file or one
+        read already (:class:`isp.io.device.DeviceCalibration`).
     """
 
     name = "correction"
@@ -479,7 +480,7 @@ class Correction(StageBase):
     overlap: int | None = None
     border: int | None = None
     progress: bool | None = None
-    device: str | Path | None = None
+    device: object = None       #: path or isp.io.device.DeviceCalibration
 
     def __post_init__(self):
         if self.threads < 1:
@@ -491,11 +492,11 @@ class Correction(StageBase):
         if self.border is not None and self.border < 0:
             raise ValueError(f"border must be ≥ 0, got {self.border}")
         object.__setattr__(self, "_by_model", {})   # auto: the stage of each profile's model
-        if self.device is not None and str(self.device).strip().lower() in NO_MODEL:
-            object.__setattr__(self, "device", None)
-        if self.device is not None:
-            from isp.io.device import DeviceCalibration
+        from isp.io.device import DeviceCalibration
 
+        if isinstance(self.device, (str, os.PathLike)) and str(self.device).strip().lower() in NO_MODEL:
+            object.__setattr__(self, "device", None)
+        if self.device is not None and not isinstance(self.device, DeviceCalibration):
             DeviceCalibration.load(self.device)      # a bad file fails when the pipeline is built
         if isinstance(self.model, str) and self.model.strip().lower() == AUTO:
             object.__setattr__(self, "model", AUTO)
@@ -676,21 +677,24 @@ class Correction(StageBase):
         """The device calibration the model reads, and a note for the
         history: ``(DeviceCalibration or None, str)``; ConfigError (one
         line) for a file of another design or basis, or too short."""
-        if not self.device:
+        if self.device is None:
             return None, ("; no device calibration: the design's mean device (descriptor 0)"
                           if info.device else "")
         from isp.io.device import DeviceCalibration
 
-        cal = DeviceCalibration.load(self.device)
+        given = isinstance(self.device, DeviceCalibration)
+        cal = self.device if given else DeviceCalibration.load(self.device)
+        name = cal.source.get("name") or cal.source.get("measured") or "calibration" if given \
+            else Path(self.device).name
         if not info.device:
-            return None, f"; {Path(self.device).name} ignored: the model is not conditioned on a device"
+            return None, f"; {name} ignored: the model is not conditioned on a device"
         meta = info.meta
         for key, what in (("device_design", cal.design), ("device_basis", cal.basis)):
             if meta.get(key) and meta[key] != what:
                 kind = "lens design" if key == "device_design" else "descriptor basis"
-                raise ConfigError(f"{self.device}: a calibration of another {kind} than model {info.name}'s "
+                raise ConfigError(f"{name}: a calibration of another {kind} than model {info.name}'s "
                                   f"(device lens {cal.lens!r}, model lens {meta.get('lens', '?')!r})")
         if cal.components < info.device:
-            raise ConfigError(f"{self.device}: {cal.components} descriptor components; model {info.name} "
+            raise ConfigError(f"{name}: {cal.components} descriptor components; model {info.name} "
                               f"reads {info.device}")
-        return cal, f"; device {Path(self.device).name}"
+        return cal, f"; device {name}"

@@ -72,6 +72,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-scale", type=float_range, metavar="LO,HI",
                    help="factor on the NoiseProfile, log-uniform (default: training's, 0.5,2)")
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+    p.add_argument("--device", metavar="FILE",
+                   help="a device calibration (device/v1) for a model conditioned on the device: what it reads "
+                        "for every crop (e.g. the fitted proxy's of the device whose true lens is --lens, "
+                        "with --samples 0 --with-proxy)")
     g = p.add_argument_group("PSF maps (use the training set's settings)")
     g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
                    help="PSF window in samples of half a pixel (default a 32 µm window, 64 samples on 1 µm "
@@ -126,6 +130,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--samples must be ≥ 1 (or 0 with --with-proxy), got {args.samples}")
     if args.limit is not None and args.limit < 1:
         raise ConfigError(f"--limit must be ≥ 1, got {args.limit}")
+    device = None
+    if args.device:
+        from isp.io.device import DeviceCalibration
+
+        device = DeviceCalibration.load(args.device)
     out = Path(args.json)
     if out.exists() and out.is_dir():
         raise InputError(out, "is a folder; give a file name for the JSON report")
@@ -137,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
                                 exposure_ev=args.exposure, noise_scale=args.noise_scale)
         report = evaluate(model, img_dir, lens, settings, cameras=args.camera,
                           psf_options={"n": args.psf_n, "grid": args.psf_grid}, cache_dir=args.psf_cache,
-                          threads=args.threads, executor=pool_executor(args.workers, progress=not args.quiet))
+                          threads=args.threads, executor=pool_executor(args.workers, progress=not args.quiet),
+                          device=device)
     if args.limit is not None:
         report["images"]["dir"] = str(images)
     from isp.io.files import write_bytes_atomic

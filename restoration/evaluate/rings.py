@@ -607,7 +607,7 @@ def evaluate_plan(plan: SynthPlan, runner, settings: EvalSettings | None = None,
 
 def evaluate(model, images_dir, lens, settings: EvalSettings | None = None, *, synth: SynthSettings | None = None,
              cameras=None, psf_options: dict | None = None, cache_dir=None, threads: int = 2,
-             executor=None) -> dict:
+             executor=None, device=None) -> dict:
     """Evaluate a model file on ``images_dir`` × ``samples`` proxy cameras not
     seen in training (module notes).
 
@@ -636,12 +636,16 @@ def evaluate(model, images_dir, lens, settings: EvalSettings | None = None, *, s
     executor : isp.runtime.executor.Executor, optional
         Runs the PSF maps' regions and shows progress (default: up to 2
         worker processes, with progress bars).
+    device : isp.io.device.DeviceCalibration, optional
+        The device calibration a model conditioned on the device reads
+        (:mod:`restoration.evaluate.runner`); with a model file only.
 
     Returns
     -------
     dict, JSON-ready: ``schema``, ``model``, ``images``, ``lens``,
     ``settings``, ``rings``, ``overall``, ``per_image``, ``per_lens``,
-    ``crops``, ``timing``.
+    ``crops``, ``timing``; with ``device``, ``device`` (its lens, basis and
+    source).
     """
     from restoration.evaluate.runner import load_runner
 
@@ -653,7 +657,8 @@ def evaluate(model, images_dir, lens, settings: EvalSettings | None = None, *, s
         raise ConfigError(f"settings must be an EvalSettings, got {type(settings).__name__}")
     ex = pool_executor(None, progress=True) if executor is None else executor
     seed, baseline = settings.seed, settings.baseline
-    runner = load_runner(model, threads=threads) if isinstance(model, (str, os.PathLike)) else model
+    runner = (load_runner(model, threads=threads, device=device) if isinstance(model, (str, os.PathLike))
+              else model)
     t_load = time.perf_counter() - t0
     synth = _with_model_process(synth, getattr(runner, "meta", {}) or {})
     given = {"noise": None if settings.noise is None else bool(settings.noise), "exposure_ev": settings.exposure_ev,
@@ -693,6 +698,8 @@ def evaluate(model, images_dir, lens, settings: EvalSettings | None = None, *, s
                    "skipped": plan.info.get("skipped_images", [])},
         "lens": {**plan.info["lens"], "model_lens": model_lens,
                  "disjoint_from_training": (not seen) if trained else None},
+        **({"device": {"lens": device.lens, "basis": device.basis, "grid": list(device.grid),
+                       "components": device.components, "source": device.source}} if device is not None else {}),
         "settings": {**{k: v for k, v in asdict(settings).items() if k in _SCORING}, "seed": int(seed),
                      "synth": asdict(plan.settings), "psf_map": plan.info.get("psf_map"),
                      "noise_profile": list(plan.noise_profile), "full_size": list(plan.full_size),

@@ -6,7 +6,9 @@ A runner is called as ``runner(rgb, origin, full_size)``: ``rgb`` an
 ``(h, w, 3)`` float32 crop of balanced camera RGB (the correction slot's
 input, :class:`isp.frame.Domain` ``camera_rgb``) whose first pixel is
 sensor pixel ``origin``, on a frame of ``full_size``; it returns the
-corrected ``(h, w, 3)`` float32 crop.
+corrected ``(h, w, 3)`` float32 crop. A model conditioned on the device
+reads the runner's ``device`` (a :class:`isp.io.device.DeviceCalibration`,
+or None: descriptor 0), as the stage reads ``--device``.
 
 Both kinds run through the correction stage's execution path: the ONNX
 runner *is* :class:`modules.correction.Correction` (onnxruntime, 2
@@ -67,13 +69,13 @@ class OnnxRunner:
 
     kind = "onnx"
 
-    def __init__(self, path, threads: int = 2):
+    def __init__(self, path, threads: int = 2, device=None):
         from isp.frame import Domain
         from modules.correction import Correction
 
         self.path = Path(path)
         try:
-            self.stage = Correction(model=self.path, threads=threads, progress=False)
+            self.stage = Correction(model=self.path, threads=threads, progress=False, device=device)
         except ValueError as e:
             raise InputError(self.path, str(e)) from None
         domain = self.stage.model_meta.get("domain", DOMAIN)
@@ -83,6 +85,11 @@ class OnnxRunner:
         info = self.stage.info
         self.meta = {**info.meta, "fov_encoding": info.fov_encoding, "tile_size": tile, "tile_overlap": margin,
                      "input_multiple": mult, "border_context": border}
+        self.stage.calibration(info)                  # a device file of another design fails here
+
+    @property
+    def device(self):
+        return self.stage.device
 
     def __call__(self, rgb, origin, full_size):
         from isp.frame import Frame
@@ -121,11 +128,14 @@ class TorchRunner:
         ``receptive_radius`` (default 32), ``domain``, ``lens``.
     path : path, optional
         Where it was read from (for the report).
+    device : DeviceCalibration, optional
+        For a model conditioned on the device (``model.device = K``): the
+        descriptor its K channels after the field hold (None: 0).
     """
 
     kind = "checkpoint"
 
-    def __init__(self, model, info=None, path=None):
+    def __init__(self, model, info=None, path=None, device=None):
         from modules.correction import (
             DEFAULT_MULTIPLE,
             DEFAULT_OVERLAP,
@@ -138,6 +148,17 @@ class TorchRunner:
         info = {**info, **(info.get("metadata") or {})}    # restoration.nn.checkpoint keeps them apart
         self.model = model.eval()
         self.path = Path(path) if path is not None else None
+        self.k_device = int(getattr(model, "device", 0))
+        self.device = device
+        if device is not None and self.k_device:
+            for key, what in (("device_design", device.design), ("device_basis", device.basis)):
+                if _info_get(info, key) and _info_get(info, key) != what:
+                    raise ConfigError(f"the device calibration is of another "
+                                      f"{'lens design' if key == 'device_design' else 'descriptor basis'} "
+                                      f"than model {self.path or ''}")
+            if device.components < self.k_device:
+                raise ConfigError(f"the device calibration has {device.components} descriptor components; "
+                                  f"the model reads {self.k_device}")
         domain = _info_get(info, "domain")
         if domain not in (None, *DOMAINS):
             raise ConfigError(f"model {self.path or ''} was trained for {domain} data; the evaluation "
@@ -172,11 +193,15 @@ class TorchRunner:
         from modules.correction import field_coordinates_at
         from modules.common.tiling import run_tiled
 
-        extra = 2 if self.fov_encoding == "xy" else 0
+        extra = 2 + self.k_device if self.fov_encoding == "xy" else 0
+        cal = self.device if self.k_device else None
 
         def run(x, rows, cols):
             if extra:
-                x[3:] = field_coordinates_at(rows + origin[0], cols + origin[1], full_size)
+                x[3:5] = field_coordinates_at(rows + origin[0], cols + origin[1], full_size)
+                if self.k_device:
+                    x[5:] = 0.0 if cal is None else cal.field_map(rows + origin[0], cols + origin[1],
+                                                                  full_size)[:self.k_device]
             with torch.inference_mode():
                 y = self.model(torch.from_numpy(x[None].copy()))
             return y[0].detach().cpu().numpy().astype(np.float32, copy=False)
@@ -185,7 +210,7 @@ class TorchRunner:
                          multiple=self.multiple, out_channels=3, extra_channels=extra, progress=False)
 
 
-def load_runner(path, *, threads: int = 2) -> Runner:
+def load_runner(path, *, threads: int = 2, device=None) -> Runner:
     """The runner of a model file: ``.onnx`` through onnxruntime, anything
     else as a checkpoint (:func:`restoration.nn.checkpoint.load_model`).
 
@@ -202,7 +227,7 @@ def load_runner(path, *, threads: int = 2) -> Runner:
     if p.is_dir():
         raise InputError(p, "is a folder, not a model file")
     if p.suffix.lower() == ".onnx":
-        return OnnxRunner(p, threads=threads)
+        return OnnxRunner(p, threads=threads, device=device)
     try:
         from restoration.nn.checkpoint import load_model
     except ImportError as e:
@@ -214,4 +239,4 @@ def load_runner(path, *, threads: int = 2) -> Runner:
         raise
     except Exception as e:  # noqa: BLE001 — torch.load's errors share no base class
         raise InputError(p, f"not a loadable checkpoint ({type(e).__name__}: {str(e)[:120]})") from None
-    return TorchRunner(model, info, p)
+    return TorchRunner(model, info, p, device=device)

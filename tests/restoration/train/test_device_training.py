@@ -168,3 +168,31 @@ def test_a_conditioned_model_needs_pairs_with_descriptors(pairs, tmp_path):
 def test_manifest_descriptors_round_to_the_file_digits(device_pairs):
     m = json.loads((device_pairs / "manifest.json").read_text())
     assert np.array(m["device"]["descriptors"]).shape == (2, 2, 2, K)
+
+
+def test_the_evaluation_runs_a_conditioned_model_with_the_device(device_model):
+    """The checkpoint and its export, given the same device calibration,
+    correct a crop alike (the evaluation's two runners), and the descriptor
+    reaches the output."""
+    from restoration.evaluate.runner import load_runner
+
+    tmp, _ = device_model
+    cal = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1], source={"measured": "dev.dng"})
+    rgb = np.random.default_rng(3).random((96, 128, 3)).astype(np.float32)
+    outs = [load_runner(p, device=cal)(rgb, (0, 0), (96, 128)) for p in (tmp / "out" / "model.pt", tmp / "device.onnx")]
+    assert np.abs(outs[0] - outs[1]).max() < 1e-4
+    blind = load_runner(tmp / "out" / "model.pt")(rgb, (0, 0), (96, 128))
+    assert np.abs(blind - outs[0]).max() > 1e-6
+    with pytest.raises(ConfigError, match="another lens design"):
+        load_runner(tmp / "out" / "model.pt", device=DeviceCalibration("x", "e" * 64, BASIS, DESCRIPTORS[1]))
+
+
+def test_isp_eval_refuses_a_bad_device_file_in_one_line(device_model, tmp_path, capsys):
+    tmp, _ = device_model
+    bad = tmp_path / "dev.json"
+    bad.write_text("{}")
+    code = main(["eval", str(tmp / "device.onnx"), "--images", str(tmp_path), "--lens",
+                 str(data_file("lenses", "phone", "US-12210142-B2-e9.zmx")), "--json", str(tmp_path / "r.json"),
+                 "--device", str(bad)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "dev.json" in err and "device/v1" in err and "\n" not in err
