@@ -141,6 +141,9 @@ class CameraMeta:
     iso: float | None = None
     datetime: str = ""
     exif: dict[str, Any] = field(default_factory=dict)
+    #: the camera module's calibration (``device/v1`` JSON text) the file carries in
+    #: DNGPrivateData (:mod:`isp.io.device`); "" where it carries none
+    device_calibration: str = ""
 
     #: what the reader decided on the user's behalf (one line each)
     notes: tuple[str, ...] = ()

@@ -651,7 +651,7 @@ class Correction(StageBase):
             feeds[info.stats_name] = s.reshape(info.stats_shape).astype(info.dtype)
 
         k, p = 3 * info.packing ** 2, info.packing
-        cal, device_note = self.calibration(info)
+        cal, device_note = self.calibration(info, frame.meta)
 
         def run(x: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
             if info.fov_encoding == "xy":
@@ -673,19 +673,26 @@ class Correction(StageBase):
         return frame.evolve(out, stage=self.name,
                             note=f"{info.name} (lens {lens}, fov {info.fov_encoding}, {how}){device_note}")
 
-    def calibration(self, info: ModelInfo):
+    def calibration(self, info: ModelInfo, meta=None):
         """The device calibration the model reads, and a note for the
-        history: ``(DeviceCalibration or None, str)``; ConfigError (one
-        line) for a file of another design or basis, or too short."""
-        if self.device is None:
-            return None, ("; no device calibration: the design's mean device (descriptor 0)"
-                          if info.device else "")
+        history: ``(DeviceCalibration or None, str)``. The stage's
+        ``device``, else the one the frame's DNG carries
+        (``meta.device_calibration``); ConfigError (one line) for one of
+        another design or basis, or too short."""
         from isp.io.device import DeviceCalibration
 
-        given = isinstance(self.device, DeviceCalibration)
-        cal = self.device if given else DeviceCalibration.load(self.device)
-        name = cal.source.get("name") or cal.source.get("measured") or "calibration" if given \
-            else Path(self.device).name
+        carried = getattr(meta, "device_calibration", "") if self.device is None else ""
+        if self.device is None and not carried:
+            return None, ("; no device calibration: the design's mean device (descriptor 0)"
+                          if info.device else "")
+        if carried:
+            name = f"{Path(meta.path).name if meta.path else 'the file'}'s own (DNGPrivateData)"
+            cal = DeviceCalibration.from_text(carried, name)
+        elif isinstance(self.device, DeviceCalibration):
+            cal = self.device
+            name = cal.source.get("name") or cal.source.get("measured") or "calibration"
+        else:
+            cal, name = DeviceCalibration.load(self.device), Path(self.device).name
         if not info.device:
             return None, f"; {name} ignored: the model is not conditioned on a device"
         meta = info.meta

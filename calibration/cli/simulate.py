@@ -18,7 +18,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      "capture.")
     p.epilog = ("examples:\n  isp calib simulate e9.json -o nominal.dng --size 2000,1500\n"
                 "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3\n"
-                "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3 --save-lens dev3.json")
+                "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3 --save-lens dev3.json\n"
+                "  isp calib simulate e9.json -o scene.dng --perturb random --seed 3 --device dev3/device.json"
+                "   # the capture carries its module's calibration")
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("lens")
     p.add_argument("-o", "--output", required=True, help="output .dng")
@@ -29,6 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--save-lens", metavar="FILE.json",
                    help="also write the device's true lens (the prescription with the device's perturbation, "
                         "a proxy lens file), to score a correction or a fit against")
+    p.add_argument("--device", metavar="FILE",
+                   help="a device calibration (device/v1) the DNG carries in DNGPrivateData, as a calibrated "
+                        "module's captures would: `isp process` then corrects it with that calibration")
     add_device_arguments(p)
 
 
@@ -39,6 +44,11 @@ def run(args: argparse.Namespace) -> int:
     from calibration.simulate.chart import slanted_square_chart
     from calibration.simulate.device import device_lens
 
+    carried = ""
+    if args.device:
+        from isp.io.device import DeviceCalibration
+
+        carried = DeviceCalibration.load(args.device).to_text()   # a bad file fails before the render
     lens = given = read_lens(args.lens)
     if args.pixel_pitch or args.size:
         from calibration.optics.lens import Sensor
@@ -51,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     chart = slanted_square_chart(sensor.height_px, sensor.width_px, colorchecker=args.colorchecker)
     capture = simulate_capture(model, chart, exposure=args.exposure, rng=args.seed,
                                psf_map_options={"cache_dir": args.cache} if args.cache else None)
+    if carried:
+        capture = (capture[0], capture[1].replace(device_calibration=carried))
     out = write_capture(args.output, capture=capture)
     print(f"wrote {out}: {sensor.width_px}x{sensor.height_px} at {sensor.pixel_pitch_um:.3f} µm, {what}; "
           f"process it with `isp process {out} -o capture.jpg`, measure it with "

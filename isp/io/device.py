@@ -30,6 +30,18 @@ key             value
 This module reads and writes the file and interpolates the descriptor over
 the frame; making one (the basis, the PSF maps) is the calibration
 toolkit's.
+
+In a DNG
+--------
+A capture may carry its module's calibration itself, so that the file
+alone is corrected right: the project's DNG writer stores the JSON in the
+``DNGPrivateData`` tag (50740, DNG 1.7 §"DNGPrivateData": private data
+starting with a NUL-terminated ASCII name whose first part is the maker's)
+as ``b"phone-isp device/v1\\0"`` followed by the file's UTF-8 bytes
+(:func:`private_data`, :func:`from_private_data`); the reader puts it in
+``CameraMeta.device_calibration``, and the correction stage uses it when it
+is given no ``--device``. The whole calibration travels, not a path to it: a
+capture copied elsewhere stays correctable.
 """
 
 from __future__ import annotations
@@ -43,7 +55,8 @@ import numpy as np
 from isp.errors import InputError
 from isp.io.files import write_bytes_atomic
 
-__all__ = ["DIGITS", "FORMAT", "MAX_BYTES", "DeviceCalibration", "descriptor_map"]
+__all__ = ["DIGITS", "FORMAT", "MAX_BYTES", "PRIVATE_DATA_NAME", "DeviceCalibration", "descriptor_map",
+           "from_private_data", "private_data"]
 
 #: schema of the file
 FORMAT = "device/v1"
@@ -51,6 +64,22 @@ FORMAT = "device/v1"
 MAX_BYTES = 64 * 1024
 #: significant digits of the descriptor (unit-spread numbers: 1e-4 of their spread)
 DIGITS = 4
+#: the NUL-terminated name that starts this project's DNGPrivateData
+PRIVATE_DATA_NAME = b"phone-isp device/v1\0"
+
+
+def private_data(text: str) -> bytes:
+    """DNGPrivateData bytes carrying a ``device/v1`` file's text."""
+    return PRIVATE_DATA_NAME + text.encode()
+
+
+def from_private_data(data) -> str:
+    """The ``device/v1`` text of DNGPrivateData bytes, or "" where the data
+    is another maker's (or absent)."""
+    if data is None:
+        return ""
+    b = bytes(data) if not isinstance(data, bytes) else data
+    return b[len(PRIVATE_DATA_NAME):].decode("utf-8", "replace") if b.startswith(PRIVATE_DATA_NAME) else ""
 
 
 def descriptor_map(descriptor: np.ndarray, rows: np.ndarray, cols: np.ndarray,
@@ -151,6 +180,10 @@ class DeviceCalibration:
         ``(K, h, w)`` float32 (:func:`descriptor_map`)."""
         return descriptor_map(self.descriptor, rows, cols, full_size)
 
+    def to_text(self) -> str:
+        """The file's JSON text (compact)."""
+        return json.dumps(self.to_dict(), separators=(",", ":"))
+
     def to_dict(self) -> dict:
         return {"format": FORMAT, "lens": self.lens, "design": self.design, "basis": self.basis,
                 "grid": list(self.grid), "components": self.descriptor.shape[2],
@@ -160,7 +193,7 @@ class DeviceCalibration:
 
     def save(self, path) -> Path:
         """Write the file atomically (ValueError above :data:`MAX_BYTES`)."""
-        text = json.dumps(self.to_dict(), separators=(",", ":")).encode()
+        text = self.to_text().encode()
         if len(text) > MAX_BYTES:
             raise ValueError(f"a {FORMAT} file of {len(text)} bytes exceeds {MAX_BYTES}: fewer components "
                              "or a coarser grid")
@@ -179,20 +212,32 @@ class DeviceCalibration:
         if size > MAX_BYTES:
             raise InputError(p, f"{size} bytes; a {FORMAT} file is at most {MAX_BYTES}")
         try:
-            d = json.loads(p.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            text = p.read_text()
+        except UnicodeDecodeError as e:
             raise InputError(p, f"not JSON ({str(e)[:80]})") from None
+        return cls.from_text(text, p)
+
+    @classmethod
+    def from_text(cls, text: str, where="device calibration") -> DeviceCalibration:
+        """Parse and check ``device/v1`` JSON text; InputError naming
+        ``where`` (a file, or the DNG that carried it) and the problem."""
+        if len(text.encode()) > MAX_BYTES:
+            raise InputError(where, f"a {FORMAT} calibration is at most {MAX_BYTES} bytes")
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as e:
+            raise InputError(where, f"not JSON ({str(e)[:80]})") from None
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             got = d.get("format") if isinstance(d, dict) else type(d).__name__
-            raise InputError(p, f"not a {FORMAT} file (format {got!r})")
+            raise InputError(where, f"not a {FORMAT} file (format {got!r})")
         try:
             desc = np.asarray(d["descriptor"], dtype=np.float64)
-            if list(desc.shape[:2]) != list(d["grid"]) or desc.shape[2] != int(d["components"]):
+            if desc.ndim != 3 or list(desc.shape[:2]) != list(d["grid"]) or desc.shape[2] != int(d["components"]):
                 raise ValueError(f"descriptor shape {desc.shape} against grid {d['grid']} and "
                                  f"{d['components']} components")
             return cls(str(d["lens"]), str(d["design"]), str(d["basis"]), desc, tuple(d.get("effects", ())),
                        dict(d.get("fit", {})), dict(d.get("source", {})))
         except KeyError as e:
-            raise InputError(p, f"{FORMAT} file without {e}") from None
-        except ValueError as e:
-            raise InputError(p, str(e)) from None
+            raise InputError(where, f"{FORMAT} file without {e}") from None
+        except (TypeError, ValueError) as e:
+            raise InputError(where, str(e)) from None

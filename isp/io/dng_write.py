@@ -70,7 +70,8 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
         illuminants, analog_balance, as_shot_neutral / as_shot_white_xy,
         baseline_exposure, noise_profile, opcodes (lists 1–3), the EXIF
         values exposure_time_s, f_number, iso, focal_length_mm, datetime,
-        lens, and pixel_pitch_um (as FocalPlaneX/YResolution).
+        lens, pixel_pitch_um (as FocalPlaneX/YResolution), and
+        device_calibration (in DNGPrivateData, :mod:`isp.io.device`).
         ``meta.raw_size`` and ``meta.path`` are ignored.
 
     Returns
@@ -201,6 +202,12 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
         add("FocalPlaneXResolution", "2I", 1, ppcm)
         add("FocalPlaneYResolution", "2I", 1, ppcm)
         add("FocalPlaneResolutionUnit", "H", 1, 3)
+
+    if meta.device_calibration:
+        from isp.io.device import private_data
+
+        blob = private_data(meta.device_calibration)
+        add("DNGPrivateData", "B", len(blob), blob)
 
     tags.sort(key=lambda t: t[0])
     with atomic_path(path) as tmp, tifffile.TiffWriter(tmp) as tw:

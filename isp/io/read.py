@@ -257,6 +257,14 @@ class _DngTags:
     shape: tuple[int, int]
 
 
+def _device_calibration(r) -> str:
+    """The ``device/v1`` text this project's writer stores in DNGPrivateData
+    (:mod:`isp.io.device`); "" for another maker's private data or none."""
+    from isp.io.device import from_private_data
+
+    return from_private_data(r.get("DNGPrivateData"))
+
+
 @contextlib.contextmanager
 def _quiet(logger_name: str):
     """Silence a library's logger: tifffile logs every malformed tag it
@@ -632,6 +640,7 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
         baseline_exposure=be, noise_profile=noise, opcodes=opcodes, **profile_fields(r),
         pixel_pitch_um=pitch, focal_length_mm=focal, f_number=f_number, lens=lens,
         exposure_time_s=exposure, iso=float(iso) if iso else None,
+        device_calibration=_device_calibration(r),
         datetime=str(exif.get("DateTimeOriginal", "") or "") or r.text("DateTimeOriginal"), exif=exif,
         notes=tuple(notes) + tuple(r.notes),
     )

@@ -201,3 +201,19 @@ def test_calib_basis_then_fit_writes_the_device_file(capsys, tmp_path, e9_zmx):
                  "--basis", str(basis_path)])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "parametric" in err and "\n" not in err and not (tmp_path / "y").exists()
+
+
+def test_a_simulated_capture_carries_the_calibration_it_is_given(capsys, tmp_path, e9_zmx):
+    from isp.io.read import read_raw
+
+    cal = DeviceCalibration(e9_zmx.stem, "d" * 64, "b" * 64, np.zeros((5, 7, 16)))
+    dev = cal.save(tmp_path / "device.json")
+    out = tmp_path / "c.dng"
+    assert main(["calib", "simulate", str(e9_zmx), "-o", str(out), "--size", "400,300", "--device", str(dev)]) == 0
+    capsys.readouterr()
+    assert read_raw(out).meta.device_calibration == cal.to_text()
+    bad = tmp_path / "bad.json"
+    bad.write_text("[]")
+    code = main(["calib", "simulate", str(e9_zmx), "-o", str(tmp_path / "d.dng"), "--device", str(bad)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "bad.json" in err and "\n" not in err and not (tmp_path / "d.dng").exists()

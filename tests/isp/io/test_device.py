@@ -45,3 +45,31 @@ def test_a_calibration_interpolates_its_own_descriptor(tmp_path):
     rows, cols = np.arange(0, 40, 3), np.arange(0, 56, 5)
     assert back.components == 4 and back.grid == (5, 7)
     assert np.allclose(back.field_map(rows, cols, (40, 56)), descriptor_map(d, rows, cols, (40, 56)), atol=1e-3)
+
+
+def test_a_dng_carries_its_module_calibration_in_dng_private_data(tmp_path):
+    from isp import CFA, CameraMeta
+    from isp.io.device import PRIVATE_DATA_NAME
+    from isp.io.dng_write import write_dng
+    from isp.io.read import read_raw
+
+    cal = DeviceCalibration("lens", "d" * 64, "b" * 64, np.random.default_rng(3).normal(size=(5, 7, 16)),
+                            source={"measured": "chart.dng"})
+    meta = CameraMeta(cfa=CFA.RGGB, white_level=(1023.0,), color_matrix_1=np.eye(3), calibration_illuminant_1=21,
+                      as_shot_neutral=(0.5, 1.0, 0.6), device_calibration=cal.to_text())
+    path = write_dng(tmp_path / "c.dng", np.full((96, 128), 300, np.uint16), meta)
+    import tifffile
+
+    with tifffile.TiffFile(path) as t:
+        raw = bytes(t.pages[0].tags[50740].value)
+    assert raw.startswith(PRIVATE_DATA_NAME)          # DNG 1.7: a NUL-terminated name, the maker's first
+    back = read_raw(path).meta.device_calibration
+    assert back == cal.to_text()
+    assert np.allclose(DeviceCalibration.from_text(back).descriptor, cal.descriptor, atol=1e-3)
+
+
+def test_another_makers_private_data_is_not_a_calibration(raw_file):
+    from isp.io.read import read_raw
+
+    # the GoPro FUSION carries GoPro's own DNGPrivateData
+    assert read_raw(raw_file("gopro_FUSION_GPFR7066.dng")).meta.device_calibration == ""

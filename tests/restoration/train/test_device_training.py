@@ -196,3 +196,25 @@ def test_isp_eval_refuses_a_bad_device_file_in_one_line(device_model, tmp_path, 
                  "--device", str(bad)])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "dev.json" in err and "device/v1" in err and "\n" not in err
+
+
+def test_a_frame_carrying_its_calibration_is_corrected_with_it(device_model, tmp_path):
+    """A DNG's own calibration (DNGPrivateData, read into the frame's
+    metadata) is used where the stage is given none, and gives what the
+    same file given with --device gives; an explicit file wins."""
+    from isp import Domain
+    from modules.correction import Correction
+
+    tmp, _ = device_model
+    cal = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1])
+    rgb = np.random.default_rng(6).random((96, 128, 3))
+    carried = make_frame(rgb, Domain.CAMERA_RGB, device_calibration=cal.to_text(), path="module.dng")
+    model = tmp / "device.onnx"
+    own = Correction(model=model, tile_size=0).process(carried)
+    assert "module.dng's own (DNGPrivateData)" in own.history[-1].note
+    given = Correction(model=model, tile_size=0, device=cal.save(tmp_path / "dev.json")).process(
+        make_frame(rgb, Domain.CAMERA_RGB))
+    assert np.abs(own.data - given.data).max() < 1e-6
+    other = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0]).save(tmp_path / "other.json")
+    wins = Correction(model=model, tile_size=0, device=other).process(carried)
+    assert "device other.json" in wins.history[-1].note and np.abs(wins.data - own.data).max() > 1e-6
