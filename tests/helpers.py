@@ -405,13 +405,14 @@ EXPORT_META = {"domain": "camera_rgb", "placement": "camera_rgb after demosaic",
                "attention": "local", "process": {"tone": "none", "white": 4.0}}
 
 
-def onnx_calibration_reader(n=6, size=64, seed=0):
-    """Calibration crops (1, 5, size, size): smooth random RGB + field."""
+def onnx_calibration_reader(n=6, size=64, seed=0, device=0):
+    """Calibration crops (1, 5 [+ device], size, size): smooth random RGB +
+    field (+ a random device descriptor's channels)."""
     from export.onnx_export import model_input, sample_frame
 
     class Reader:
         def __init__(self):
-            self.it = iter([{"input": model_input(sample_frame((size, size), True, seed + k), True)}
+            self.it = iter([{"input": model_input(sample_frame((size, size), True, seed + k), True, device, seed + k)}
                             for k in range(n)])
 
         def get_next(self):

@@ -218,3 +218,23 @@ def test_a_frame_carrying_its_calibration_is_corrected_with_it(device_model, tmp
     other = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0]).save(tmp_path / "other.json")
     wins = Correction(model=model, tile_size=0, device=other).process(carried)
     assert "device other.json" in wins.history[-1].note and np.abs(wins.data - own.data).max() > 1e-6
+
+
+def test_a_conditioned_model_quantises_every_conv_and_reads_its_device_in_int8(device_model, tmp_path):
+    """Static INT8 of the conditioned export (calibration crops carrying
+    descriptor channels): every conv quantised; the INT8 model reads the
+    device calibration as the float one does."""
+    from isp import Domain
+    from export.quantize import quantize_int8
+    from modules.correction import Correction
+    from tests.helpers import onnx_calibration_reader
+
+    tmp, _ = device_model
+    q8 = tmp_path / "device.int8.onnx"
+    r = quantize_int8(tmp / "device.onnx", q8, onnx_calibration_reader(device=K))
+    assert r["int8_quantized_conv"] == r["fp32_conv"] and r["int8_float_conv"] == 0
+    cal = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1]).save(tmp_path / "dev.json")
+    frame = make_frame(np.random.default_rng(2).random((64, 96, 3)), Domain.CAMERA_RGB)
+    f32, i8 = (Correction(model=m, device=cal, tile_size=0).process(frame).data for m in (tmp / "device.onnx", q8))
+    assert Correction(model=q8).model_meta["device_design"] == DESIGN
+    assert np.abs(f32 - i8).mean() < 0.02
