@@ -34,6 +34,7 @@ A profile is a small TOML file (schema ``profile/v1``)::
     name = "e9"                       # default: the file's stem
     description = "the default phone lens, US-12210142-B2 embodiment 9"
     model = "e9_default.int8.onnx"    # the ONNX correction model, relative to this file
+    # device = "module_0042.json"     # optional: one calibrated module's device/v1 file
 
     [match]
     LensModel = ["US-12210142-B2-e9", "US-12210142-B2-e9 (*)"]
@@ -110,7 +111,7 @@ ORIGINS = ("packaged", "plug-in", "code", "user")
 #: profiles a no-match reason lists by name and identity
 LISTED = 5
 _GLOB = set("*?[")
-_FILE_KEYS = {"schema", "name", "description", "model", "match", "demosaic"}
+_FILE_KEYS = {"schema", "name", "description", "model", "match", "demosaic", "device"}
 
 
 @dataclass(frozen=True)
@@ -135,6 +136,11 @@ class Profile:
         :data:`modules.demosaic.METHODS`): the ``demosaic`` stage's
         ``method="auto"`` uses it for this lens, so that the correction sees
         the input it learnt from. None: the stage's own choice.
+    device : path, optional
+        A calibrated module's ``device/v1`` file (:mod:`isp.io.device`), for
+        a model conditioned on the device: a profile that matches one module
+        (its UniqueCameraModel or serial-bearing Model) carries its
+        calibration; a capture's own (DNGPrivateData) and ``--device`` win.
 
     Examples
     --------
@@ -153,6 +159,7 @@ class Profile:
     description: str = ""
     source: str = ""
     demosaic: str | None = None
+    device: Path | None = None
 
     def __post_init__(self):
         if not self.name or not isinstance(self.name, str):
@@ -175,6 +182,8 @@ class Profile:
         if not isinstance(self.model, (str, os.PathLike)) or not str(self.model):
             raise ConfigError(f"profile {self.name!r}: 'model' must be a path, got {self.model!r}")
         object.__setattr__(self, "model", Path(self.model))
+        if self.device is not None:
+            object.__setattr__(self, "device", Path(self.device))
 
     def specificity(self, identity: Mapping[str, str]) -> tuple[int, int, int] | None:
         """How specifically the profile matches ``identity`` (key → value):
@@ -198,7 +207,8 @@ class Profile:
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (``isp profiles --json``)."""
         return {"name": self.name, "match": {k: list(v) for k, v in self.match.items()},
-                "model": str(self.model), "description": self.description, "source": self.source}
+                "model": str(self.model), "description": self.description, "source": self.source,
+                **({"device": str(self.device)} if self.device is not None else {})}
 
 
 def _is_glob(pattern: str) -> bool:
@@ -264,12 +274,21 @@ def read_profile(path: str | os.PathLike) -> Profile:
         model_path = path.parent / model_path
     if not model_path.is_file():
         raise InputError(path, f"model file {str(model_path)!r} not found")
+    device = doc.get("device")
+    if device is not None:
+        if not isinstance(device, str) or not device:
+            raise InputError(path, f"'device' must be a file name, got {device!r}")
+        device = Path(device).expanduser()
+        device = device if device.is_absolute() else path.parent / device
+        if not device.is_file():
+            raise InputError(path, f"device calibration file {str(device)!r} not found")
     try:
         demosaic = doc.get("demosaic")
         if demosaic is not None and (not isinstance(demosaic, str) or not demosaic):
             raise InputError(path, f"'demosaic' must be a method name, got {demosaic!r}")
         return Profile(name=str(doc.get("name") or path.stem), match=doc["match"], model=model_path,
-                       description=str(doc.get("description", "")), source=str(path), demosaic=demosaic)
+                       description=str(doc.get("description", "")), source=str(path), demosaic=demosaic,
+                       device=device)
     except ConfigError as e:
         raise InputError(path, str(e)) from None
 
@@ -285,7 +304,7 @@ def _check_entry(name: str, obj: Any) -> Profile:
     if not isinstance(obj, Profile):
         raise TypeError(f"{type(obj).__name__}, not an isp.profiles.Profile or a profile file")
     return obj if obj.name == name else Profile(name, obj.match, obj.model, obj.description, obj.source,
-                                                obj.demosaic)
+                                                obj.demosaic, obj.device)
 
 
 #: every profile by name (packaged and plug-ins through entry points; user and code ones added)

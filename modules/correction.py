@@ -119,7 +119,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from isp.errors import ConfigError, PlacementError
+from isp.errors import ConfigError, IspError, PlacementError
 from isp.frame import Domain, Frame, Step
 from isp.stage import StageBase
 
@@ -535,13 +535,17 @@ class Correction(StageBase):
 
         found = match_profile(meta)
         path = found.profile.model if found.profile is not None else None
-        stage = self._by_model.get(path)
+        # the stage's own device (--device), then the capture's own (DNGPrivateData), then the profile's
+        carried = bool(getattr(meta, "device_calibration", ""))
+        device = self.device if self.device is not None or found.profile is None or carried \
+            else found.profile.device
+        stage = self._by_model.get((path, device))
         if stage is None:
             try:
-                stage = dataclasses.replace(self, model=path or "none")
-            except ValueError as e:   # the profile's model file went away after it was read
+                stage = dataclasses.replace(self, model=path or "none", device=device)
+            except (ValueError, IspError) as e:   # the profile's files went away after it was read
                 raise ConfigError(f"lens profile {found.profile.name!r}: {e}") from None
-            self._by_model[path] = stage
+            self._by_model[(path, device)] = stage
         return stage, found.reason()
 
     @cached_property

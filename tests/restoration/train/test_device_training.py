@@ -238,3 +238,38 @@ def test_a_conditioned_model_quantises_every_conv_and_reads_its_device_in_int8(d
     f32, i8 = (Correction(model=m, device=cal, tile_size=0).process(frame).data for m in (tmp / "device.onnx", q8))
     assert Correction(model=q8).model_meta["device_design"] == DESIGN
     assert np.abs(f32 - i8).mean() < 0.02
+
+
+def test_a_profile_carries_a_modules_calibration(device_model, tmp_path):
+    """A profile with ``device = FILE`` gives the matching frames that
+    calibration; a capture's own calibration and --device win over it."""
+    import os
+
+    from isp import Domain
+    from isp.profiles import ENV_VAR, reload_profiles
+    from modules.correction import Correction
+
+    tmp, _ = device_model
+    folder = tmp_path / "profiles"
+    folder.mkdir()
+    DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1]).save(folder / "module7.json")
+    (folder / "m7.toml").write_text(f'schema = "profile/v1"\nmodel = "{tmp / "device.onnx"}"\n'
+                                    f'device = "module7.json"\n[match]\nLensModel = "test-lens"\n')
+    old = os.environ.get(ENV_VAR)
+    os.environ[ENV_VAR] = str(folder)
+    reload_profiles()
+    try:
+        rgb = np.random.default_rng(8).random((64, 96, 3))
+        out = Correction(tile_size=0).process(make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
+        assert "device module7.json" in out.history[-1].note
+        own = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0])
+        carried = make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens", device_calibration=own.to_text())
+        assert "DNGPrivateData" in Correction(tile_size=0).process(carried).history[-1].note
+        given = own.save(tmp_path / "given.json")
+        assert "device given.json" in Correction(tile_size=0, device=given).process(carried).history[-1].note
+    finally:
+        if old is None:
+            os.environ.pop(ENV_VAR, None)
+        else:
+            os.environ[ENV_VAR] = old
+        reload_profiles()
