@@ -198,6 +198,8 @@ class CameraMeta:
             v = getattr(self, f.name)
             if f.name == "opcodes":
                 out[f.name] = {f"OpcodeList{k}": [op.describe() for op in ops] for k, ops in v.items()}
+            elif f.name == "device_calibration":
+                out[f.name] = _calibration_summary(v)
             else:
                 out[f.name] = conv(v)
         for k in ("calibration_illuminant_1", "calibration_illuminant_2", "calibration_illuminant_3"):
@@ -206,3 +208,20 @@ class CameraMeta:
                 out[k + "_name"] = LIGHT_SOURCES.get(code, f"code {code}")
         out["orientation_name"] = ORIENTATIONS.get(self.orientation, "invalid")
         return out
+
+
+def _calibration_summary(text: str) -> dict[str, Any] | None:
+    """What ``isp info`` shows of a carried ``device/v1`` calibration: its
+    lens, basis, grid, components, fit and source, not the numbers (None
+    without one)."""
+    if not text:
+        return None
+    import json
+
+    try:
+        d = json.loads(text)
+    except ValueError:
+        return {"error": "DNGPrivateData names a device/v1 calibration that is not JSON"}
+    if not isinstance(d, dict):
+        return {"error": "DNGPrivateData names a device/v1 calibration that is not a JSON object"}
+    return {k: d.get(k) for k in ("format", "lens", "basis", "grid", "components", "fit", "source", "effects")}

@@ -66,6 +66,15 @@ def test_a_dng_carries_its_module_calibration_in_dng_private_data(tmp_path):
     back = read_raw(path).meta.device_calibration
     assert back == cal.to_text()
     assert np.allclose(DeviceCalibration.from_text(back).descriptor, cal.descriptor, atol=1e-3)
+    # `isp info` says what it carries, not the numbers
+    import json
+
+    from isp.cli.main import main
+
+    assert main(["info", str(path), "--json", str(tmp_path / "info.json")]) == 0
+    shown = json.loads((tmp_path / "info.json").read_text())["device_calibration"]
+    assert shown["lens"] == "lens" and shown["grid"] == [5, 7] and shown["components"] == 16
+    assert "descriptor" not in shown
 
 
 def test_another_makers_private_data_is_not_a_calibration(raw_file):
