@@ -190,20 +190,16 @@ def pipeline_from_args(args: argparse.Namespace, output: str | None = None, *, b
                              look=getattr(args, "look", None))
     if output is not None:
         config = choose_encoder(config, output, encoding)
-    forced = getattr(args, "correction", None)
-    if forced is not None:
+    # --correction FILE|none and --device FILE set every correction stage of the pipeline
+    for option, key, value in (("--correction", "model", getattr(args, "correction", None)),
+                               ("--device", "device", getattr(args, "device", None))):
+        if value is None:
+            continue
         slots = [e for e in config.get("stage", []) if isinstance(e, dict) and e.get("name") == "correction"]
         if not slots:
-            raise ConfigError(f"--correction {forced}: the pipeline has no correction stage")
+            raise ConfigError(f"{option} {value}: the pipeline has no correction stage")
         for e in slots:
-            e["model"] = forced
-    device = getattr(args, "device", None)
-    if device is not None:
-        slots = [e for e in config.get("stage", []) if isinstance(e, dict) and e.get("name") == "correction"]
-        if not slots:
-            raise ConfigError(f"--device {device}: the pipeline has no correction stage")
-        for e in slots:
-            e["device"] = device
+            e[key] = value
     if not build:
         return config, None
     try:
