@@ -72,6 +72,10 @@ def prepare(rec: dict, work: Path, lens_path: Path, pl, basis_path: Path, size: 
         save_proxy(true_lens, pl.nominal, pl.perturbation)
         device_calibration(pl, load_basis(basis_path, pl), source={"measured": "the module's true lens"}).save(true_dev)
     cap, fit = work / "capture.dng", work / "fit"
+    if "fit" not in rec and (fit / "device.json").is_file():    # fitted by an earlier run into this work folder
+        f = json.loads((fit / "fit.json").read_text())
+        rec["fit"] = {"seconds": None, "fit_seconds": f["seconds"], "sfra_rms_before": f["errors"]["before"]["sfra_rms"],
+                      "sfra_rms_after": f["errors"]["after"]["sfra_rms"]}
     if "fit" not in rec:
         t0 = time.perf_counter()
         if not cap.is_file() and isp(["calib", "simulate", str(true_lens), "-o", str(cap), "--size", size]) != 0:
