@@ -62,15 +62,6 @@ CROP = 128
 RINGS = {"0.1": (0.0, 0.3), "0.5": (0.3, 0.7), "0.9": (0.7, 1.01)}
 
 
-def stack_of(lenses, grid, sensor=None, executor=None):
-    """Pixel PSFs ``(n, rows, cols, 3, m, m)`` of lenses (cached maps)."""
-    from calibration.fit.device import descriptor_map_settings, pixel_psfs
-    from calibration.optics.psf.map import psf_map
-
-    s = descriptor_map_settings(grid)
-    return np.stack([pixel_psfs(psf_map(pl, s, sensor=sensor, executor=executor)) for pl in lenses])
-
-
 def pooled_basis(train: np.ndarray, k: int):
     """Alternative: one PCA pooled over the regions, ``(k, D)`` components."""
     n = train.shape[0]
@@ -245,7 +236,8 @@ def main(argv=None) -> dict:
                     help="results of benchmarks/proxy.py (proxy.json or its --only logs): its fitted devices too")
     args = ap.parse_args(argv)
 
-    from calibration.fit.device import DEFAULT_COMPONENTS, DEFAULT_GRID, DeviceCalibration, basis_from_psfs, design_key
+    from calibration.fit.device import (DEFAULT_COMPONENTS, DEFAULT_GRID, DeviceCalibration, basis_from_psfs,
+                                        design_key, psf_stack)
     from calibration.optics.perturb import nominal
     from isp.runtime.executor import pool_executor
     from calibration.simulate.device import draw_lenses
@@ -257,9 +249,9 @@ def main(argv=None) -> dict:
     grid = DEFAULT_GRID
     sensor = pl.lens.sensor
     with pool_executor(None) as ex:
-        train = stack_of(draw_lenses(pl, args.train + 1, np.random.default_rng(0))[1:], grid, executor=ex)
-        test = stack_of(draw_lenses(pl, args.test + 1, np.random.default_rng(1))[1:], grid, executor=ex)
-        nom = stack_of([pl], grid, executor=ex)[0]
+        train = psf_stack(draw_lenses(pl, args.train + 1, np.random.default_rng(0))[1:], grid, executor=ex)
+        test = psf_stack(draw_lenses(pl, args.test + 1, np.random.default_rng(1))[1:], grid, executor=ex)
+        nom = psf_stack([pl], grid, executor=ex)[0]
     print(f"{args.lens}: {len(train)} + {len(test)} PSF maps ({time.perf_counter() - t0:.0f} s)", flush=True)
     basis = basis_from_psfs(train, lens=pl.nominal.name, design=design_key(pl), grid=grid,
                             channels=("R", "G", "B"), components=max(KS), sensor=sensor)
@@ -304,8 +296,8 @@ def main(argv=None) -> dict:
         devs = proxy_devices(args.proxy_results, LENSES[args.lens], read_lens(lens_path))
         if devs:
             with pool_executor(None) as ex:
-                true_s = stack_of([t for _, t, _ in devs], grid, sensor=sensor, executor=ex)
-                fit_s = stack_of([f for _, _, f in devs], grid, sensor=sensor, executor=ex)
+                true_s = psf_stack([t for _, t, _ in devs], grid, sensor=sensor, executor=ex)
+                fit_s = psf_stack([f for _, _, f in devs], grid, sensor=sensor, executor=ex)
             est = {"mean": basis.mean,
                    "fitted_descriptor": np.stack([basis.reconstruct(basis.project(f)) for f in fit_s]),
                    "true_descriptor": np.stack([basis.reconstruct(basis.project(t)) for t in true_s]),

@@ -699,13 +699,5 @@ class Correction(StageBase):
             cal, name = DeviceCalibration.load(self.device), Path(self.device).name
         if not info.device:
             return None, f"; {name} ignored: the model is not conditioned on a device"
-        meta = info.meta
-        for key, what in (("device_design", cal.design), ("device_basis", cal.basis)):
-            if meta.get(key) and meta[key] != what:
-                kind = "lens design" if key == "device_design" else "descriptor basis"
-                raise ConfigError(f"{name}: a calibration of another {kind} than model {info.name}'s "
-                                  f"(device lens {cal.lens!r}, model lens {meta.get('lens', '?')!r})")
-        if cal.components < info.device:
-            raise ConfigError(f"{name}: {cal.components} descriptor components; model {info.name} "
-                              f"reads {info.device}")
+        cal.check_model(info.meta, info.device, name, f"model {info.name}")
         return cal, f"; device {name}"

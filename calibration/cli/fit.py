@@ -117,16 +117,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _device_file(fit, basis, args, path):
     """Write the device's ``device/v1`` calibration of the fitted proxy."""
-    from calibration.fit.device import device_calibration
-    from isp.io.files import file_sha256
+    from calibration.fit.device import device_calibration, measurement_source
 
     e = fit.errors()
     summary = {"sfra_rms_before": e["before"]["sfra_rms"], "sfra_rms_after": e["after"]["sfra_rms"],
                "chi2_per_obs": e["after"]["chi2_per_obs"], "parameters": len(fit.space.names)}
-    src = {"measured": Path(args.measured).name}
-    if Path(args.measured).is_file():
-        src["sha256"] = file_sha256(args.measured)
-    cal = device_calibration(fit.lens, basis, min(args.components, basis.size), fit=summary, source=src)
+    cal = device_calibration(fit.lens, basis, min(args.components, basis.size), fit=summary,
+                             source=measurement_source(args.measured))
     cal.save(path)
     return cal
 

@@ -155,18 +155,14 @@ def run(args: argparse.Namespace) -> int:
 def _device_file(base, rep, basis, args, path) -> None:
     """The device's ``device/v1`` calibration: the loop's final lens on the
     design's basis, and the effects it kept with their fitted values."""
-    from calibration.fit.device import device_calibration
-    from isp.io.files import file_sha256
+    from calibration.fit.device import device_calibration, measurement_source
 
     effects = [{"name": n, "params": {k: float(v) for k, v in rep.effect_values[n].items()}}
                for n in rep.effects_added]
     fit = {"sfra_rms_before": rep.error_before.get("sfra_rms"), "sfra_rms_after": rep.error_after.get("sfra_rms"),
            "noise_floor": rep.noise_floor, "unexplained": list(rep.unexplained)}
-    src = {"measured": Path(args.measured).name}
-    if Path(args.measured).is_file():
-        src["sha256"] = file_sha256(args.measured)
     device_calibration(base.lens(rep.base_x), basis, min(args.components, basis.size), fit=fit,
-                       effects=effects, source=src).save(path)
+                       effects=effects, source=measurement_source(args.measured)).save(path)
 
 
 def _curves(base, rep, obs, path, args) -> None:

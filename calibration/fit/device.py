@@ -69,7 +69,7 @@ from isp.io.device import FORMAT, MAX_BYTES, DeviceCalibration
 
 __all__ = ["BASIS_FORMAT", "DEFAULT_COMPONENTS", "DEFAULT_GRID", "DescriptorBasis", "DeviceCalibration",
            "FORMAT", "MAX_BYTES", "basis_from_psfs", "check_calibration", "describe", "descriptor_map_settings", "design_key",
-           "device_calibration", "learn_basis", "load_basis", "pixel_psfs"]
+           "device_calibration", "learn_basis", "load_basis", "measurement_source", "pixel_psfs", "psf_stack"]
 
 #: schema of the basis file (numpy ``.npz``)
 BASIS_FORMAT = "device-basis/v1"
@@ -124,6 +124,20 @@ def descriptor_map_settings(grid, channels=("R", "G", "B")):
     from calibration.optics.psf.map import PSFMapSettings
 
     return PSFMapSettings(grid=tuple(grid), channels=tuple(channels))
+
+
+def psf_stack(lenses, grid=DEFAULT_GRID, *, sensor=None, executor=None, cache_dir=None,
+              progress: bool = False) -> np.ndarray:
+    """Pixel PSFs ``(lenses, rows, cols, 3, m, m)`` of lenses on a
+    descriptor's grid (:func:`pixel_psfs` of each cached PSF map; ``sensor``
+    default each lens's own)."""
+    from tqdm import tqdm
+
+    from calibration.optics.psf.map import psf_map
+
+    settings = descriptor_map_settings(grid)
+    return np.stack([pixel_psfs(psf_map(pl, settings, sensor=sensor, cache_dir=cache_dir, executor=executor))
+                     for pl in tqdm(lenses, desc="PSF maps of drawn lenses", unit="lens", disable=not progress)])
 
 
 @dataclass(frozen=True)
@@ -294,7 +308,6 @@ def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] 
     DescriptorBasis
     """
     from calibration.optics.perturb import nominal
-    from calibration.optics.psf.map import psf_map
     from calibration.simulate.device import draw_lenses
 
     if draws < 2:
@@ -302,10 +315,7 @@ def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] 
     pl = nominal(lens)
     lenses = draw_lenses(pl, int(draws) + 1, np.random.default_rng(seed), tolerance_scale=tolerance_scale)[1:]
     settings = descriptor_map_settings(grid)
-    from tqdm import tqdm
-
-    stack = np.stack([pixel_psfs(psf_map(d, settings, cache_dir=cache_dir, executor=executor))
-                      for d in tqdm(lenses, desc="PSF maps of drawn lenses", unit="lens", disable=not progress)])
+    stack = psf_stack(lenses, grid, executor=executor, cache_dir=cache_dir, progress=progress)
     return basis_from_psfs(stack, lens=name or pl.nominal.name or "lens", design=design_key(pl), grid=grid,
                            channels=settings.channels, components=components, sensor=pl.lens.sensor,
                            meta={"tolerance_scale": tolerance_scale, "seed": seed, "psf": settings.__dict__})
@@ -368,6 +378,15 @@ def check_calibration(cal: DeviceCalibration, basis: DescriptorBasis) -> None:
     if cal.grid != basis.grid or cal.descriptor.shape[2] > basis.size:
         raise ValueError(f"descriptor {cal.descriptor.shape} does not fit the basis "
                          f"({basis.grid}, {basis.size} components)")
+
+
+def measurement_source(path) -> dict:
+    """A device file's ``source`` for a measurement: its file name, and its
+    SHA-256 where it is a file."""
+    from isp.io.files import file_sha256
+
+    p = Path(path)
+    return {"measured": p.name, **({"sha256": file_sha256(p)} if p.is_file() else {})}
 
 
 def device_calibration(proxy, basis: DescriptorBasis, k: int = DEFAULT_COMPONENTS, *, fit: dict | None = None,

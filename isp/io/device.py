@@ -56,7 +56,7 @@ from isp.errors import InputError
 from isp.io.files import write_bytes_atomic
 
 __all__ = ["DIGITS", "FORMAT", "MAX_BYTES", "PRIVATE_DATA_NAME", "DeviceCalibration", "descriptor_map",
-           "from_private_data", "private_data"]
+           "from_private_data", "private_data", "rounded"]
 
 #: schema of the file
 FORMAT = "device/v1"
@@ -66,6 +66,16 @@ MAX_BYTES = 64 * 1024
 DIGITS = 4
 #: the NUL-terminated name that starts this project's DNGPrivateData
 PRIVATE_DATA_NAME = b"phone-isp device/v1\0"
+
+
+def rounded(descriptor) -> list:
+    """A descriptor as the file holds it: nested lists of numbers to
+    :data:`DIGITS` significant digits.
+
+    >>> rounded(np.array([[[0.123456, -12.3456]]]))
+    [[[0.1235, -12.35]]]
+    """
+    return np.vectorize(lambda v: float(f"{v:.{DIGITS}g}"))(np.asarray(descriptor, dtype=np.float64)).tolist()
 
 
 def private_data(text: str) -> bytes:
@@ -180,6 +190,21 @@ class DeviceCalibration:
         ``(K, h, w)`` float32 (:func:`descriptor_map`)."""
         return descriptor_map(self.descriptor, rows, cols, full_size)
 
+    def check_model(self, meta: dict, k: int, name: str, model: str = "the model") -> None:
+        """ConfigError (one line, starting with ``name``) where a model of
+        metadata ``meta`` (``device_design``, ``device_basis``, ``lens``)
+        reading ``k`` descriptor channels cannot read this calibration:
+        another lens design, another basis, too few components."""
+        from isp.errors import ConfigError
+
+        for key, what, kind in (("device_design", self.design, "lens design"),
+                                ("device_basis", self.basis, "descriptor basis")):
+            if meta.get(key) and meta[key] != what:
+                raise ConfigError(f"{name}: a calibration of another {kind} than {model}'s "
+                                  f"(device lens {self.lens!r}, model lens {meta.get('lens', '?')!r})")
+        if self.components < k:
+            raise ConfigError(f"{name}: {self.components} descriptor components; {model} reads {k}")
+
     def to_text(self) -> str:
         """The file's JSON text (compact)."""
         return json.dumps(self.to_dict(), separators=(",", ":"))
@@ -187,8 +212,7 @@ class DeviceCalibration:
     def to_dict(self) -> dict:
         return {"format": FORMAT, "lens": self.lens, "design": self.design, "basis": self.basis,
                 "grid": list(self.grid), "components": self.descriptor.shape[2],
-                "descriptor": [[[float(f"{v:.{DIGITS}g}") for v in cell] for cell in row]
-                               for row in self.descriptor],
+                "descriptor": rounded(self.descriptor),
                 "effects": list(self.effects), "fit": self.fit, "source": self.source}
 
     def save(self, path) -> Path:

@@ -151,14 +151,7 @@ class TorchRunner:
         self.k_device = int(getattr(model, "device", 0))
         self.device = device
         if device is not None and self.k_device:
-            for key, what in (("device_design", device.design), ("device_basis", device.basis)):
-                if _info_get(info, key) and _info_get(info, key) != what:
-                    raise ConfigError(f"the device calibration is of another "
-                                      f"{'lens design' if key == 'device_design' else 'descriptor basis'} "
-                                      f"than model {self.path or ''}")
-            if device.components < self.k_device:
-                raise ConfigError(f"the device calibration has {device.components} descriptor components; "
-                                  f"the model reads {self.k_device}")
+            device.check_model(info, self.k_device, "the device calibration", f"model {self.path or ''}")
         domain = _info_get(info, "domain")
         if domain not in (None, *DOMAINS):
             raise ConfigError(f"model {self.path or ''} was trained for {domain} data; the evaluation "

@@ -469,14 +469,13 @@ def lens_descriptors(lenses, basis, components: int = 16, *, executor=None, cach
     ``components`` and one ``rows × cols × K`` list per lens (4 significant
     digits, as a device file holds them)."""
     from calibration.fit.device import describe, load_basis
-    from isp.io.device import DIGITS
+    from isp.io.device import rounded
 
     b = load_basis(basis, lenses[0])
     k = min(int(components), b.size)
     return {"lens": b.lens, "design": b.design, "basis": b.key, "basis_file": str(basis), "grid": list(b.grid),
             "components": k,
-            "descriptors": [np.vectorize(lambda v: float(f"{v:.{DIGITS}g}"))(
-                describe(pl, b, k, executor=executor, cache_dir=cache_dir)).tolist() for pl in lenses]}
+            "descriptors": [rounded(describe(pl, b, k, executor=executor, cache_dir=cache_dir)) for pl in lenses]}
 
 
 # -- many pairs ----------------------------------------------------------------------------

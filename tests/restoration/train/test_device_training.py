@@ -165,9 +165,10 @@ def test_a_conditioned_model_needs_pairs_with_descriptors(pairs, tmp_path):
     assert not (tmp_path / "out" / "model.pt").exists()
 
 
-def test_manifest_descriptors_round_to_the_file_digits(device_pairs):
+def test_the_manifest_carries_each_lens_descriptor(device_pairs):
     m = json.loads((device_pairs / "manifest.json").read_text())
-    assert np.array(m["device"]["descriptors"]).shape == (2, 2, 2, K)
+    assert np.array_equal(np.array(m["device"]["descriptors"]), DESCRIPTORS)
+    assert m["device"]["design"] == DESIGN and m["device"]["components"] == K
 
 
 def test_the_evaluation_runs_a_conditioned_model_with_the_device(device_model):
