@@ -82,7 +82,10 @@ metadata key              default    meaning
 ``attention``             "local"    ``"local"``: attention statistics from a bounded
                                      neighbourhood (tile-consistent, nothing to do);
                                      ``"global"``: pooled over the whole input, so the
-                                     model must take them as a ``stats`` input
+                                     model must take them as a ``stats`` input;
+                                     ``"field"``: from the field position (and the
+                                     device's descriptor) alone, no image content
+                                     (tile-consistent, nothing to do)
 ========================  =========  ======================================================
 
 Attention statistics
@@ -132,7 +135,7 @@ DEFAULT_TILE_SIZE = 512
 DEFAULT_OVERLAP = 32
 DEFAULT_MULTIPLE = 4
 FOV_ENCODINGS = ("none", "xy")
-ATTENTION_MODES = ("local", "global")
+ATTENTION_MODES = ("local", "global", "field")
 #: name of the optional frame-statistics input
 STATS_INPUT = "stats"
 _DTYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16}

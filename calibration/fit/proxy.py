@@ -428,7 +428,9 @@ class ProxyFitSettings:
         None: fit on all observations from the start.
     fine_iter : int, optional
         Iterations at most of a coarse-to-fine fit's stage on all
-        observations (≥ 1); None: ``max_iter``. Each costs as much as the
+        observations (≥ 0); None: ``max_iter``; 0: stop after the coarse
+        stage (the fit and its errors are then the sub-grid's: what a device
+        calibration on the descriptor's own 5 × 7 regions needs). Each costs as much as the
         whole coarse stage's per observation: on e1's clean device (41
         perturbations, 1,200 edges, 24 s an iteration) the merit after 12
         stood within 1.3 % of where 20 left it.
@@ -500,7 +502,7 @@ class ProxyFitSettings:
             if getattr(self, name) not in valid:
                 raise bad(name, f"unknown {getattr(self, name)!r}; valid: {', '.join(map(repr, valid))}")
         integer("max_iter", 1)
-        integer("fine_iter", 1, optional=True)
+        integer("fine_iter", 0, optional=True)
         integer("n_params", 1, optional=True)
         integer("refresh", 1)
         integer("restarts", 0)
@@ -738,11 +740,14 @@ def _coarse_to_fine(nominal, obs, mask, names, cfg: ProxyFitSettings, ex: Execut
     # unit of χ² to gain, whatever χ² per residual the model's own error leaves (on e9 device 1 at
     # 15 × 20 the merit stood within 0.01 % for its last 12 of 20 iterations, each rejected step
     # costing up to 24 evaluations of all 600 observations)
-    fine_cfg = dataclasses.replace(cfg, restarts=0, floor_chi2=np.inf, max_iter=cfg.fine_iter or cfg.max_iter)
-    fine = _fit(nominal, obs, fine_cfg, list(first.space.names), first.u, ex)
     stage = {"observations": int(mask.sum()), "evaluations": first.evaluations, "seconds": round(first.seconds, 2),
              "merit": None if first.result is None else round(first.result.merit, 3),
              "residuals": None if first.result is None else int(first.result.residuals.size)}
+    if cfg.fine_iter == 0:
+        return dataclasses.replace(first, coarse={**stage, "refined": False})
+    fine_iter = cfg.max_iter if cfg.fine_iter is None else cfg.fine_iter
+    fine_cfg = dataclasses.replace(cfg, restarts=0, floor_chi2=np.inf, max_iter=fine_iter)
+    fine = _fit(nominal, obs, fine_cfg, list(first.space.names), first.u, ex)
     return dataclasses.replace(fine, evaluations=first.evaluations + fine.evaluations,
                                seconds=time.perf_counter() - t0, restarts=first.restarts, coarse=stage)
 

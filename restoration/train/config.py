@@ -41,6 +41,9 @@ class DataConfig:
     #: σ of the noise added to each pair's device descriptor (units of its spread over the tolerances):
     #: a fitted descriptor's own error, so a conditioned network trusts it as far as a fit deserves
     descriptor_noise: float = 0.0
+    #: share of pairs whose descriptor is another pair's (a random one of the bank): a module given a
+    #: wrong calibration, so a conditioned network learns to check the descriptor against the image
+    descriptor_swap: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -181,9 +184,11 @@ class TrainConfig:
         _positive(d.batch, "data.batch")
         if d.crop % 4:
             raise ConfigError(f"data.crop must be a multiple of 4 (the network's input multiple); got {d.crop}")
-        for k in ("val_latents", "val_pairs"):
+        for k in ("val_latents", "val_pairs", "descriptor_noise"):
             if getattr(d, k) < 0:
                 raise ConfigError(f"data.{k} must be ≥ 0; got {getattr(d, k)}")
+        if not 0 <= d.descriptor_swap < 1:
+            raise ConfigError(f"data.descriptor_swap must be in [0, 1); got {d.descriptor_swap}")
         if not self.data_dirs():
             raise ConfigError("no training data: give data.dirs (isp synth output folders) or a [synth] section")
         if self.synth is not None:

@@ -72,6 +72,8 @@ key                            default              meaning
 ``synth.device_components``    16                   descriptor components kept
 ``data.descriptor_noise``      0                    σ of the noise on each pair's descriptor
                                                     (spread units): the fitted one's error
+``data.descriptor_swap``       0                    share of pairs given another pair's
+                                                    descriptor (a wrong calibration), in [0, 1)
 ``model.variant``              ``"doconv"``         :func:`restoration.nn.network.build_model` name
 ``model.kwargs``               {}                   its overrides, e.g. ``{depths = [1, 2, 1]}``
 ``model.placement``            ``"pipeline"``       where the model runs and what the loss sees:
@@ -477,13 +479,15 @@ class PairBank:
             out.append(np.arange(first, last + 1, multiple) if first <= last else np.arange(0, last + 1))
         return out
 
-    def batch(self, idx, offsets, crop: int, descriptor_noise: float = 0.0, rng=None):
+    def batch(self, idx, offsets, crop: int, descriptor_noise: float = 0.0, rng=None, descriptor_swap: float = 0.0):
         """Model input ``(B, 5 [+ K], crop, crop)``, target ``(B, 3, crop,
         crop)`` (float32 numpy) and the per-pair ``Process`` metadata. With
         descriptors, channels 5… hold the pair's lens descriptor at each
         pixel (:func:`isp.io.device.descriptor_map`, as the correction stage
         fills them), plus Gaussian noise of ``descriptor_noise`` per region
-        and component (a fitted descriptor's own error), drawn from ``rng``."""
+        and component (a fitted descriptor's own error), drawn from ``rng``;
+        with probability ``descriptor_swap`` a pair gets a random pair's
+        descriptor instead (a wrong calibration), before the noise."""
         from isp.io.device import descriptor_map
         from modules.correction import field_coordinates
 
@@ -498,6 +502,8 @@ class PairBank:
             x[n, 3:5] = field_coordinates((crop, crop), o, full)
             if self.descriptor is not None:
                 d = self.descriptor[i]
+                if descriptor_swap and rng.random() < descriptor_swap:
+                    d = self.descriptor[rng.integers(len(self.descriptor))]
                 if descriptor_noise:
                     d = d + rng.normal(0.0, descriptor_noise, d.shape)
                 x[n, 5:] = descriptor_map(d, np.arange(crop) + o[0], np.arange(crop) + o[1], full)
@@ -916,7 +922,7 @@ def train(config: TrainConfig, *, resume=None, executor=None, log=print) -> dict
             set_temperature(model, temp)
             idx = batch_plan(step, len(bank), d.batch, r.seed)
             x, y, meta = bank.batch(idx, crop_plan(step, bank, idx, d.crop, mult, r.seed), d.crop,
-                                    d.descriptor_noise, _rng(r.seed, 3, step))
+                                    d.descriptor_noise, _rng(r.seed, 3, step), d.descriptor_swap)
             x, y = torch.from_numpy(x).to(device), torch.from_numpy(y).to(device)
             loss = placed_loss(loss_of, model, x, y, meta, placement)
             objective = loss + o.highpass_penalty * highpass_removed_power(model) if o.highpass_penalty else loss

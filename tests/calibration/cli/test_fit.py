@@ -147,7 +147,8 @@ def test_scipy_fits_restart_as_dls_fits_do(device_obs):
     assert (again.result.merit < plain.result.merit) == bool(kept)
 
 
-@pytest.mark.parametrize("bad", [["--coarse", "-1", "7"], ["--coarse", "0", "7"], ["--bootstrap", "-1"]])
+@pytest.mark.parametrize("bad", [["--coarse", "-1", "7"], ["--coarse", "0", "7"], ["--bootstrap", "-1"],
+                                 ["--fine-iter", "-1"], ["--fine-iter", "0", "--coarse", "0", "0"]])
 def test_a_bad_option_is_one_line_exit_2(capsys, tmp_path, device_obs, bad, e9_zmx):
     _, obs_path = device_obs
     out = tmp_path / "proxy"

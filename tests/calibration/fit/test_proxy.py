@@ -151,3 +151,8 @@ def test_coarse_to_fine_recovers_the_device_as_the_full_fit_does(grid_device):
     err_staged = np.abs(staged.u - U_TRUE).max()
     assert err_full < 0.1 and err_staged < max(0.1, 1.5 * err_full)
     assert staged.result.merit <= 1.1 * full.result.merit
+    # fine_iter = 0: the sub-grid's fit is the result, its observations the sub-grid's, no evaluation on the rest
+    quick = fit_proxy(lens, obs, ProxyFitSettings(coarse=(2, 3), fine_iter=0, **kw), names=NAMES, executor=serial)
+    assert len(quick.observations) == 12 and quick.coarse["refined"] is False
+    assert quick.evaluations == quick.coarse["evaluations"] < staged.evaluations
+    assert np.abs(quick.u - U_TRUE).max() < 0.25

@@ -77,6 +77,15 @@ def test_each_pair_carries_its_lens_descriptor(device_pairs):
         assert np.allclose(x[n, 5:], want, atol=1e-6)
     noisy, _, _ = bank.batch([3], [(4, 8)], 32, 0.3, np.random.default_rng(0))
     assert 0.01 < np.std(noisy[0, 5:] - x[0, 5:]) < 0.3         # per-region noise, interpolated
+    # a swapped descriptor is another pair's lens's, exactly (no noise), and the image is the pair's own
+    o = bank.origin[3] + (4, 8)
+    others = {lens[j] for j in range(len(bank)) if lens[j] != lens[3]}
+    rng = np.random.default_rng(1)
+    swapped = [bank.batch([3], [(4, 8)], 32, 0.0, rng, descriptor_swap=0.999)[0] for _ in range(12)]
+    assert all(np.array_equal(s[0, :5], x[0, :5]) for s in swapped)
+    seen = {next((k for k in others | {lens[3]} if np.allclose(s[0, 5:], descriptor_map(
+        DESCRIPTORS[k], np.arange(32) + o[0], np.arange(32) + o[1], (96, 128)), atol=1e-6)), None) for s in swapped}
+    assert None not in seen and seen & others
 
 
 @pytest.fixture(scope="module")
@@ -274,3 +283,31 @@ def test_a_profile_carries_a_modules_calibration(device_model, tmp_path):
         else:
             os.environ[ENV_VAR] = old
         reload_profiles()
+
+
+def test_field_driven_attention_exports_and_tiles_as_the_whole_frame(tmp_path):
+    """``device_attention`` (attention from field and descriptor alone,
+    metadata ``attention = "field"``): the stage runs it, and its tiles equal
+    the whole frame, as the stage's ``local`` models' do."""
+    from export.onnx_export import export_onnx
+    from isp import Domain
+    from modules.correction import Correction
+    from restoration.nn.checkpoint import save_checkpoint
+    from restoration.nn.network import build_model
+    from tests.helpers import EXPORT_META
+
+    kw = {**TINY, "device": K}
+    meta = {**{k: v for k, v in EXPORT_META.items() if k != "attention"},   # the export reads it off the model
+            "device_components": K, "device_design": DESIGN, "device_basis": BASIS}
+    torch.manual_seed(0)
+    ckpt = save_checkpoint(tmp_path / "m.pt", build_model("device_attention", **kw), variant="device_attention",
+                           model_kwargs=kw, step=1, metadata=meta)
+    report = export_onnx(ckpt, tmp_path / "att.onnx", tile_size=0, measure_overlap=False)
+    assert report["metadata"]["attention"] == "field"
+    tile = 2 * int(report["metadata"]["receptive_radius"]) + 32
+    frame = make_frame(np.random.default_rng(6).random((96, 3 * tile, 3)), Domain.CAMERA_RGB)
+    dev = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0]).save(tmp_path / "dev.json")
+    whole = Correction(model=tmp_path / "att.onnx", device=dev, tile_size=0).process(frame)
+    tiled = Correction(model=tmp_path / "att.onnx", device=dev, tile_size=tile).process(frame)
+    assert np.abs(whole.data - tiled.data).max() < 1e-5
+    assert np.abs(whole.data - frame.data).max() > 1e-4          # the network did something
