@@ -38,6 +38,7 @@ EPILOG = """examples:
   isp calib fit --lens e9.zmx --measured obs.json --residuals bands --no-fast-jacobian
   isp calib fit --lens e9.zmx --measured capture.dng --bootstrap 20 -o e9_proxy/   # each edge its own σ
   isp calib fit --lens e9.zmx --measured capture.dng --basis e9_basis.npz -o dev3/   # + device.json
+  isp calib fit --lens e9.zmx --measured capture.dng --basis e9_basis.npz --fine-iter 0 -o dev3/   # the line's quick fit
 """
 
 
@@ -173,7 +174,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fine-iter", type=int, default=None, metavar="N",
                    help="iterations at most of the refinement on all edges (default: --max-iter); 0: none, the "
                         "coarse sub-grid's fit is the result: enough for a device calibration (--basis), whose "
-                        "descriptor is read on 5 × 7 regions, in about a third of the time")
+                        "descriptor is read on 5 × 7 regions, in under a third of the time (64 s against 229 s on an "
+                        "e9 module, 2 cores; benchmarks/device_workflow.py)")
     p.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
     p.add_argument("--basis", metavar="BASIS.npz",
                    help="the design's descriptor basis (`isp calib basis`): also write device.json, the "
