@@ -251,8 +251,8 @@ def per_module(records: list[dict], light: str, ring: str = "0.9") -> list[dict]
 
 
 def plot(records: list[dict], path: Path, lens: str) -> Path:
-    """Per module and ring, each arm's gain over uncorrected at both lights
-    (PNG, written atomically)."""
+    """Per module and ring, each arm's gain over uncorrected at every light
+    scored (PNG, written atomically); the ``--extra`` variants are left out."""
     import io
 
     import matplotlib
@@ -264,8 +264,8 @@ def plot(records: list[dict], path: Path, lens: str) -> Path:
     lights = [k for k in LIGHTS if any(k in r.get("scores", {}) for r in records)]
     fig, axes = plt.subplots(len(lights), len(RINGS), figsize=(4.2 * len(RINGS), 3.2 * len(lights)),
                              sharey="row", squeeze=False)
-    names = arm_names(records)
-    colours = dict(zip(names, plt.get_cmap("tab20").colors))
+    names = [a for a in arm_names(records) if a in ARMS]    # the variants (--extra) are the tables' to show
+    colours = dict(zip(names, plt.get_cmap("tab10").colors))
     for i, light in enumerate(lights):
         for j, ring in enumerate(RINGS):
             ax = axes[i, j]
