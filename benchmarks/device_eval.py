@@ -22,7 +22,7 @@ draws), the line's steps are run and scored:
    correction stage refuses it (tests/restoration/train/test_device_training.py);
 5. with ``--quick``, the module calibrated as a line in a hurry would:
    ``isp calib fit --fine-iter 0`` (the coarse 5 × 7 sub-grid's fit, the
-   descriptor's own regions), its time and its score (``quick``);
+   descriptor's own regions), its time (``fit_quick``) and its score (``quick``);
 6. with ``--skimage``, blind, fitted and true once more on scikit-image's
    photographs, which the project never trained or tuned on (``skimage``,
    the default light);
@@ -70,6 +70,12 @@ TARGET_LIGHTS = ("default", "bright")
 SKIMAGE = ("astronaut", "coffee", "rocket", "chelsea")
 #: the arms scored on scikit-image's images (the study's end, not its every arm)
 SKIMAGE_ARMS = ("blind", "fitted", "true")
+RINGS = ("0.1", "0.5", "0.9")
+#: arms in the order the tables and the plot show them, and their labels (``--extra`` arms follow)
+ARMS = {"blind": "blind model", "fitted": "conditioned, fitted file", "quick": "conditioned, quick fit",
+        "true": "conditioned, true descriptor", "per_device": "per-device model (bound)",
+        "other": "conditioned, another module's file", "nominal": "conditioned, the nominal lens's file",
+        "wiener": "Wiener, true PSF"}
 
 
 def skimage_folder(into: Path) -> Path:
@@ -81,7 +87,6 @@ def skimage_folder(into: Path) -> Path:
     for name in SKIMAGE:
         cv2.imwrite(str(into / f"skimage_{name}.png"), getattr(skimage.data, name)()[..., ::-1])
     return into
-RINGS = ("0.1", "0.5", "0.9")
 
 
 def _save(path: Path, rec: dict) -> None:
@@ -101,39 +106,37 @@ def prepare(rec: dict, work: Path, lens_path: Path, pl, basis_path: Path, size: 
     if not true_dev.is_file():
         save_proxy(true_lens, pl.nominal, pl.perturbation)
         device_calibration(pl, load_basis(basis_path, pl), source={"measured": "the module's true lens"}).save(true_dev)
-    cap, fit = work / "capture.dng", work / "fit"
-    if "fit" not in rec and (fit / "device.json").is_file():    # fitted by an earlier run into this work folder
-        f = json.loads((fit / "fit.json").read_text())
-        rec["fit"] = {"seconds": None, "fit_seconds": f["seconds"], "sfra_rms_before": f["errors"]["before"]["sfra_rms"],
-                      "sfra_rms_after": f["errors"]["after"]["sfra_rms"]}
-    if "fit" not in rec:
+    cap = work / "capture.dng"
+    if "fit" not in rec and not (work / "fit" / "device.json").is_file():
         t0 = time.perf_counter()
         if not cap.is_file() and isp(["calib", "simulate", str(true_lens), "-o", str(cap), "--size", size]) != 0:
             raise RuntimeError(f"{cap}: the simulation failed")
-        if isp(["calib", "fit", "--lens", str(lens_path), "--measured", str(cap), "--basis", str(basis_path),
-                "-o", str(fit), *fit_args]) != 0:
-            raise RuntimeError(f"{fit}: the fit failed")
-        f = json.loads((fit / "fit.json").read_text())
-        rec["fit"] = {"seconds": round(time.perf_counter() - t0, 1), "fit_seconds": f["seconds"],
-                      "sfra_rms_before": f["errors"]["before"]["sfra_rms"],
-                      "sfra_rms_after": f["errors"]["after"]["sfra_rms"]}
-    return {"true_lens": true_lens, "true": true_dev, "fitted": fit / "device.json"}
+        fit_module(rec, "fit", work, lens_path, basis_path, fit_args, t0)
+    elif "fit" not in rec:          # fitted by an earlier run into this work folder: its time is unknown
+        fit_module(rec, "fit", work, lens_path, basis_path, fit_args, None)
+    return {"true_lens": true_lens, "true": true_dev, "fitted": work / "fit" / "device.json"}
 
 
-def prepare_quick(rec: dict, work: Path, lens_path: Path, basis_path: Path, fit_args: list) -> Path:
-    """The line's quick calibration of a module (``--fine-iter 0``: the
-    coarse sub-grid's fit alone) from the capture :func:`prepare` made: its
-    ``device.json``, and the fit's time in ``rec["quick_fit"]``."""
+def fit_module(rec: dict, key: str, work: Path, lens_path: Path, basis_path: Path, fit_args: list,
+               t0: float | None = 0.0) -> Path:
+    """``isp calib fit --basis`` on the module's capture into ``work/KEY``
+    (the full fit, ``"fit"``; the line's quick one, ``"fit_quick"``:
+    ``--fine-iter 0``, the coarse sub-grid's fit alone), and its summary in
+    ``rec[key]``: seconds since ``t0`` (0: from now; None: not run here,
+    the folder's earlier fit is read), the fit's own seconds and SFRA
+    errors. Its ``device.json``."""
     from isp.cli.main import main as isp
 
-    fit = work / "fit_quick"
-    if "quick_fit" not in rec or not (fit / "device.json").is_file():
-        t0 = time.perf_counter()
+    fit = work / key
+    if t0 is not None:
+        t0 = t0 or time.perf_counter()
+        quick = ["--fine-iter", "0"] if key == "fit_quick" else []
         if isp(["calib", "fit", "--lens", str(lens_path), "--measured", str(work / "capture.dng"), "--basis",
-                str(basis_path), "--fine-iter", "0", "-o", str(fit), *fit_args]) != 0:
+                str(basis_path), *quick, "-o", str(fit), *fit_args]) != 0:
             raise RuntimeError(f"{fit}: the fit failed")
-        f = json.loads((fit / "fit.json").read_text())
-        rec["quick_fit"] = {"seconds": round(time.perf_counter() - t0, 1), "fit_seconds": f["seconds"]}
+    f = json.loads((fit / "fit.json").read_text())
+    rec[key] = {"seconds": None if t0 is None else round(time.perf_counter() - t0, 1), "fit_seconds": f["seconds"],
+                "sfra_rms_before": f["errors"]["before"]["sfra_rms"], "sfra_rms_after": f["errors"]["after"]["sfra_rms"]}
     return fit / "device.json"
 
 
@@ -187,9 +190,9 @@ def summarise(records: list[dict]) -> dict:
         if "blind" in g:
             targets["fitted_0.9_twice_blind"] = f9 >= 2 * g["blind"]["0.9"]
         if "per_device" in g:   # on the modules that have a per-device model
-            both = [(gain(sc, "fitted", "0.9"), gain(sc, "per_device", "0.9"))
-                    for sc in (rec.get("scores", {}).get("default", {}) for rec in records)
-                    if gain(sc, "fitted", "0.9") is not None and gain(sc, "per_device", "0.9") is not None]
+            pairs = [(gain(sc, "fitted", "0.9"), gain(sc, "per_device", "0.9"))
+                     for sc in (rec.get("scores", {}).get("default", {}) for rec in records)]
+            both = [pr for pr in pairs if None not in pr]
             f, b = np.mean(both, axis=0)
             out["fitted_share_of_per_device_0.9"] = {"modules": len(both), "fitted_db": round(float(f), 3),
                                                      "per_device_db": round(float(b), 3),
@@ -209,21 +212,14 @@ def summarise(records: list[dict]) -> dict:
     return out
 
 
-#: arms in the order the table and plot show them, and their labels
 def arm_names(records: list[dict]) -> list[str]:
-    """The arms scored in ``records``: :data:`ARMS`'s in its order, then any
-    other (``--extra``'s), in the order first met."""
-    seen = list(ARMS)
-    for rec in records:
-        for light in rec.get("scores", {}).values():
-            seen += [a for a in light if a not in seen]
-    return [a for a in seen if a == "wiener" or any(a in lt for rec in records for lt in rec.get("scores", {}).values())]
-
-
-ARMS = {"blind": "blind model", "fitted": "conditioned, fitted file", "quick": "conditioned, quick fit",
-        "true": "conditioned, true descriptor", "per_device": "per-device model (bound)",
-        "other": "conditioned, another module's file", "nominal": "conditioned, the nominal lens's file",
-        "wiener": "Wiener, true PSF"}
+    """The arms scored in ``records`` (``wiener`` wherever ``blind`` is, its
+    baseline): :data:`ARMS`'s in its order, then the others (``--extra``'s)
+    in the order first met."""
+    scored = list(dict.fromkeys(a for rec in records for light in rec.get("scores", {}).values() for a in light))
+    if "blind" in scored:
+        scored.append("wiener")
+    return [a for a in ARMS if a in scored] + [a for a in scored if a not in ARMS]
 
 
 def gain(scores: dict, arm: str, ring: str) -> float | None:
@@ -359,8 +355,10 @@ def main(argv=None) -> dict:
             files = prepare(rec, work[d], lens_path, pl, Path(args.basis), args.size, args.fit_args.split())
             _save(part, rec)
             if args.quick:
-                files["quick"] = prepare_quick(rec, work[d], lens_path, Path(args.basis), args.fit_args.split())
-                _save(part, rec)
+                files["quick"] = work[d] / "fit_quick" / "device.json"
+                if "fit_quick" not in rec or not files["quick"].is_file():
+                    fit_module(rec, "fit_quick", work[d], lens_path, Path(args.basis), args.fit_args.split())
+                    _save(part, rec)
             if args.fit_only:
                 continue
             scores = rec.setdefault("scores", {})
@@ -389,8 +387,7 @@ def main(argv=None) -> dict:
                     scores.setdefault(light, {})[arm] = score(model, images, files["true_lens"], light,
                                                               args.positions, dev)
                     _save(part, rec)
-            g = {a: round(s["0.9"]["psnr_corrected"] - s["0.9"]["psnr_uncorrected"], 2)
-                 for a, s in scores["default"].items()}
+            g = {a: round(gain(scores["default"], a, "0.9"), 2) for a in scores["default"]}
             print(f"{args.lens} module {d}: gain at FoV 0.9, default light: {g}", flush=True)
             records.append(rec)
     if args.fit_only:

@@ -39,6 +39,7 @@ if __name__ == "__main__":
     _harness.pin_threads(2, blas=1)
 
 import json  # noqa: E402
+import shutil  # noqa: E402
 import statistics  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -112,8 +113,6 @@ def workflow(args) -> dict:
                 continue
             fit = work / f"fit_{name}"
             if fit.exists():
-                import shutil
-
                 shutil.rmtree(fit)
             c = _harness.run_child([*isp_cmd, "calib", "fit", "--lens", str(lens), "--measured", str(chart),
                                     "--basis", args.basis, "-o", str(fit), "--workers", "2",

@@ -444,7 +444,7 @@ def export_onnx(checkpoint, out_path, *, opset: int = MIN_OPSET, tile_size: int 
         raise ConfigError(f"{checkpoint}: the checkpoint's metadata has no 'domain'; the correction stage "
                           "needs it to check the model's placement")
     cfg = getattr(model, "config", {})
-    attention = meta.get("attention") or {"global": "global", "field": "field"}.get(cfg.get("pool"), "local")
+    attention = meta.get("attention") or cfg.get("pool", "local")   # as training writes it: the network's pool
     if "receptive_radius" in meta:
         radius = int(meta["receptive_radius"])
     else:

@@ -304,6 +304,11 @@ def test_field_driven_attention_exports_and_tiles_as_the_whole_frame(tmp_path):
                            model_kwargs=kw, step=1, metadata=meta)
     report = export_onnx(ckpt, tmp_path / "att.onnx", tile_size=0, measure_overlap=False)
     assert report["metadata"]["attention"] == "field"
+    # every pool a network can have is an attention mode the stage knows (training and export write the pool)
+    from modules.correction import ATTENTION_MODES
+    from restoration.nn.doconv import POOL_MODES
+
+    assert set(POOL_MODES) <= set(ATTENTION_MODES)
     tile = 2 * int(report["metadata"]["receptive_radius"]) + 32
     frame = make_frame(np.random.default_rng(6).random((96, 3 * tile, 3)), Domain.CAMERA_RGB)
     dev = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0]).save(tmp_path / "dev.json")
