@@ -149,7 +149,7 @@ def test_no_history():
 README = ROOT / "README.md"
 #: the two set-up commands on a fresh machine: the main job, and the tests
 SETUP = ('pip install -e . && isp demo',
-         'pip install torch==2.13.0 && pip install -e ".[train,test]" && python -m pytest')
+         'pip install torch==2.13.0 && pip install -e ".[train,test,cluster]" && python -m pytest')
 
 
 def test_readme_is_a_users_guide():

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from isp.errors import ConfigError
+from isp.runtime.executor import add_executor_argument
 
 EPILOG = """examples:
   isp calib basis e9.zmx -o e9_basis.npz                     # 150 lenses drawn, 5 x 7 regions
@@ -39,6 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="of the draws (default 0)")
     p.add_argument("--tolerance-scale", type=float, default=1.0, help="multiplies every tolerance (default 1)")
     p.add_argument("--workers", type=int, default=None, help="processes per PSF map (default 2)")
+    add_executor_argument(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     lens = read_lens(args.lens)
     # the file's stem names the design: a patent's embodiments share the prescription's name
     basis = learn_basis(lens, args.draws, seed=args.seed, grid=tuple(args.grid), components=args.components,
-                        tolerance_scale=args.tolerance_scale, executor=pool_executor(args.workers),
+                        tolerance_scale=args.tolerance_scale, executor=pool_executor(args.workers, executor=args.executor),
                         progress=True, name=Path(args.lens).stem)
     basis.save(out)
     ex = basis.explained

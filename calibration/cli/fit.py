@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from isp.errors import ConfigError
+from isp.runtime.executor import add_executor_argument
 
 #: bootstrap replicas per edge of a capture (``--bootstrap``); off by default: on simulated device 3 the
 #: edges' own σ brought the fitted lens closer to the true one from a 1 µm capture (RMS SFR error 0.0130 →
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
                                                    refresh=args.refresh, restarts=args.restarts,
                                                    coarse=tuple(args.coarse) if args.coarse[0] > 0 else None,
                                                    fine_iter=args.fine_iter),
-                    executor=pool_executor(args.workers, progress=True))
+                    executor=pool_executor(args.workers, progress=True, executor=args.executor))
     with staged_folder(out) as tmp:
         fit.save(tmp)
         if basis is not None:
@@ -177,6 +178,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "descriptor is read on 5 × 7 regions, in under a third of the time (64 s against 229 s on an "
                         "e9 module, 2 cores; benchmarks/device_workflow.py)")
     p.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
+    add_executor_argument(p)
     p.add_argument("--basis", metavar="BASIS.npz",
                    help="the design's descriptor basis (`isp calib basis`): also write device.json, the "
                         "device's calibration for the shared correction model")

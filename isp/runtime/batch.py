@@ -80,13 +80,22 @@ def _process_job(job: tuple) -> tuple[str, str | None]:
     return process_file(*job)
 
 
-def batch_executor(workers: int = 2, files: int | None = None, *, progress: bool = True) -> Executor:
-    """The executor ``isp batch --workers N`` runs on: N worker processes
-    (no more than ``files`` or the machine's cores; one: in this process),
-    started safely for rawpy (:data:`TASK_IMPORTS`), with a progress bar."""
+def batch_executor(workers: int | None = 2, files: int | None = None, *, progress: bool = True,
+                   executor: str | None = None) -> Executor:
+    """The executor ``isp batch --workers N [--executor SPEC]`` runs on:
+    by default N worker processes (no more than ``files`` or the machine's
+    cores; one: in this process), started safely for rawpy
+    (:data:`TASK_IMPORTS`), with a progress bar; with a ``SPEC`` (or
+    ``ISP_EXECUTOR``), that executor (:func:`isp.runtime.executor.pool_executor`;
+    for Ray, N files in flight, None: the cluster's CPUs)."""
     import os
 
-    n = max(1, min(int(workers), files or int(workers), os.cpu_count() or 1))
+    from isp.runtime.executor import EXECUTOR_ENV
+
+    if executor or os.environ.get(EXECUTOR_ENV, "").strip():
+        return pool_executor(workers, progress=progress, imports=TASK_IMPORTS, executor=executor)
+    workers = 2 if workers is None else int(workers)
+    n = max(1, min(workers, files or workers, os.cpu_count() or 1))
     return pool_executor(n, progress=progress, imports=TASK_IMPORTS)
 
 

@@ -1,5 +1,5 @@
 """The one way this project maps a function over tasks: in this process, on
-threads, or on worker processes.
+threads, on worker processes, or on a cluster.
 
 An :class:`Executor` runs ``fn(task)`` for every task of a list and gives
 the results back in order (:meth:`Executor.map`) or as they finish, each
@@ -15,13 +15,20 @@ kind            runs the tasks
                 release the GIL: ray tracing, JPEG bands, diffraction sums)
 ``processes``   on a pool of worker processes (tasks holding the GIL,
                 long tasks); ``fn``, its tasks and results are pickled
+``ray``         on a Ray cluster, local or remote (:mod:`isp.runtime.ray_backend`,
+                the optional extra ``phone-isp[cluster]``); tasks as for
+                ``processes``, and a task whose worker dies is run again
 ==============  ==========================================================
 
-Another backend (a cluster engine such as Ray, for work one machine cannot
-hold) registers with :func:`register_backend` under a new kind: a class
-with ``map``, ``as_completed`` and ``close`` (:class:`Backend`), built from
-the executor's settings. Tasks written for ``processes`` (picklable, no
-shared state beyond the payload) run on it unchanged.
+Another backend registers with :func:`register_backend` under a new kind:
+a class with ``map``, ``as_completed`` and ``close`` (:class:`Backend`),
+built from the executor's settings. Tasks written for ``processes``
+(picklable, no shared state beyond the payload) run on it unchanged.
+
+Commands choose the kind with ``--executor`` or the environment variable
+``ISP_EXECUTOR`` (:func:`executor_from_spec`: ``processes``, ``serial``,
+``ray``, ``ray://HOST:PORT``), ``--workers`` the size; without either, a
+local process pool of up to two workers (:func:`pool_executor`).
 
 Process workers start under one policy: BLAS and OpenCV on one thread
 (:func:`isp.runtime.threads.one_blas_thread`,
@@ -302,6 +309,14 @@ class _Processes(_Pool):
                                    initializer=_start_worker, initargs=(self.start_method, self.payload, self.setup))
 
 
+@register_backend("ray")
+def _ray(workers: int | None, payload, setup, start_method: str, imports: tuple, **options):
+    """Ray, imported only when an executor of this kind starts."""
+    from isp.runtime.ray_backend import RayBackend
+
+    return RayBackend(workers, payload, setup, start_method, imports, **options)
+
+
 # -- the executor ---------------------------------------------------------------------------------
 
 def default_start_method(imports: Iterable[str] = ()) -> str:
@@ -333,10 +348,10 @@ class Executor:
 
     Parameters
     ----------
-    kind : {"serial", "threads", "processes"} or a registered kind
+    kind : {"serial", "threads", "processes", "ray"} or a registered kind
     workers : int, optional
-        Threads or processes, ≥ 1 (default: the machine's cores); ignored by
-        "serial".
+        Threads or processes, ≥ 1 (default: the machine's cores; for "ray",
+        the cluster's CPUs); ignored by "serial".
     progress : bool
         Draw a tqdm bar on stderr for each map given a ``desc`` (and in
         :meth:`bar`).
@@ -355,6 +370,9 @@ class Executor:
         ``setup(payload) -> state`` run once in each worker process (once
         in this process for "serial" and "threads"): what tasks read with
         :func:`worker_payload`. Must be picklable (a module-level function).
+    options : dict, optional
+        Keyword arguments of the backend (for "ray": ``address``,
+        ``retries``).
 
     Notes
     -----
@@ -372,9 +390,10 @@ class Executor:
 
     def __init__(self, kind: str = "serial", workers: int | None = None, *, progress: bool = False,
                  start_method: str = "auto", imports: Iterable[str] = (), payload: Any = _UNSET,
-                 setup: Callable | None = None):
+                 setup: Callable | None = None, options: dict | None = None):
         if kind not in BACKENDS:
             raise ConfigError(f"unknown executor kind {kind!r}; valid: {', '.join(map(repr, BACKENDS))}")
+        self._cluster_size = workers is None and kind == "ray"   # the cluster's CPUs, once connected
         if workers is None:
             workers = default_workers()
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -391,6 +410,7 @@ class Executor:
         self.imports = tuple(imports)
         self._payload = payload
         self._setup = setup
+        self.options = dict(options or {})
         self._backend = None
         self._lock = threading.Lock()
 
@@ -412,8 +432,9 @@ class Executor:
         """A new executor of this kind, workers, progress and start method
         whose workers hold ``payload`` (after ``setup``): one job's
         read-only data. Close it when the job ends (``with``)."""
-        return Executor(self.kind, self.workers, progress=self.progress, start_method=self.start_method,
-                        imports=self.imports, payload=payload, setup=setup)
+        return Executor(self.kind, None if self._cluster_size else self.workers, progress=self.progress,
+                        start_method=self.start_method, imports=self.imports, payload=payload, setup=setup,
+                        options=self.options)
 
     def _get_backend(self):
         with self._lock:
@@ -421,8 +442,10 @@ class Executor:
                 method = self.start_method
                 if self.kind == "processes" and method == "auto":
                     method = default_start_method(self.imports)
-                self._backend = BACKENDS[self.kind](self.workers, self._payload, self._setup, method,
-                                                    self.imports)
+                workers = None if self._cluster_size else self.workers
+                self._backend = BACKENDS[self.kind](workers, self._payload, self._setup, method,
+                                                    self.imports, **self.options)
+                self.workers = getattr(self._backend, "workers", None) or self.workers
             return self._backend
 
     def bar(self, total: int | None = None, desc: str | None = None, unit: str = "it", **kw):
@@ -466,9 +489,10 @@ class Executor:
         tasks = list(tasks)
         if not tasks:
             return
+        backend = self._get_backend()
         if chunksize is None:
             chunksize = max(1, len(tasks) // (4 * self.workers)) if self.isolated else 1
-        it = self._get_backend().map(fn, tasks, int(chunksize))
+        it = backend.map(fn, tasks, int(chunksize))
         if not (self.progress and desc):
             yield from it
             return
@@ -530,21 +554,78 @@ def create_executor(kind: str | Executor = "serial", workers: int | None = None,
     >>> create_executor("gpu")
     Traceback (most recent call last):
     ...
-    isp.errors.ConfigError: unknown executor kind 'gpu'; valid: 'serial', 'threads', 'processes'
+    isp.errors.ConfigError: unknown executor kind 'gpu'; valid: 'serial', 'threads', 'processes', 'ray'
     """
     if isinstance(kind, Executor):
         return kind
     return Executor(kind, workers, progress=progress, start_method=start_method, imports=imports)
 
 
-def pool_executor(workers: int | None, *, progress: bool = False, imports: Iterable[str] = ()) -> Executor:
-    """The process executor a command's ``--workers N`` asks for: "serial"
-    for 1 (no pool to start), "processes" beyond; None: up to 2 workers, the
-    phone budget, where the machine has the cores."""
+#: the environment variable holding a command's default executor (:func:`executor_from_spec`)
+EXECUTOR_ENV = "ISP_EXECUTOR"
+
+
+def executor_from_spec(spec: str, workers: int | None = None, *, progress: bool = False,
+                       imports: Iterable[str] = ()) -> Executor:
+    """The executor a command's ``--executor SPEC`` (or ``ISP_EXECUTOR``)
+    names.
+
+    ``SPEC`` is a kind (``serial``, ``threads``, ``processes``, ``ray`` or a
+    registered one), or a Ray cluster's address: ``ray://HOST:PORT`` (its
+    client server) or ``ray:HOST:PORT`` (its GCS address, from a node of
+    the cluster). ``workers``: the pool's size, or for Ray the chunks in
+    flight (None: the machine's cores, the cluster's CPUs for Ray).
+
+    Examples
+    --------
+    >>> executor_from_spec("processes", 2)
+    Executor('processes', workers=2, progress=False)
+    >>> executor_from_spec("ray://head:10001").options
+    {'address': 'ray://head:10001'}
+    >>> executor_from_spec("dask")
+    Traceback (most recent call last):
+    ...
+    isp.errors.ConfigError: --executor 'dask': valid: 'serial', 'threads', 'processes', 'ray', or ray://HOST:PORT
+    """
+    spec = str(spec).strip()
+    options = {}
+    if spec.startswith("ray://"):
+        kind, options["address"] = "ray", spec
+    elif spec.startswith("ray:"):
+        kind, options["address"] = "ray", spec[len("ray:"):]
+    else:
+        kind = spec
+    if kind not in BACKENDS or (kind == "ray" and "address" in options and not options["address"].strip(":/")):
+        raise ConfigError(f"--executor {spec!r}: valid: {', '.join(map(repr, BACKENDS))}, or ray://HOST:PORT")
+    return Executor(kind, workers, progress=progress, imports=imports, options=options)
+
+
+def pool_executor(workers: int | None, *, progress: bool = False, imports: Iterable[str] = (),
+                  executor: str | None = None) -> Executor:
+    """The executor a command's ``--workers N`` and ``--executor SPEC`` ask
+    for. With a ``SPEC`` (else the ``ISP_EXECUTOR`` environment variable):
+    that executor (:func:`executor_from_spec`) of ``workers``. Without: a
+    local pool, "serial" for 1 worker (no pool to start), "processes"
+    beyond; None: up to 2 workers, the phone budget, where the machine has
+    the cores."""
+    spec = executor or os.environ.get(EXECUTOR_ENV, "").strip()
+    if spec:
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+            raise ConfigError(f"workers must be an integer ≥ 1, got {workers!r}")
+        return executor_from_spec(spec, workers, progress=progress, imports=imports)
     n = default_workers(2) if workers is None else workers
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ConfigError(f"workers must be an integer ≥ 1, got {workers!r}")
     return Executor("serial" if n == 1 else "processes", n, progress=progress, imports=imports)
+
+
+def add_executor_argument(p) -> None:
+    """The ``--executor SPEC`` option of a command that maps its work
+    (argparse parser ``p``; :func:`pool_executor` reads it)."""
+    p.add_argument("--executor", metavar="SPEC", default=None,
+                   help="where the work runs: processes (a local pool, the default), serial, ray (a local Ray "
+                        "instance, or the cluster RAY_ADDRESS names) or ray://HOST:PORT (a Ray cluster); "
+                        f"default ${EXECUTOR_ENV}, else processes")
 
 
 # -- shared thread pools for numerical kernels ---------------------------------------------------

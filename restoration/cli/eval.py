@@ -15,6 +15,7 @@ from pathlib import Path
 
 from isp.cli.arguments import float_range, int_grid
 from isp.errors import ConfigError, InputError
+from isp.runtime.executor import add_executor_argument
 
 from restoration.synth.optics import PSF_DEFAULTS
 
@@ -84,6 +85,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="regions of the PSF map (default 15,20)")
     g.add_argument("--psf-cache", metavar="DIR", help="PSF-map cache folder")
     g.add_argument("--workers", type=int, default=2, help="processes for the PSF maps (default 2)")
+    add_executor_argument(g)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
 
@@ -146,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
                                 exposure_ev=args.exposure, noise_scale=args.noise_scale)
         report = evaluate(model, img_dir, lens, settings, cameras=args.camera,
                           psf_options={"n": args.psf_n, "grid": args.psf_grid}, cache_dir=args.psf_cache,
-                          threads=args.threads, executor=pool_executor(args.workers, progress=not args.quiet),
+                          threads=args.threads, executor=pool_executor(args.workers, progress=not args.quiet, executor=args.executor),
                           device=device)
     if args.limit is not None:
         report["images"]["dir"] = str(images)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from isp.cli.arguments import float_range, int_grid
 from isp.errors import ConfigError, InputError
+from isp.runtime.executor import add_executor_argument
 
 from restoration.synth.defaults import DATA, DEFAULT_CAMERAS
 from restoration.synth.optics import PSF_DEFAULTS
@@ -54,7 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="phone DNG whose colour metadata is drawn from (repeatable; the first is also "
                         "the sensor: CFA, levels, NoiseProfile)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
-    p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes (default 2), or shards in flight on Ray (default its CPUs)")
+    add_executor_argument(p)
     p.add_argument("--tolerance-scale", type=float, default=1.0,
                    help="scale of the default tolerances for drawn lenses (default 1)")
     p.add_argument("--shard-size", type=int, default=100, help="pairs per shard file (default 100)")
@@ -101,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.samples < 1:
         raise ConfigError(f"--samples must be ≥ 1, got {args.samples}")
-    if args.pairs < 1 or args.workers < 1 or args.shard_size < 1:
+    if args.pairs < 1 or (args.workers is not None and args.workers < 1) or args.shard_size < 1:
         raise ConfigError("--pairs, --workers and --shard-size must be ≥ 1")
     if not Path(args.lens).exists():
         raise InputError(args.lens, "no such lens file")
@@ -110,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     if args.device_components < 1:
         raise ConfigError(f"--device-components {args.device_components}: at least 1")
     cameras = args.camera or [str(DATA / c) for c in DEFAULT_CAMERAS]
-    executor = pool_executor(args.workers, progress=not args.quiet)
+    executor = pool_executor(args.workers, progress=not args.quiet, executor=args.executor)
     settings = SynthSettings(size=args.size, exposure_ev=args.exposure, cct_k=args.cct, noise_scale=args.noise_scale,
                              noise=not args.no_noise, blend=args.blend, demosaic=args.demosaic, tone=args.tone)
     p = plan(args.lens, samples=args.samples, latent_dir=args.latent, cameras=cameras, seed=args.seed,

@@ -493,10 +493,6 @@ def _setup_worker(p: SynthPlan) -> SynthPlan:
     return p
 
 
-def _pair_task(index: int) -> dict:
-    return make_pair(worker_payload(), index)
-
-
 def _target_dtype(p: SynthPlan):
     return np.uint16 if any(read_latent(f).dtype == np.uint16 for f in p.latents) else np.uint8
 
@@ -507,25 +503,43 @@ def _input_for_shard(pair: dict) -> dict:
     return pair
 
 
+def _shard_task(job: tuple) -> dict:
+    """One shard, made and written by the worker: pairs ``first`` to
+    ``first + count - 1`` of the plan (the payload) into ``path``
+    (atomically: a retried or interrupted task leaves the whole shard or
+    none). The pairs depend on the seed and their indices alone, so the
+    file is the same whichever worker writes it."""
+    path, first, count, tdtype = job
+    p = worker_payload()
+    return write_shard(path, [_input_for_shard(make_pair(p, i)) for i in range(first, first + count)],
+                       np.dtype(tdtype).type)
+
+
 def generate(p: SynthPlan, out_dir, pairs: int, *, shard_size: int = 100, force: bool = False,
              executor=None) -> dict:
     """Synthesise ``pairs`` pairs into shards under ``out_dir`` and write the
     manifest.
+
+    Each shard is one task: the worker makes its pairs and writes the file
+    (:func:`_shard_task`), so only the shards' records travel back, and a
+    cluster's workers write to the shared output folder directly.
 
     Parameters
     ----------
     p : SynthPlan
     out_dir : path
         Created if missing; must not hold a previous set unless ``force``.
+        On a cluster, a folder every node writes to (a shared file system).
     pairs : int
     shard_size : int
-        Pairs per shard file.
+        Pairs per shard file (the unit of work: at least as many shards as
+        workers keeps every worker busy).
     force : bool
         Replace a previous set in ``out_dir``.
     executor : isp.runtime.executor.Executor, optional
-        Runs the pairs, independent tasks, the plan each worker's payload
+        Runs the shards, independent tasks, the plan each worker's payload
         (default: 2 worker processes with a progress bar; "serial": in this
-        process). The pairs are the same on any executor.
+        process). The files are the same on any executor (tested).
 
     Returns
     -------
@@ -546,25 +560,19 @@ def generate(p: SynthPlan, out_dir, pairs: int, *, shard_size: int = 100, force:
     out.mkdir(parents=True, exist_ok=True)
     for f in old:
         f.unlink()
-    tdtype = _target_dtype(p)
-    shards, buf = [], []
+    tdtype = np.dtype(_target_dtype(p)).name
+    n, size = int(pairs), int(shard_size)
+    jobs = [(str(out.resolve() / shard_name(k)), first, min(size, n - first), tdtype)
+            for k, first in enumerate(range(0, n, size))]
     t0 = time.perf_counter()
-
-    def flush():
-        shards.append(write_shard(out / shard_name(len(shards)), [_input_for_shard(q) for q in buf], tdtype))
-        buf.clear()
-
-    with ex.bar(total=int(pairs), desc="synth", unit="pair", smoothing=0.1) as bar, \
+    shards = []
+    with ex.bar(total=n, desc="synth", unit="pair", smoothing=0.1) as bar, \
             ex.bind(p, setup=_setup_worker) as job:
-        for pair in job.imap(_pair_task, range(int(pairs)), chunksize=4 if job.isolated else 1):
-            buf.append(pair)        # written a shard at a time, as the pairs arrive
-            bar.update()
-            if len(buf) == shard_size:
-                flush()
-        if buf:
-            flush()
+        for record, (_, _, count, _) in zip(job.imap(_shard_task, jobs, chunksize=1), jobs):
+            shards.append(record)
+            bar.update(count)
     seconds = time.perf_counter() - t0
-    manifest = _manifest(p, int(pairs), int(shard_size), shards, tdtype)
+    manifest = _manifest(p, n, size, shards, np.dtype(tdtype).type)
     write_manifest(out, manifest)
     manifest["_seconds"] = seconds            # not written: the file stays deterministic
     return manifest
