@@ -27,6 +27,10 @@ commands never load the optics code. Sub-commands:
 ``loop``
     Close the loop on a measurement: fit, find the effects the model lacks,
     refit, report before/after.
+``fleet``
+    A folder of chart captures (a production line's modules) to one
+    device calibration each, resumable, on any executor, with the fleet's
+    report (yield, errors against the noise floor).
 
 Each sub-command is a module of this package with ``add_arguments(parser)``
 and ``run(args)`` (:data:`SUBCOMMANDS`). Errors print one line and exit
@@ -52,6 +56,7 @@ examples:
   isp calib basis phone.zmx -o phone_basis.npz    # once per lens design
   isp calib fit --lens phone.zmx --measured capture.dng --basis phone_basis.npz -o dev/   # + dev/device.json
   isp calib loop --lens parametric --measured edge.jpg --encoding srgb -o edge_loop/
+  isp calib fleet captures/ --lens phone.zmx --basis phone_basis.npz -o devices/ --executor ray
 """
 
 #: the sub-commands, in the order ``isp calib --help`` lists them
@@ -66,6 +71,8 @@ SUBCOMMANDS = (
             module="calibration.cli.basis"),
     Command("loop", "fit, find the effects the model lacks, refit; report before/after",
             module="calibration.cli.loop"),
+    Command("fleet", "a production line: one device calibration per chart capture, on a pool or a Ray cluster",
+            module="calibration.cli.fleet"),
 )
 
 

@@ -35,6 +35,15 @@ tasks return their results or write their outputs atomically (a temporary
 file renamed into place), so a retried task neither loses nor duplicates
 anything.
 
+Workers run at the priority of the work they do (``niceness``, default
+0). Ray starts its task workers at niceness 15, below anything else on
+the node; on a machine with any other process busy (the driver, a second
+job, a test run) they then starve: one fleet device took 475 s in such a
+worker against 29 s in a process-pool worker, beside the same background
+load (``os.nice`` read in the task: 15). The backend's tasks ask Ray for
+workers at ``niceness`` through the ``RAY_worker_niceness`` variable of
+their runtime environment, as Ray's own job supervisor does.
+
 At most ``workers`` chunks are in flight (default: the cluster's CPUs),
 so a long list does not flood the scheduler and ``map`` holds only the
 results not yet yielded.
@@ -165,18 +174,19 @@ class RayBackend:
     """:class:`isp.runtime.executor.Backend` on Ray (module docstring).
 
     Built as ``RayBackend(workers, payload, setup, start_method, imports,
-    address=None)``; ``workers`` caps the chunks in flight (None: the
-    cluster's CPUs); ``start_method`` and ``imports`` do not apply (Ray
+    address=None, retries=3, niceness=0)``; ``workers`` caps the chunks in
+    flight (None: the cluster's CPUs); ``start_method`` and ``imports`` do not apply (Ray
     starts its own workers). A local instance this process started stays
     up until the process exits (Ray stops it then): starting one costs
     seconds, and a job binds several executors in turn."""
 
     def __init__(self, workers: int | None, payload, setup, start_method: str, imports: tuple,
-                 address: str | None = None, retries: int = RETRIES):
+                 address: str | None = None, retries: int = RETRIES, niceness: int = 0):
         ray = _ray()
         connect(address, workers)
         self.workers = int(workers) if workers else cluster_cpus()
-        self._remote = ray.remote(num_cpus=1, max_retries=int(retries), retry_exceptions=False)(_run_chunk)
+        self._remote = ray.remote(num_cpus=1, max_retries=int(retries), retry_exceptions=False,
+                                  runtime_env={"env_vars": {"RAY_worker_niceness": str(int(niceness))}})(_run_chunk)
         self._key, self._box, self._setup = None, [], setup
         if payload is not _UNSET or setup is not None:
             self._key = os.urandom(8).hex()

@@ -175,3 +175,13 @@ def test_batch_of_three_dngs_matches_the_pool(local_ray, tmp_path, capsys):
     for name in BATCH:
         jpg = Path(name).stem + ".jpg"
         assert (tmp_path / "ray" / jpg).read_bytes() == (tmp_path / "pool" / jpg).read_bytes()
+
+
+def _niceness(_):
+    return os.nice(0)
+
+
+def test_workers_run_at_the_drivers_priority(local_ray):
+    """Ray's default worker niceness (15) starves tasks beside any other
+    load; the backend's tasks run at 0."""
+    assert executor_from_spec("ray", 2).map(_niceness, range(4), chunksize=1) == [0, 0, 0, 0]
