@@ -8,11 +8,15 @@ turn (:func:`benchmarks._harness.interleaved`), two workers each:
   time per task is the executor's own overhead (scheduling, pickling,
   the round trip).
 * **work tasks**: the same number of tasks of ``--task-ms`` of numpy
-  work each (measured alone first): the throughput against the ideal of
-  two cores, ``tasks × task_ms / 2``.
+  work each: the throughput against the ideal of two cores, the time one
+  worker process of the pool takes for half of them (timed in the same
+  runs: a task runs faster in a fresh worker than in this process, whose
+  timing would flatter every executor).
 * **payload**: a job whose workers read a ``--payload-mb`` array
   (``Executor.bind``), from creating the job to the last of 2 × 2 tasks:
-  what sending a PSF map or a basis to the workers costs.
+  what sending a PSF map or a basis to the workers costs. The pool starts
+  its workers by forkserver, as the project's jobs do (they hold rawpy or
+  onnxruntime), so each worker unpickles the payload once.
 
 Then **two nodes**: a Ray head and a worker node started here with
 ``ray start`` (``--num-cpus 1`` each, joined by address, as two machines
@@ -68,6 +72,7 @@ def _read_payload(i):
 
 
 def _rounds_for(ms: float) -> int:
+    _work(20)                       # warm: the first rounds allocate
     t0 = time.perf_counter()
     _work(50)
     per = (time.perf_counter() - t0) / 50
@@ -124,21 +129,23 @@ def main(argv=None) -> dict:
     from isp.runtime.executor import create_executor, executor_from_spec
 
     rounds = _rounds_for(args.task_ms)
-    task_s = _harness.measure(lambda: _work(rounds), runs=5).median
-    out = {"workers": 2, "tasks": args.tasks, "task_ms": round(1000 * task_s, 1), "runs": args.runs}
+    out = {"workers": 2, "tasks": args.tasks, "runs": args.runs}
     try:
         import ray
     except ImportError:
         ray = None
         out["ray"] = "not installed (pip install 'phone-isp[cluster]')"
-    kinds = {"processes": create_executor("processes", 2)}
+    # forkserver: how the project's jobs start their workers (they hold rawpy or onnxruntime, which
+    # rule out fork), and the start that pickles a payload to each worker as Ray puts it in its store
+    kinds = {"processes": create_executor("processes", 2, start_method="forkserver")}
     if ray is not None:
         t0 = time.perf_counter()
         ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
         kinds["ray"] = executor_from_spec("ray", 2)
         kinds["ray"].map(_empty, [0, 1], chunksize=1)
         out["ray_start_s"] = round(time.perf_counter() - t0, 2)
-    for ex in kinds.values():
+    one = create_executor("processes", 1, start_method="forkserver")
+    for ex in (*kinds.values(), one):
         ex.map(_empty, range(4), chunksize=1)       # workers up
 
     payload = np.ones(int(args.payload_mb * 2 ** 20 / 8))
@@ -152,8 +159,11 @@ def main(argv=None) -> dict:
             with ex.bind(payload) as j:
                 j.map(_read_payload, range(4), chunksize=1)
         fns[f"{k}_payload"] = job
+    fns["one_worker_half"] = lambda: one.map(_work, [rounds] * (n // 2), chunksize=1)
     t = _harness.interleaved(fns, runs=args.runs, warmup=1)
-    ideal = n * task_s / 2
+    ideal = t["one_worker_half"].median
+    out["ideal_s"] = t["one_worker_half"].as_dict(3)
+    out["task_ms"] = round(1000 * ideal / (n // 2), 1)       # one task in a worker
     res = {}
     for k in kinds:
         res[k] = {"empty_ms_per_task": round(1000 * t[f"{k}_empty"].median / n, 3),
@@ -164,7 +174,7 @@ def main(argv=None) -> dict:
               f"{t[f'{k}_work']} s ({100 * res[k]['work_efficiency']:.0f} % of two cores); "
               f"{args.payload_mb:g} MB payload job {t[f'{k}_payload']} s", file=sys.stderr)
     out["executors"] = res
-    for ex in kinds.values():
+    for ex in (*kinds.values(), one):
         ex.close()
     if ray is not None:
         ray.shutdown()

@@ -69,32 +69,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_executor_argument(p)
 
 
-def _effects(text: str | None):
-    from calibration.loop.effects import list_effects
-
-    if text is None:
-        return None
-    if text.strip().lower() == "none":
-        return ()
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    bad = [n for n in names if n not in list_effects()]
-    if bad:
-        raise ConfigError(f"--effects: unknown effect {bad[0]!r}; registered: {', '.join(list_effects())}, or none")
-    return names
-
-
 def run(args: argparse.Namespace) -> int:
     """Calibrate the fleet; 1 where any capture failed."""
     from isp.runtime.executor import pool_executor
 
-    from calibration.fleet import FleetSettings, run_fleet
+    from calibration.fleet import FleetSettings, parse_effects, run_fleet
 
     if min(args.coarse) < 0 or (0 in args.coarse and any(args.coarse)):
         raise ConfigError(f"--coarse {args.coarse[0]} {args.coarse[1]}: two positive counts, or 0 0 (off)")
     s = FleetSettings(n_params=args.n_params, max_iter=args.max_iter, restarts=args.restarts,
                       coarse=tuple(args.coarse) if args.coarse[0] > 0 else None,
                       fine_iter=args.fine_iter if args.coarse[0] > 0 else None,
-                      components=args.components, effects=_effects(args.effects), max_effects=args.max_effects, loop_iter=args.loop_iter,
+                      components=args.components, effects=parse_effects(args.effects), max_effects=args.max_effects, loop_iter=args.loop_iter,
                       folds=args.folds, channel=args.channel, encoding=args.encoding, pixel_um=args.pixel_um,
                       min_sfra_ratio=args.min_sfra_ratio)
     ex = pool_executor(args.workers, progress=True, executor=args.executor,

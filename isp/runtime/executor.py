@@ -79,7 +79,13 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from typing import Any, NamedTuple, Protocol
 
-from isp.errors import ConfigError, IspError
+from isp.errors import ConfigError
+from isp.runtime.payload import (NO_PAYLOAD, payload_scope, set_process_payload, set_thread_payload,
+                                 worker_payload)
+
+__all__ = ["BACKENDS", "Backend", "EXECUTOR_ENV", "Executor", "TaskResult", "add_executor_argument",
+           "create_executor", "default_start_method", "default_workers", "executor_from_spec", "pool_executor",
+           "register_backend", "shared_threads", "worker_payload"]
 
 #: modules whose threads (OpenMP, intra-op pools) a forked child inherits
 #: broken: with any of them loaded in the parent, or named by the tasks,
@@ -152,37 +158,13 @@ def register_backend(kind: str):
     return deco
 
 
-# -- the payload, as tasks see it -------------------------------------------------------------------
+# -- the payload, as tasks see it: isp.runtime.payload --------------------------------------------
 
-_UNSET = object()
-_local = threading.local()          # serial and thread workers: per thread
-_process_payload: Any = _UNSET      # process workers: per process
-
-
-def worker_payload() -> Any:
-    """The payload of the executor running the calling task (after its
-    ``setup``, where one was given).
-
-    Raises
-    ------
-    IspError
-        Outside a task, or in a task of an executor made without a payload.
-    """
-    value = getattr(_local, "payload", _UNSET)
-    if value is _UNSET:
-        value = _process_payload
-    if value is _UNSET:
-        raise IspError("worker_payload(): not in a task of an executor with a payload (Executor.bind)")
-    return value
-
-
-def _set_thread_payload(value) -> None:
-    _local.payload = value
+_UNSET = NO_PAYLOAD
 
 
 def _start_worker(method: str, payload, setup) -> None:
     """The initializer of every worker process (the module docstring's policy)."""
-    global _process_payload
     from isp.runtime.threads import one_blas_thread, one_opencv_thread, tune_allocator
 
     # what started this process, where libraries ask (rawpy warns when it reads "fork"; a
@@ -193,7 +175,7 @@ def _start_worker(method: str, payload, setup) -> None:
     tune_allocator()
     if payload is not _UNSET or setup is not None:
         value = None if payload is _UNSET else payload
-        _process_payload = setup(value) if setup is not None else value
+        set_process_payload(setup(value) if setup is not None else value)
 
 
 # -- backends ------------------------------------------------------------------------------------
@@ -211,12 +193,8 @@ class _Serial:
     def _run(self, fn, task):
         if self._state is _UNSET:
             return fn(task)
-        before = getattr(_local, "payload", _UNSET)
-        _local.payload = self._state
-        try:
+        with payload_scope(self._state):
             return fn(task)
-        finally:
-            _local.payload = before
 
     def map(self, fn, tasks, chunksize):
         return (self._run(fn, t) for t in tasks)
@@ -284,7 +262,7 @@ class _Threads(_Pool):
         if self._state is _UNSET:
             return ThreadPoolExecutor(self.workers, thread_name_prefix="isp-executor")
         return ThreadPoolExecutor(self.workers, thread_name_prefix="isp-executor",
-                                  initializer=_set_thread_payload, initargs=(self._state,))
+                                  initializer=set_thread_payload, initargs=(self._state,))
 
 
 @register_backend("processes")
