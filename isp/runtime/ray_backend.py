@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -73,6 +74,9 @@ from isp.runtime.payload import NO_PAYLOAD, payload_scope
 
 #: how many times Ray reruns a task whose worker died (not one that raised)
 RETRIES = 3
+#: connection attempts to a Ray Client address, 2 s apart: a client server that has just started
+#: answers "Initialization failure from server" to the first one now and then
+CLIENT_TRIES = 3
 
 # -- in the worker process --------------------------------------------------------------------------
 
@@ -149,15 +153,36 @@ def connect(address: str | None = None, workers: int | None = None) -> bool:
         address = address or os.environ.get("RAY_ADDRESS") or None
         kw = dict(include_dashboard=False, log_to_driver=False, configure_logging=True,
                   logging_level="warning")
-        try:
-            if address:
-                ray.init(address=address, **kw)
-                return False
-            ray.init(num_cpus=workers or os.cpu_count() or 1, **kw)
-            return True
-        except (ConnectionError, RuntimeError, ValueError) as e:
-            where = address or "a local instance"
-            raise ConfigError(f"ray executor: cannot connect to {where}: {str(e).splitlines()[0][:160]}") from None
+        tries = CLIENT_TRIES if address and address.startswith("ray://") else 1
+        for attempt in range(tries):
+            try:
+                if address:
+                    if address.startswith("ray://"):
+                        _client_token()
+                    ray.init(address=address, **kw)
+                    return False
+                ray.init(num_cpus=workers or os.cpu_count() or 1, **kw)
+                return True
+            except (ConnectionError, RuntimeError, ValueError) as e:
+                if attempt + 1 < tries:
+                    time.sleep(2.0)
+                    continue
+                where = address or "a local instance"
+                raise ConfigError(f"ray executor: cannot connect to {where}: {str(e).splitlines()[0][:160]}") from None
+        return False
+
+
+def _client_token() -> None:
+    """Where a Ray token is at hand (``RAY_AUTH_TOKEN``, or the token file
+    ``ray start`` writes, ``~/.ray/auth_token``) and ``RAY_AUTH_MODE`` is
+    unset, set it to "token": a cluster started by ``ray start`` requires
+    the token of its clients (Ray ≥ 2.5x), and the client sends it only in
+    that mode; without it the connection times out. A client on another
+    machine needs the cluster's token file or ``RAY_AUTH_TOKEN``."""
+    if "RAY_AUTH_MODE" in os.environ:
+        return
+    if os.environ.get("RAY_AUTH_TOKEN") or os.path.isfile(os.path.expanduser("~/.ray/auth_token")):
+        os.environ["RAY_AUTH_MODE"] = "token"
 
 
 def cluster_cpus() -> int:

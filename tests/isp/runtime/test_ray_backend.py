@@ -8,8 +8,10 @@ processes run (``/proc``: the worker the test kills)."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -185,3 +187,53 @@ def test_workers_run_at_the_drivers_priority(local_ray):
     """Ray's default worker niceness (15) starves tasks beside any other
     load; the backend's tasks run at 0."""
     assert executor_from_spec("ray", 2).map(_niceness, range(4), chunksize=1) == [0, 0, 0, 0]
+
+
+def test_a_cluster_of_two_nodes_through_its_client_address(tmp_path):
+    """``ray start`` a head (with its client server) and a second node on
+    this machine, joined by address as two machines are; the executor
+    connects by ``ray://HOST:PORT`` and its tasks run on both nodes."""
+    import shutil
+    import socket
+    import subprocess
+
+    exe = shutil.which("ray")
+    if exe is None:
+        pytest.skip("the ray command is not on PATH")
+    pytest.importorskip("grpc", reason="Ray Client needs ray[client] (pip install 'phone-isp[cluster]')")
+    if ray.is_initialized():
+        ray.shutdown()
+
+    def free_port():
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
+    gcs, client = free_port(), free_port()
+    # the token authentication `ray start` turns on: the joining node and the client present the token
+    env = {**os.environ, "RAY_AUTH_MODE": "token"}
+    run = dict(capture_output=True, text=True, timeout=180, env=env)
+    try:
+        head = subprocess.run([exe, "start", "--head", f"--port={gcs}", f"--ray-client-server-port={client}",
+                               "--num-cpus=1", "--include-dashboard=false", "--disable-usage-stats"], **run)
+        assert head.returncode == 0, head.stderr[-500:]
+        node = subprocess.run([exe, "start", f"--address=127.0.0.1:{gcs}", "--num-cpus=1"], **run)
+        assert node.returncode == 0, node.stderr[-500:]
+        code = ("import json, ray, time\n"
+                "from isp.runtime.executor import executor_from_spec\n"
+                "def _node_of(_):\n"           # defined here: sent by value, as a script's functions are
+                "    time.sleep(0.3)\n"
+                "    return ray.get_runtime_context().get_node_id()\n"
+                f"ex = executor_from_spec('ray://127.0.0.1:{client}', 2)\n"
+                "ex.map(abs, [-1])\n"
+                "for _ in range(60):\n"
+                "    if ray.cluster_resources().get('CPU', 0) >= 2: break\n"
+                "    time.sleep(0.5)\n"
+                "print(json.dumps(sorted(set(ex.map(_node_of, range(8), chunksize=1)))))\n")
+        from tests.helpers import ROOT
+
+        r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, **run)
+        assert r.returncode == 0, r.stderr[-800:]
+        assert len(json.loads(r.stdout.strip().splitlines()[-1])) == 2
+    finally:
+        subprocess.run([exe, "stop", "--force"], **run)
