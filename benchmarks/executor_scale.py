@@ -86,7 +86,7 @@ def _two_nodes(rounds: int, tasks: int) -> dict:
     if exe is None:
         return {"skipped": "the ray command is not on PATH"}
     port = 6391
-    env = {**os.environ, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "1"}
+    env = {**os.environ, "RAY_AUTH_MODE": "token"}     # ray start turns on token authentication
     run = dict(capture_output=True, text=True, env=env, timeout=180)
     subprocess.run([exe, "stop", "--force"], **run)
     head = subprocess.run([exe, "start", "--head", f"--port={port}", "--num-cpus=1", "--include-dashboard=false",
