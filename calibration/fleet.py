@@ -414,14 +414,17 @@ def fleet_markdown(report: dict) -> str:
              "measured over the nominal design's per field ring (centre, middle, corner; below specification: "
              f"below {report['settings']['min_sfra_ratio']:g} in any).", "",
              "| capture | SFRA RMS before | after | noise floor | effects kept | unexplained | SFRA / nominal | "
-             "below spec |", "|---|---|---|---|---|---|---|---|"]
+             "below spec | parameters past one tolerance |", "|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         nf = f"{r['noise_floor']:.4f}" if r.get("noise_floor") else "–"
         lines.append(f"| {r['capture']}{' (kept)' if r.get('resumed') else ''} | {r['sfra_rms_before']:.4f} | "
                      f"{r['sfra_rms_after']:.4f} | {nf} | {', '.join(r['effects']) or '–'} | "
                      f"{'; '.join(u.split(':')[0] for u in r['unexplained']) or '–'} | "
                      f"{' / '.join('–' if v is None else f'{v:.2f}' for v in r['sfra_ratio_rings'])} | "
-                     f"{'**yes**' if r['below_spec'] else 'no'} |")
+                     f"{'**yes**' if r['below_spec'] else 'no'} | "
+                     f"{r['parameters_past_one_tolerance']} of {len(r['parameters'])} |")
+    lines += ["", "Parameters past one tolerance are reported, not judged: they trade off against each other, "
+              "and modules drawn within the design's tolerances have many (docs/results/fleet.md)."]
     if report["failures"]:
         lines += ["", "Failed:", ""] + [f"- {k}: {v}" for k, v in sorted(report["failures"].items())]
     if report["not_taken"]:
