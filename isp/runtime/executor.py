@@ -590,7 +590,12 @@ def pool_executor(workers: int | None, *, progress: bool = False, imports: Itera
     if spec:
         if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
             raise ConfigError(f"workers must be an integer ≥ 1, got {workers!r}")
-        return executor_from_spec(spec, workers, progress=progress, imports=imports)
+        try:
+            return executor_from_spec(spec, workers, progress=progress, imports=imports)
+        except ConfigError as e:
+            if executor:
+                raise
+            raise ConfigError(str(e).replace("--executor", f"${EXECUTOR_ENV}", 1)) from None
     n = default_workers(2) if workers is None else workers
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ConfigError(f"workers must be an integer ≥ 1, got {workers!r}")
