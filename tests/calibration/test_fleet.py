@@ -92,21 +92,18 @@ def test_fleet_on_ray_writes_the_pools_devices(line, pool_fleet, e9_zmx, tmp_pat
     from isp.runtime.executor import executor_from_spec
 
     _, caps, basis = line
-    only = tmp_path / "captures"
-    only.mkdir()
-    for name in ("module_b", "module_c"):
-        (only / f"{name}.json").symlink_to(caps / f"{name}.json")
     if ray.is_initialized():
         ray.shutdown()
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
     try:
-        rep_ray = run_fleet(only, e9_zmx, basis, tmp_path / "ray", FleetSettings(**SETTINGS),
+        rep_ray = run_fleet(caps, e9_zmx, basis, tmp_path / "ray", FleetSettings(**SETTINGS),
                             executor=executor_from_spec("ray", 2), log=lambda *a: None)
     finally:
         ray.shutdown()
-    assert rep_ray["executor"] == "ray × 2" and rep_ray["devices"] == 2
-    pool_dir = pool_fleet[1]
-    for name in ("module_b", "module_c"):
+    rep_pool, pool_dir = pool_fleet
+    assert rep_ray["executor"] == "ray × 2" and rep_ray["devices"] == 3
+    assert rep_ray["failures"] == rep_pool["failures"] and rep_ray["below_spec"] == rep_pool["below_spec"]
+    for name in MODULES:
         a, b = (json.loads(p.read_text()) for p in (tmp_path / "ray" / f"{name}.device.json",
                                                       pool_dir / f"{name}.device.json"))
         for d in (a, b):
