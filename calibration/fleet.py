@@ -376,12 +376,13 @@ def fleet_report(records: dict, failures: dict, not_taken, settings: FleetSettin
     rows = [records[k] for k in sorted(records)]
     below = [r["capture"] for r in rows if r.get("below_spec")]
     above = [r["capture"] for r in rows if r.get("noise_floor") and r["sfra_rms_after"] > 1.5 * r["noise_floor"]]
+    unlike = unlike_the_fleet(rows)
     secs = [r["seconds"] for r in rows if not r.get("resumed")]
     return {
         "schema": "fleet/v1",
         "lens": lens, "basis": basis, "settings": asdict(settings), "executor": executor,
         "devices": len(rows), "failed": len(failures), "fitted_now": fitted,
-        "below_spec": below, "above_noise": above,
+        "below_spec": below, "above_noise": above, "unlike_the_fleet": unlike,
         "yield": (len(rows) - len(below)) / len(rows) if rows else None,
         "wall_s": round(wall_s, 1),
         "device_seconds_median": float(np.median(secs)) if secs else None,
@@ -390,6 +391,34 @@ def fleet_report(records: dict, failures: dict, not_taken, settings: FleetSettin
         "failures": failures,
         "not_taken": {str(p.name): why for p, why in not_taken},
     }
+
+
+#: a module whose calibrated model error exceeds this multiple of the fleet's median is unlike the fleet
+UNLIKE = 1.5
+#: fewest modules for the fleet's median to be a reference
+UNLIKE_MIN_MODULES = 5
+
+
+def unlike_the_fleet(rows: list[dict], factor: float = UNLIKE) -> list[str]:
+    """Modules whose calibrated SFRA error exceeds ``factor`` × the fleet's
+    median (from :data:`UNLIKE_MIN_MODULES` modules on; fewer: none): the
+    ones the lens model explains worse than it explains the others, to
+    inspect. On the e9 modules of ``benchmarks/fleet_yield.py`` the quick
+    fit ends at 0.009–0.011 cy/px on six drawn within tolerance and at
+    0.019 and 0.024 on two drawn at two and three times it, whose lenses
+    lie past the fit's bounds: 1.8 and 2.3 × the median, the six at most
+    1.06 ×. Two such modules show the screen working; they do not set its
+    threshold, which a line tunes on its own rejects.
+
+    >>> rows = [{"capture": f"m{i}", "sfra_rms_after": e} for i, e in enumerate([0.01, 0.011, 0.009, 0.01, 0.024])]
+    >>> unlike_the_fleet(rows)
+    ['m4']
+    """
+    errors = [r["sfra_rms_after"] for r in rows if r.get("sfra_rms_after") is not None]
+    if len(errors) < UNLIKE_MIN_MODULES:
+        return []
+    median = float(np.median(errors))
+    return [r["capture"] for r in rows if r.get("sfra_rms_after") is not None and r["sfra_rms_after"] > factor * median]
 
 
 def write_report(report: dict, folder) -> None:
@@ -423,6 +452,9 @@ def fleet_markdown(report: dict) -> str:
                      f"{' / '.join('–' if v is None else f'{v:.2f}' for v in r['sfra_ratio_rings'])} | "
                      f"{'**yes**' if r['below_spec'] else 'no'} | "
                      f"{r['parameters_past_one_tolerance']} of {len(r['parameters'])} |")
+    if report.get("unlike_the_fleet"):
+        lines += ["", f"Unlike the fleet (calibrated error above {UNLIKE:g} × the fleet's median; to inspect): "
+                  + ", ".join(report["unlike_the_fleet"]) + "."]
     lines += ["", "Parameters past one tolerance are reported, not judged: they trade off against each other, "
               "and modules drawn within the design's tolerances have many (docs/results/fleet.md)."]
     if report["failures"]:

@@ -18,7 +18,8 @@ what it writes (DEVICES_DIR):
   <capture>.device.json   each module's calibration (isp process --device FILE), written atomically
   fleet.json, fleet.md    per device: SFRA error before/after, noise floor, effects kept, unexplained
                           residual, SFRA over the design's per field ring (the yield check); the
-                          yield, failures, throughput
+                          yield, the modules unlike the fleet (error above 1.5 x its median),
+                          failures, throughput
   fleet.png               errors against the noise floor, SFRA over the nominal design's in the worst ring
 
 Run again on the same folders to resume: a device whose file names its capture's SHA-256 is kept,
@@ -91,6 +92,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{rep['devices']} device(s) in {args.output}: {rep['fitted_now']} fitted now{rate}, "
           f"{rep['failed']} failed; below specification: {', '.join(rep['below_spec']) or 'none'}; "
           f"report {args.output}/fleet.md, fleet.png")
+    if rep["unlike_the_fleet"]:
+        print(f"unlike the fleet (calibrated error above 1.5 x its median; to inspect): "
+              f"{', '.join(rep['unlike_the_fleet'])}")
     for name, why in rep["not_taken"].items():
         print(f"not taken: {name}: {why}")
     return 1 if rep["failed"] else 0

@@ -127,3 +127,13 @@ def test_fleet_command_line(line, e9_zmx, tmp_path, capsys):
     assert main(["calib", "fleet", str(caps), "--lens", str(e9_zmx), "--basis", str(basis), "-o",
                  str(tmp_path / "d2"), "--effects", "unicorn"]) == 2
     assert "unicorn" in capsys.readouterr().err
+
+
+def test_unlike_the_fleet_needs_a_fleet():
+    from calibration.fleet import unlike_the_fleet
+
+    rows = [{"capture": f"m{i}", "sfra_rms_after": e} for i, e in enumerate([0.0088, 0.0101, 0.0109, 0.0101, 0.0092,
+                                                                             0.0111, 0.0237, 0.0188])]
+    # the fleet_yield modules: the two drawn beyond tolerance, none of the six within
+    assert unlike_the_fleet(rows) == ["m6", "m7"]
+    assert unlike_the_fleet(rows[:4]) == []              # four modules: no median to trust
