@@ -103,11 +103,10 @@ def descriptor_study(lens, basis_file: str, draws: int) -> dict:
     return {"basis_components": basis.size, "grid": list(basis.grid), "draws_per_scale": draws, "by_scale": out}
 
 
-def projection(rep: dict, captures: Path, basis: Path) -> dict:
+def projection(rep: dict, workers: int, captures: Path, basis: Path) -> dict:
     """Devices per hour for N nodes, from this run's seconds of worker
     time per device (wall time × workers / devices fitted) and what each
     node and each device must receive."""
-    workers = int(str(rep["executor"]).split("×")[-1])
     per_device = rep["wall_s"] * workers / max(1, rep["fitted_now"])
     caps = sorted(captures.glob("*.dng"))
     mb = float(np.median([c.stat().st_size for c in caps])) / 2 ** 20 if caps else 0.0
@@ -157,17 +156,15 @@ def main(argv=None) -> dict:
              "parameters_past_one_tolerance": r["parameters_past_one_tolerance"],
              "descriptor_rms": r["descriptor_rms"], "below_spec": r["below_spec"], "seconds": r["seconds"]}
             for r in rep["rows"]]
+    by_group = {}
+    for r in rep["rows"]:
+        by_group.setdefault(group.get(r["capture"], "?"), []).append(r)
     groups = {}
-    for r in rows:
-        worst = min(v for v in (r["sfra_ratio_centre"], r["sfra_ratio_middle"], r["sfra_ratio_corner"]) if v)
-        g = groups.setdefault(r["group"], {"modules": 0, "worst_ring_min": 1e9, "worst_ring_max": 0.0,
-                                           "past_one_tolerance": []})
-        g["modules"] += 1
-        g["worst_ring_min"] = min(g["worst_ring_min"], worst)
-        g["worst_ring_max"] = max(g["worst_ring_max"], worst)
-        g["past_one_tolerance"].append(r["parameters_past_one_tolerance"])
-    for g in groups.values():
-        g["past_one_tolerance"] = f"{min(g['past_one_tolerance'])}–{max(g['past_one_tolerance'])}"
+    for name, members in by_group.items():
+        worst = [r["sfra_ratio_min"] for r in members]
+        past = [r["parameters_past_one_tolerance"] for r in members]
+        groups[name] = {"modules": len(members), "worst_ring_min": min(worst), "worst_ring_max": max(worst),
+                        "past_one_tolerance": f"{min(past)}–{max(past)}"}
     out = {"modules": rows, "groups": groups, "simulate_s": round(sim_s, 1),
            "fleet": {k: rep[k] for k in ("devices", "failed", "fitted_now", "wall_s", "device_seconds_median",
                                          "devices_per_hour", "executor", "yield")},
@@ -175,7 +172,7 @@ def main(argv=None) -> dict:
     for name, g in groups.items():
         print(f"{name}: {g['modules']} modules, worst-ring SFRA ratio {g['worst_ring_min']:.2f}–"
               f"{g['worst_ring_max']:.2f}, parameters past one tolerance {g['past_one_tolerance']}")
-    out["projection"] = projection(rep, work / "captures", Path(args.basis))
+    out["projection"] = projection(rep, ex.workers, work / "captures", Path(args.basis))
     if args.descriptor_draws:
         out["descriptor"] = descriptor_study(lens, args.basis, args.descriptor_draws)
     return _harness.publish("fleet_yield", out, args, argv)

@@ -20,7 +20,7 @@ to each worker once):
    the data shows, each kept only where it explains held-out regions;
 4. the device file, written atomically: the final lens's descriptor on the
    design's basis, the kept effects with their values, the errors and
-   noise floor, the parameters outside tolerance.
+   noise floor, the yield check and the fitted parameters.
 
 :func:`run_fleet` maps it over a folder: a capture whose device file
 exists and names the capture's SHA-256 is not fitted again (resumable; an
@@ -63,7 +63,6 @@ tolerance, for a line that wants them.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -74,8 +73,6 @@ import numpy as np
 from calibration.fit.proxy import COARSE_GRID, MAX_ITER, N_PARAMS, RESTARTS
 from isp.errors import ConfigError, InputError
 
-#: the report's files in the devices folder
-REPORT = ("fleet.json", "fleet.md", "fleet.png")
 #: suffix of each device's file in the devices folder
 DEVICE_SUFFIX = ".device.json"
 #: what a capture may be (the inputs of ``isp calib fit --measured``)
@@ -155,7 +152,6 @@ class FleetJob:
     lens: Any
     basis: Any
     settings: FleetSettings
-    lens_name: str = ""
 
 
 def parse_effects(text: str | None) -> tuple[str, ...] | None:
@@ -217,10 +213,6 @@ def finished_record(devices_dir, capture) -> dict | None:
     return {**cal.fit["record"], "resumed": True}
 
 
-def _setup(job: FleetJob) -> FleetJob:
-    return job
-
-
 def calibrate_device(task: tuple[str, str]) -> dict:
     """One capture's calibration (module docstring), on the job's payload;
     ``task`` is ``(capture, device_file)``. Returns the device's record
@@ -232,7 +224,6 @@ def calibrate_device(task: tuple[str, str]) -> dict:
     from calibration.fit.proxy import ProxyFitSettings, fit_proxy
 
     job: FleetJob = worker_payload()
-    # (the ring ratios below read the fit's observations: the coarse sub-grid's, for a quick fit)
     s = job.settings
     capture, out = task
     t0 = time.perf_counter()
@@ -251,7 +242,7 @@ def calibrate_device(task: tuple[str, str]) -> dict:
     cal = device_calibration(lens, job.basis, k, effects=effects, source=measurement_source(capture),
                              executor=serial)
     d = np.asarray(cal.descriptor, float)
-    rings = sfra_ratio_rings(fit.observations, fit.predicted_before)
+    rings = sfra_ratio_rings(fit.observations, fit.predicted_before)    # a quick fit's: the sub-grid's edges
     worst = min((v for v in rings if v is not None), default=None)
     record = {
         "capture": Path(capture).name,
@@ -270,9 +261,8 @@ def calibrate_device(task: tuple[str, str]) -> dict:
         "descriptor_rms": round(float(np.sqrt(np.mean(d ** 2))), 4),
         "parameters": dict(zip(names, map(float, u))),
         "parameters_past_one_tolerance": sum(abs(float(v)) > 1.0 for v in u),
-        "seconds": 0.0,
+        "seconds": round(time.perf_counter() - t0, 1),
     }
-    record["seconds"] = round(time.perf_counter() - t0, 1)
     cal.fit.update({"sfra_rms_before": record["sfra_rms_before"], "sfra_rms_after": record["sfra_rms_after"],
                     "chi2_per_obs": record["chi2_per_obs"], "noise_floor": record["noise_floor"],
                     "parameters": len(names), "unexplained": record["unexplained"], "record": record})
@@ -311,8 +301,7 @@ def _loop(nominal, obs, fit, s: FleetSettings):
     rep = close_loop(base, obs, effects=list(s.effects) if s.effects else None, folds=folds,
                      max_effects=s.max_effects, base_iter=s.loop_iter, seed=s.seed,
                      executor=create_executor("serial"))
-    effects = [{"name": n, "params": {k: float(v) for k, v in rep.effect_values[n].items()}}
-               for n in rep.effects_added]
+    effects = rep.kept_effects()
     summary = {"sfra_rms_after": rep.error_after.get("sfra_rms"), "noise_floor": float(rep.noise_floor),
                "chi2_per_obs": rep.error_after.get("chi2_per_obs"), "unexplained": list(rep.unexplained)}
     return base.lens(rep.base_x), effects, summary, np.asarray(rep.base_x, float)
@@ -349,7 +338,7 @@ def run_fleet(captures_dir, lens_file, basis_file, devices_dir, settings: FleetS
     ex = pool_executor(None, progress=True) if executor is None else executor
     failures = {}
     t0 = time.perf_counter()
-    with ex.bind(FleetJob(nominal, basis, s, Path(lens_file).name), setup=_setup) as job:
+    with ex.bind(FleetJob(nominal, basis, s)) as job:
         for r in job.as_completed(calibrate_device, todo, desc="fleet", unit="device"):
             name = Path(r.task[0]).name
             if r.ok:
@@ -423,10 +412,11 @@ def unlike_the_fleet(rows: list[dict], factor: float = UNLIKE) -> list[str]:
 
 def write_report(report: dict, folder) -> None:
     """``fleet.json``, ``fleet.md`` and ``fleet.png`` in ``folder`` (each atomically)."""
+    from calibration.report import write_json
     from isp.io.files import write_bytes_atomic
 
     folder = Path(folder)
-    write_bytes_atomic(folder / "fleet.json", (json.dumps(report, indent=2) + "\n").encode())
+    write_json(folder / "fleet.json", report)
     write_bytes_atomic(folder / "fleet.md", fleet_markdown(report).encode())
     if report["rows"]:
         plot_fleet(report, folder / "fleet.png")
@@ -474,7 +464,7 @@ def plot_fleet(report: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from isp.io.files import write_bytes_atomic
+    from calibration.report import save_figure
 
     rows = report["rows"]
     x = np.arange(len(rows))
@@ -494,10 +484,5 @@ def plot_fleet(report: dict, path) -> None:
     b.legend(fontsize=8)
     b.set_xticks(x, [r["capture"] for r in rows], rotation=60, ha="right", fontsize=7)
     fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    write_bytes_atomic(Path(path), buf.getvalue())
+    save_figure(fig, path, dpi=110)
 

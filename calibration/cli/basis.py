@@ -64,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     lens = read_lens(args.lens)
     # the file's stem names the design: a patent's embodiments share the prescription's name
     basis = learn_basis(lens, args.draws, seed=args.seed, grid=tuple(args.grid), components=args.components,
-                        tolerance_scale=args.tolerance_scale, executor=pool_executor(args.workers, executor=args.executor),
+                        tolerance_scale=args.tolerance_scale,
+                        executor=pool_executor(args.workers, executor=args.executor),
                         progress=True, name=Path(args.lens).stem)
     basis.save(out)
     ex = basis.explained

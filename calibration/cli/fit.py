@@ -25,6 +25,7 @@ import argparse
 import time
 from pathlib import Path
 
+from calibration.cli.arguments import coarse_grid
 from isp.errors import ConfigError
 from isp.runtime.executor import add_executor_argument
 
@@ -72,8 +73,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--fine-iter {args.fine_iter}: 0 or more")
     if args.fine_iter == 0 and args.coarse[0] == 0:
         raise ConfigError("--fine-iter 0 stops after the coarse stage; it needs --coarse R C")
-    if min(args.coarse) < 0 or (0 in args.coarse and any(args.coarse)):
-        raise ConfigError(f"--coarse {args.coarse[0]} {args.coarse[1]}: two positive counts, or 0 0 (off)")
+    coarse = coarse_grid(args.coarse)
     out = Path(args.output)
     check_output_folder(out)
     nominal = read_lens(args.lens)              # a bad lens file fails before any measurement
@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
                                                    n_params=args.n_params, residuals=args.residuals,
                                                    jacobian_model=FAST_JACOBIAN if args.fast_jacobian else None,
                                                    refresh=args.refresh, restarts=args.restarts,
-                                                   coarse=tuple(args.coarse) if args.coarse[0] > 0 else None,
+                                                   coarse=coarse,
                                                    fine_iter=args.fine_iter),
                     executor=pool_executor(args.workers, progress=True, executor=args.executor))
     with staged_folder(out) as tmp:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from isp.errors import ConfigError
+from calibration.cli.arguments import coarse_grid
 from isp.runtime.executor import add_executor_argument
 
 EPILOG = """examples:
@@ -41,7 +41,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("captures", metavar="CAPTURES_DIR", help="folder of chart captures (DNG, TIFF, PNG, SFR JSON)")
     p.add_argument("--lens", required=True, help="the design's lens file (lens/v1 .json, Zemax .zmx, ...)")
-    p.add_argument("--basis", required=True, metavar="BASIS.npz", help="the design's descriptor basis (isp calib basis)")
+    p.add_argument("--basis", required=True, metavar="BASIS.npz",
+                   help="the design's descriptor basis (isp calib basis)")
     p.add_argument("-o", "--output", required=True, metavar="DEVICES_DIR", help="folder of device files and the report")
     p.add_argument("--n-params", type=int, default=N_PARAMS, help=f"perturbations fitted (default {N_PARAMS})")
     p.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"fit iterations at most (default {MAX_ITER})")
@@ -74,14 +75,12 @@ def run(args: argparse.Namespace) -> int:
     """Calibrate the fleet; 1 where any capture failed."""
     from isp.runtime.executor import pool_executor
 
-    from calibration.fleet import FleetSettings, parse_effects, run_fleet
+    from calibration.fleet import UNLIKE, FleetSettings, parse_effects, run_fleet
 
-    if min(args.coarse) < 0 or (0 in args.coarse and any(args.coarse)):
-        raise ConfigError(f"--coarse {args.coarse[0]} {args.coarse[1]}: two positive counts, or 0 0 (off)")
-    s = FleetSettings(n_params=args.n_params, max_iter=args.max_iter, restarts=args.restarts,
-                      coarse=tuple(args.coarse) if args.coarse[0] > 0 else None,
-                      fine_iter=args.fine_iter if args.coarse[0] > 0 else None,
-                      components=args.components, effects=parse_effects(args.effects), max_effects=args.max_effects, loop_iter=args.loop_iter,
+    coarse = coarse_grid(args.coarse)
+    s = FleetSettings(n_params=args.n_params, max_iter=args.max_iter, restarts=args.restarts, coarse=coarse,
+                      fine_iter=args.fine_iter if coarse else None, components=args.components,
+                      effects=parse_effects(args.effects), max_effects=args.max_effects, loop_iter=args.loop_iter,
                       folds=args.folds, channel=args.channel, encoding=args.encoding, pixel_um=args.pixel_um,
                       min_sfra_ratio=args.min_sfra_ratio)
     ex = pool_executor(args.workers, progress=True, executor=args.executor,
@@ -93,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
           f"{rep['failed']} failed; below specification: {', '.join(rep['below_spec']) or 'none'}; "
           f"report {args.output}/fleet.md, fleet.png")
     if rep["unlike_the_fleet"]:
-        print(f"unlike the fleet (calibrated error above 1.5 x its median; to inspect): "
+        print(f"unlike the fleet (calibrated error above {UNLIKE:g} x its median; to inspect): "
               f"{', '.join(rep['unlike_the_fleet'])}")
     for name, why in rep["not_taken"].items():
         print(f"not taken: {name}: {why}")

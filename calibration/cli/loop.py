@@ -157,8 +157,7 @@ def _device_file(base, rep, basis, args, path) -> None:
     design's basis, and the effects it kept with their fitted values."""
     from calibration.fit.device import device_calibration, measurement_source
 
-    effects = [{"name": n, "params": {k: float(v) for k, v in rep.effect_values[n].items()}}
-               for n in rep.effects_added]
+    effects = rep.kept_effects()
     fit = {"sfra_rms_before": rep.error_before.get("sfra_rms"), "sfra_rms_after": rep.error_after.get("sfra_rms"),
            "noise_floor": rep.noise_floor, "unexplained": list(rep.unexplained)}
     device_calibration(base.lens(rep.base_x), basis, min(args.components, basis.size), fit=fit,

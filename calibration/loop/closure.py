@@ -90,6 +90,12 @@ class LoopReport:
     base_x_before: np.ndarray = field(repr=False, default=None)    # the base fit before any effect
     asymmetry: dict | None = None                                   # :func:`asymmetry_check`
 
+    def kept_effects(self) -> list[dict]:
+        """The effects kept, in order, with their fitted values: the
+        ``effects`` of a device file (``device/v1``)."""
+        return [{"name": n, "params": {k: float(v) for k, v in self.effect_values[n].items()}}
+                for n in self.effects_added]
+
     def to_dict(self) -> dict:
         return {"schema": "loop-report/v1", "base": self.base,
                 "base_parameters": {n: float(v) for n, v in zip(self.base_names, self.base_x)},

@@ -90,9 +90,9 @@ def batch_executor(workers: int | None = 2, files: int | None = None, *, progres
     for Ray, N files in flight, None: the cluster's CPUs)."""
     import os
 
-    from isp.runtime.executor import EXECUTOR_ENV
+    from isp.runtime.executor import chosen_spec
 
-    if executor or os.environ.get(EXECUTOR_ENV, "").strip():
+    if chosen_spec(executor):
         return pool_executor(workers, progress=progress, imports=TASK_IMPORTS, executor=executor)
     workers = 2 if workers is None else int(workers)
     n = max(1, min(workers, files or workers, os.cpu_count() or 1))

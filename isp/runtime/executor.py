@@ -84,8 +84,8 @@ from isp.runtime.payload import (NO_PAYLOAD, payload_scope, set_process_payload,
                                  worker_payload)
 
 __all__ = ["BACKENDS", "Backend", "EXECUTOR_ENV", "Executor", "TaskResult", "add_executor_argument",
-           "create_executor", "default_start_method", "default_workers", "executor_from_spec", "pool_executor",
-           "register_backend", "shared_threads", "worker_payload"]
+           "chosen_spec", "create_executor", "default_start_method", "default_workers", "executor_from_spec",
+           "pool_executor", "register_backend", "shared_threads", "worker_payload"]
 
 #: modules whose threads (OpenMP, intra-op pools) a forked child inherits
 #: broken: with any of them loaded in the parent, or named by the tasks,
@@ -158,11 +158,6 @@ def register_backend(kind: str):
     return deco
 
 
-# -- the payload, as tasks see it: isp.runtime.payload --------------------------------------------
-
-_UNSET = NO_PAYLOAD
-
-
 def _start_worker(method: str, payload, setup) -> None:
     """The initializer of every worker process (the module docstring's policy)."""
     from isp.runtime.threads import one_blas_thread, one_opencv_thread, tune_allocator
@@ -173,8 +168,8 @@ def _start_worker(method: str, payload, setup) -> None:
     one_blas_thread()
     one_opencv_thread()
     tune_allocator()
-    if payload is not _UNSET or setup is not None:
-        value = None if payload is _UNSET else payload
+    if payload is not NO_PAYLOAD or setup is not None:
+        value = None if payload is NO_PAYLOAD else payload
         set_process_payload(setup(value) if setup is not None else value)
 
 
@@ -185,13 +180,13 @@ class _Serial:
     """Every task in the calling thread, in order."""
 
     def __init__(self, workers: int, payload, setup, start_method: str, imports: tuple):
-        self._state = _UNSET
-        if payload is not _UNSET or setup is not None:
-            value = None if payload is _UNSET else payload
+        self._state = NO_PAYLOAD
+        if payload is not NO_PAYLOAD or setup is not None:
+            value = None if payload is NO_PAYLOAD else payload
             self._state = setup(value) if setup is not None else value
 
     def _run(self, fn, task):
-        if self._state is _UNSET:
+        if self._state is NO_PAYLOAD:
             return fn(task)
         with payload_scope(self._state):
             return fn(task)
@@ -252,14 +247,14 @@ class _Threads(_Pool):
     def __init__(self, workers: int, payload, setup, start_method: str, imports: tuple):
         super().__init__()
         self.workers = workers
-        state = _UNSET
-        if payload is not _UNSET or setup is not None:
-            value = None if payload is _UNSET else payload
+        state = NO_PAYLOAD
+        if payload is not NO_PAYLOAD or setup is not None:
+            value = None if payload is NO_PAYLOAD else payload
             state = setup(value) if setup is not None else value
         self._state = state
 
     def _make(self):
-        if self._state is _UNSET:
+        if self._state is NO_PAYLOAD:
             return ThreadPoolExecutor(self.workers, thread_name_prefix="isp-executor")
         return ThreadPoolExecutor(self.workers, thread_name_prefix="isp-executor",
                                   initializer=set_thread_payload, initargs=(self._state,))
@@ -367,7 +362,7 @@ class Executor:
     """
 
     def __init__(self, kind: str = "serial", workers: int | None = None, *, progress: bool = False,
-                 start_method: str = "auto", imports: Iterable[str] = (), payload: Any = _UNSET,
+                 start_method: str = "auto", imports: Iterable[str] = (), payload: Any = NO_PAYLOAD,
                  setup: Callable | None = None, options: dict | None = None):
         if kind not in BACKENDS:
             raise ConfigError(f"unknown executor kind {kind!r}; valid: {', '.join(map(repr, BACKENDS))}")
@@ -578,6 +573,12 @@ def executor_from_spec(spec: str, workers: int | None = None, *, progress: bool 
     return Executor(kind, workers, progress=progress, imports=imports, options=options)
 
 
+def chosen_spec(executor: str | None = None) -> str:
+    """The executor a command was asked for: its ``--executor SPEC``, else
+    ``ISP_EXECUTOR``, else "" (the command's own local pool)."""
+    return executor or os.environ.get(EXECUTOR_ENV, "").strip()
+
+
 def pool_executor(workers: int | None, *, progress: bool = False, imports: Iterable[str] = (),
                   executor: str | None = None) -> Executor:
     """The executor a command's ``--workers N`` and ``--executor SPEC`` ask
@@ -586,7 +587,7 @@ def pool_executor(workers: int | None, *, progress: bool = False, imports: Itera
     local pool, "serial" for 1 worker (no pool to start), "processes"
     beyond; None: up to 2 workers, the phone budget, where the machine has
     the cores."""
-    spec = executor or os.environ.get(EXECUTOR_ENV, "").strip()
+    spec = chosen_spec(executor)
     if spec:
         if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
             raise ConfigError(f"workers must be an integer ≥ 1, got {workers!r}")

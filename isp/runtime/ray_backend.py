@@ -123,10 +123,6 @@ def _run_chunk(fn: Callable, chunk: list, key: str | None, ref_box: list, setup:
         return [fn(t) for t in chunk]
 
 
-def _run_one(fn: Callable, task: Any, key: str | None, ref_box: list, setup: Callable | None) -> Any:
-    return _run_chunk(fn, [task], key, ref_box, setup)[0]
-
-
 # -- in the driver ----------------------------------------------------------------------------------
 
 def _ray():
@@ -140,16 +136,15 @@ def _ray():
 _init_lock = threading.Lock()
 
 
-def connect(address: str | None = None, workers: int | None = None) -> bool:
+def connect(address: str | None = None, workers: int | None = None) -> None:
     """Connect this process to Ray: the instance ``address`` names
     (``ray://HOST:PORT``, ``HOST:PORT``, ``"auto"``), else ``RAY_ADDRESS``,
     else a local instance started here with ``workers`` CPUs (default the
-    machine's). Returns True where this call started a local instance.
-    Already connected: nothing to do (False)."""
+    machine's). Already connected: nothing to do."""
     ray = _ray()
     with _init_lock:
         if ray.is_initialized():
-            return False
+            return
         address = address or os.environ.get("RAY_ADDRESS") or None
         kw = dict(include_dashboard=False, log_to_driver=False, configure_logging=True,
                   logging_level="warning")
@@ -160,16 +155,15 @@ def connect(address: str | None = None, workers: int | None = None) -> bool:
                     if address.startswith("ray://"):
                         _client_token()
                     ray.init(address=address, **kw)
-                    return False
-                ray.init(num_cpus=workers or os.cpu_count() or 1, **kw)
-                return True
+                else:
+                    ray.init(num_cpus=workers or os.cpu_count() or 1, **kw)
+                return
             except (ConnectionError, RuntimeError, ValueError) as e:
                 if attempt + 1 < tries:
                     time.sleep(2.0)
                     continue
                 where = address or "a local instance"
                 raise ConfigError(f"ray executor: cannot connect to {where}: {str(e).splitlines()[0][:160]}") from None
-        return False
 
 
 def _client_token() -> None:
@@ -217,19 +211,16 @@ class RayBackend:
     def _submit(self, fn, chunk):
         return self._remote.remote(fn, chunk, self._key, self._box, self._setup)
 
-    def _chunks(self, tasks: list, chunksize: int) -> list[tuple[int, list]]:
-        return [(i, tasks[i:i + chunksize]) for i in range(0, len(tasks), max(1, chunksize))]
-
     def map(self, fn: Callable, tasks: list, chunksize: int) -> Iterator:
         """``fn(t)`` for every task, yielded in task order; the first error
         in that order raised as the task raised it."""
         ray = _ray()
-        chunks = deque(self._chunks(tasks, chunksize))
+        step = max(1, chunksize)
+        chunks = deque(tasks[i:i + step] for i in range(0, len(tasks), step))
         pending: deque = deque()
         while chunks or pending:
             while chunks and len(pending) < 2 * self.workers:
-                _, c = chunks.popleft()
-                pending.append(self._submit(fn, c))
+                pending.append(self._submit(fn, chunks.popleft()))
             ref = pending.popleft()
             try:
                 values = ray.get(ref)
