@@ -255,6 +255,10 @@ class Pipeline:
             on_step: Callable[[int, Stage, Frame, float], None] | None = None) -> Frame:
         """Run every stage on ``frame`` and return the last frame.
 
+        Each stage with a ``prepare(frame)`` method is handed the input
+        first, to start slow set-up of its own in the background (a
+        model's session: :meth:`modules.correction.Correction.prepare`).
+
         ``on_step(index, stage, output, seconds)`` is called after each stage
         (index -1 with the input frame first); use it to save or time the
         intermediates. Only the current frame is kept otherwise.
@@ -264,6 +268,10 @@ class Pipeline:
                 f"pipeline starts at {self.start.value} but the frame is in {frame.domain.value}")
         if on_step is not None:
             on_step(-1, None, frame, 0.0)
+        for st in self.stages:   # slow set-up (a model's session) starts now, in the background
+            prepare = getattr(st, "prepare", None)
+            if prepare is not None:
+                prepare(frame)
         for i, st in enumerate(self.stages):
             t0 = time.perf_counter()
             frame = st(frame)

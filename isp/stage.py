@@ -70,6 +70,13 @@ class StageBase:
     def check(self, domain: Domain) -> None:
         return None
 
+    def prepare(self, frame: Frame) -> None:
+        """Optional: start slow set-up in the background (loading a model)
+        when the pipeline receives its input ``frame``; must not raise (the
+        stage's run reports errors). The pipeline calls it on any stage
+        that has it."""
+        return None
+
     def process(self, frame: Frame) -> Frame:  # pragma: no cover - abstract
         raise NotImplementedError
 

@@ -12,9 +12,18 @@ Without a model the stage is the identity (and says so in the history).
 With one, it reads the model's metadata (written by ``isp export``; table
 below) and refuses, when the pipeline is built, a position whose domain
 differs from the one the model was trained for, saying where it belongs.
-The model runs through onnxruntime (never torch): two intra-op threads,
-one inter-op thread, sequential execution, all graph optimisations; one
-session per model file, shared by every stage that names it.
+The model runs through onnxruntime (never torch): one inter-op thread,
+sequential execution, all graph optimisations; one session per model file
+and thread count, shared by every stage that names it. A frame of several
+tiles runs ``threads`` tiles at once, each on its own thread with one
+intra-op thread (two whole-frame tiles side by side outrun one tile on two
+threads, whose many short parallel sections wait on each other: 1.33 s
+against 1.60 s for the packaged model on a 12 MP frame, 2 cores); a frame
+of one tile runs on ``threads`` intra-op threads. The session loads on a
+background thread as soon as the pipeline has the raw frame
+(:meth:`Correction.prepare`), so onnxruntime's import and the graph's
+optimisation (0.19 s for the packaged model) overlap the stages before the
+slot.
 
 Full frames run tile by tile (:mod:`modules.common.tiling`, crop-centre
 stitching): each tile is read with a context margin of ``tile_overlap``
@@ -115,6 +124,8 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -225,11 +236,32 @@ def session_options(threads: int = 2):
     return opts
 
 
+#: one session loads at a time: a caller wanting the session a background
+#: load (:func:`prefetch_session`) is making waits for it instead of making another
+_SESSION_LOCK = threading.Lock()
+
+
 def onnx_session(path: str | os.PathLike, threads: int = 2):
     """The onnxruntime session for a model file, created once per (file,
-    modification time, threads) and shared."""
+    modification time, threads) and shared (thread-safe)."""
     p = Path(path).resolve()
-    return _cached_session(str(p), p.stat().st_mtime_ns, threads)
+    with _SESSION_LOCK:
+        return _cached_session(str(p), p.stat().st_mtime_ns, threads)
+
+
+def prefetch_session(load: Callable[[], object]) -> threading.Thread:
+    """Run ``load`` (which calls :func:`onnx_session`) on a daemon thread, so
+    that the session is ready, or nearly, when the caller asks for it; any
+    error is left for that call to raise (the load is made again there)."""
+    def run():
+        try:
+            load()
+        except Exception:   # noqa: BLE001 — reported by the stage's own call, in its words
+            pass
+
+    t = threading.Thread(target=run, name="onnx-prefetch", daemon=True)
+    t.start()
+    return t
 
 
 @dataclass(frozen=True)
@@ -517,8 +549,34 @@ class Correction(StageBase):
 
     @property
     def session(self):
-        """The shared onnxruntime session (:func:`onnx_session`)."""
+        """The shared onnxruntime session on ``threads`` intra-op threads
+        (:func:`onnx_session`)."""
         return onnx_session(self.model, self.threads)
+
+    def workers(self, shape: tuple[int, int]) -> int:
+        """Tiles run at once on a frame of ``shape = (H, W)``: ``threads``,
+        at most one per tile (module Notes)."""
+        tile, margin, mult, border = self.tiling()
+        return max(1, min(self.threads, len(plan_tiles(shape, tile, margin, mult, border))))
+
+    def tile_session(self, workers: int):
+        """The session the tiles run on: one intra-op thread per worker's
+        share of ``threads``."""
+        return onnx_session(self.model, max(1, self.threads // workers))
+
+    def prepare(self, frame: Frame) -> None:
+        """Start loading the model's session on a background thread
+        (:func:`prefetch_session`), for a frame the size of ``frame`` (the
+        raw frame the pipeline starts from; the slot sees the same size),
+        so that it overlaps the stages before the slot. Never raises: the
+        slot's own run reports what is wrong."""
+        try:
+            stage = self.for_frame(frame.meta)[0] if self.auto else self
+        except IspError:
+            return
+        if stage.model is None:
+            return
+        prefetch_session(lambda: stage.tile_session(stage.workers(frame.data.shape[:2])))
 
     def for_frame(self, meta) -> tuple["Correction", str]:
         """The stage that runs on a frame of metadata ``meta``, and why.
@@ -553,7 +611,8 @@ class Correction(StageBase):
 
     @cached_property
     def info(self) -> ModelInfo:
-        return model_info(self.session, Path(self.model).name)
+        # the metadata does not depend on the threads: read it from the session tiles run on
+        return model_info(onnx_session(self.model, 1), Path(self.model).name)
 
     @cached_property
     def model_meta(self) -> dict[str, str]:
@@ -561,7 +620,7 @@ class Correction(StageBase):
         chosen per frame)."""
         if self.model is None or self.auto:
             return {}
-        return dict(self.session.get_modelmeta().custom_metadata_map)
+        return dict(onnx_session(self.model, 1).get_modelmeta().custom_metadata_map)
 
     def summary(self, meta=None) -> dict:
         """What ``isp info`` reports: the model in use, where it comes from,
@@ -649,8 +708,11 @@ class Correction(StageBase):
         if frame.data.ndim != 3 or frame.data.shape[2] != 3:
             raise ConfigError(f"correction model {self.model} expects 3-channel data, "
                               f"got shape {frame.data.shape}")
-        info, sess = self.info, self.session
+        info = self.info
         tile, margin, mult, border = self.tiling()
+        n = len(plan_tiles(frame.data.shape[:2], tile, margin, mult, border))
+        workers = self.workers(frame.data.shape[:2])
+        sess = self.tile_session(workers)
         origin, full = frame.meta.origin, frame.full_size
         feeds = {}
         if info.stats_name is not None:
@@ -670,10 +732,10 @@ class Correction(StageBase):
                                                                        full)[:info.device]
             return sess.run(None, {info.input_name: x[None], **feeds})[0][0]
 
-        n = len(plan_tiles(frame.data.shape[:2], tile, margin, mult, border))
         out = run_tiled(run, frame.data, tile=tile, margin=margin, multiple=mult, out_channels=3,
                         extra_channels=info.in_channels - k, dtype=info.dtype, packing=p,
-                        progress=self.progress, desc=f"correction {info.name}", border=border)
+                        progress=self.progress, desc=f"correction {info.name}", border=border,
+                        workers=workers)
         lens = info.meta.get("lens", "?")
         how = (f"{n} tiles of {tile} px, overlap {margin} px" if n > 1 else "whole frame") + \
             (f", border {border} px" if n == 1 or border != margin else "")

@@ -332,7 +332,7 @@ TileFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple: int = 1,
               out_channels: int | None = None, extra_channels: int = 0, dtype=np.float32,
               packing: int = 1, progress: bool | None = False, desc: str = "tiles",
-              border: int | None = None) -> np.ndarray:
+              border: int | None = None, workers: int = 1) -> np.ndarray:
     """Apply a local operator to ``image`` tile by tile (crop-centre stitching).
 
     Parameters
@@ -361,11 +361,19 @@ def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple
     progress : bool or None
         tqdm bar on stderr; ``None`` shows one when stderr is a terminal and
         there are at least 4 tiles.
+    workers : int
+        Tiles in flight at once, each on its own thread with its own window
+        buffer (``fn`` must then be thread-safe; it is called with disjoint
+        windows and the cores it returns are disjoint, so the result does
+        not depend on ``workers``). For an operator that releases the GIL
+        (onnxruntime, OpenCV, most of numpy) on one thread each: two tiles
+        side by side on two cores outrun one tile on two threads, whose
+        many short parallel sections wait on each other.
 
     Returns
     -------
     (H, W, out_channels) float32 ndarray, allocated once; the extra memory
-    beyond it is one window and the operator's own.
+    beyond it is ``workers`` windows and the operator's own.
     """
     if image.ndim != 3:
         raise ValueError(f"image must be (H, W, C), got shape {image.shape}")
@@ -382,26 +390,43 @@ def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple
         from tqdm import tqdm
 
         bar = tqdm(total=len(tiles), unit="tile", desc=desc, file=sys.stderr)
-    # one buffer for every window shape (up to 9: edge windows are shorter when border < margin):
-    # a prefix of it reshaped is contiguous, as a model's input must be
+    # one buffer per worker for every window shape (up to 9: edge windows are shorter when
+    # border < margin): a prefix of it reshaped is contiguous, as a model's input must be
     depth = c * s * s + extra_channels
-    flat = np.zeros(depth * max((t.window_shape[0] // s) * (t.window_shape[1] // s) for t in tiles), dtype)
-    try:
-        for t in tiles:
+    size = depth * max((t.window_shape[0] // s) * (t.window_shape[1] // s) for t in tiles)
+    workers = max(1, min(int(workers), len(tiles)))
+    free = [np.zeros(size, dtype) for _ in range(workers)]
+
+    def one(t: Tile) -> None:
+        flat = free.pop()   # list.pop/append are atomic: each thread holds its own buffer
+        try:
             rows, cols = window_indices(t, (h, w))
             shape = (rows.size // s, cols.size // s)
             buf = flat[:depth * shape[0] * shape[1]].reshape(depth, *shape)
             y = fn(read_window(image, rows, cols, buf, s), rows, cols)
-            want = (out.shape[2] * s * s, *shape)
-            if y.shape != want:
-                raise ValueError(f"tile operator returned shape {y.shape} for a window "
-                                 f"{(c * s * s + extra_channels, *shape)}; expected {want}")
-            ci, cj = t.rows.core_in_window, t.cols.core_in_window
-            dst = out[t.rows.core_start:t.rows.core_stop, t.cols.core_start:t.cols.core_stop]
-            # cores start on the packing grid (margins are multiples of `multiple`)
-            write_planes(dst, y[:, ci.start // s:-(-ci.stop // s), cj.start // s:-(-cj.stop // s)], s)
-            if bar is not None:
-                bar.update()
+        finally:
+            free.append(flat)
+        want = (out.shape[2] * s * s, *shape)
+        if y.shape != want:
+            raise ValueError(f"tile operator returned shape {y.shape} for a window "
+                             f"{(c * s * s + extra_channels, *shape)}; expected {want}")
+        ci, cj = t.rows.core_in_window, t.cols.core_in_window
+        dst = out[t.rows.core_start:t.rows.core_stop, t.cols.core_start:t.cols.core_stop]
+        # cores start on the packing grid (margins are multiples of `multiple`)
+        write_planes(dst, y[:, ci.start // s:-(-ci.stop // s), cj.start // s:-(-cj.stop // s)], s)
+        if bar is not None:
+            bar.update()
+
+    try:
+        if workers == 1:
+            for t in tiles:
+                one(t)
+        else:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(workers) as pool:
+                for f in [pool.submit(one, t) for t in tiles]:
+                    f.result()
     finally:
         if bar is not None:
             bar.close()

@@ -185,6 +185,36 @@ def test_tiled_equals_untiled_700x900(tmp_path, rng):
     assert np.abs(untiled - ref).max() < 1e-5
 
 
+def test_two_threads_run_tiles_side_by_side_with_the_same_result(tmp_path, rng):
+    """threads = 2 on a frame of several tiles: two tiles at once, each on a
+    one-thread session (module Notes), bit for bit one thread's frame."""
+    from modules.correction import Correction
+
+    m = _conv_model(tmp_path / "c.onnx")
+    f = _rgb_frame(rng, 700, 900)
+    two, one = Correction(model=m, threads=2), Correction(model=m, threads=1)
+    assert two.workers((700, 900)) == 2 and one.workers((700, 900)) == 1
+    assert two.workers((100, 100)) == 1          # one tile: two intra-op threads instead
+    assert two.tile_session(2) is one.session and two.tile_session(1) is two.session
+    assert np.array_equal(two(f).data, one(f).data)
+
+
+def test_prepare_loads_the_session_in_the_background(tmp_path, rng):
+    import time
+
+    from modules.correction import Correction, _cached_session
+
+    m = _conv_model(tmp_path / "c.onnx")
+    stage = Correction(model=m, threads=2)
+    _cached_session.cache_clear()
+    stage.prepare(_rgb_frame(rng, 700, 900))
+    deadline = time.monotonic() + 30
+    while _cached_session.cache_info().currsize < 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert _cached_session.cache_info().currsize == 1     # the one-thread session the tiles run on
+    Correction(model="none").prepare(_rgb_frame(rng, 10, 10))   # nothing to load: no error
+
+
 def test_tiled_equals_untiled_with_downsampling_and_odd_size(tmp_path, rng):
     """A stride-2 model on a 301×403 frame: windows of even size at even
     origins (input_multiple), padding to the multiple by reflection."""

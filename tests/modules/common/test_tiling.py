@@ -151,3 +151,32 @@ def test_windows_reaching_past_the_border_read_as_fancy_indexing(rng, dtype):
         rows = reflect_indices(r0, r0 + int(rng.integers(1, 70)), 30)
         cols = reflect_indices(c0, c0 + int(rng.integers(1, 90)), 40)
         assert np.array_equal(_gather(image, rows, cols), image[rows][:, cols]), (r0, c0)
+
+
+@pytest.mark.parametrize("packing", [1, 2])
+def test_tiles_in_flight_at_once_give_the_same_frame(rng, packing):
+    # workers > 1 runs tiles side by side on threads, each with its own window buffer:
+    # the same windows, the same cores, so bit for bit the sequential frame
+    img = rng.random((150, 170, 3), dtype=np.float32)
+    seen = []
+
+    def op(x, rows, cols):
+        seen.append(x.ctypes.data)
+        return _box(x, 4) * 2
+    one = run_tiled(op, img, tile=48, margin=6, multiple=2, packing=packing)
+    buffers_one = set(seen)
+    seen.clear()
+    three = run_tiled(op, img, tile=48, margin=6, multiple=2, packing=packing, workers=3)
+    assert np.array_equal(one, three)
+    assert len(buffers_one) == 1 and 1 < len(set(seen)) <= 3   # a buffer per worker, reused
+
+
+def test_an_error_in_a_tile_on_a_worker_reaches_the_caller(rng):
+    img = rng.random((100, 100, 3), dtype=np.float32)
+
+    def op(x, rows, cols):
+        if rows[0] > 40:
+            raise RuntimeError("tile failed")
+        return x
+    with pytest.raises(RuntimeError, match="tile failed"):
+        run_tiled(op, img, tile=48, margin=4, workers=2)
