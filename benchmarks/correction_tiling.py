@@ -36,6 +36,7 @@ if __name__ == "__main__":   # before numpy: ONNX Runtime's own threads do the w
     _harness.pin_threads(2, blas=1)
 
 import tempfile  # noqa: E402
+import threading  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -95,18 +96,24 @@ def _reset_peak() -> bool:
 
 
 def measure_stage(stage, frame, memory: bool = False) -> dict:
-    """One run of the stage: wall seconds, wall seconds inside the model,
-    CPU seconds of this thread outside it, and (``memory``) peak memory."""
-    sess, t_model, cpu_model = stage.session, [0.0], [0.0]
+    """One run of the stage: wall seconds, seconds inside the model (each
+    worker's share: the summed model calls over the tiles run at once),
+    CPU seconds spent outside the model by the threads that tile (the
+    tiling's own cost, which load does not inflate), and (``memory``)
+    peak memory."""
+    workers = stage.workers(frame.data.shape[:2])
+    sess, t_model, cpu_model = stage.tile_session(workers), [0.0], [0.0]
     run = sess.run
+    lock = threading.Lock()
 
     def timed(*a, **k):
         t0, c0 = time.perf_counter(), time.thread_time()
         try:
             return run(*a, **k)
         finally:
-            t_model[0] += time.perf_counter() - t0
-            cpu_model[0] += time.thread_time() - c0
+            with lock:
+                t_model[0] += time.perf_counter() - t0
+                cpu_model[0] += time.thread_time() - c0
 
     rss0 = _status_kb("VmRSS")
     reset = memory and _reset_peak()
@@ -114,14 +121,17 @@ def measure_stage(stage, frame, memory: bool = False) -> dict:
     if memory:
         tracemalloc.start()
     sess.run = timed  # count inference apart from tiling
-    t0, c0 = time.perf_counter(), time.thread_time()
+    # one worker: the tiling is this thread's, the model's intra-op pool others'; several: every
+    # thread of the process tiles or runs the model (one intra-op thread each, on its caller)
+    cpu = time.thread_time if workers == 1 else time.process_time
+    t0, c0 = time.perf_counter(), cpu()
     try:
         out = stage(frame).data
     finally:
         del sess.run
-    r = {"out": out, "seconds": round(time.perf_counter() - t0, 3), "model_seconds": round(t_model[0], 3),
-         # this thread's CPU outside the model: the tiling's own cost, which load does not inflate
-         "tiling_cpu_seconds": round(time.thread_time() - c0 - cpu_model[0], 3)}
+    r = {"out": out, "seconds": round(time.perf_counter() - t0, 3),
+         "model_seconds": round(t_model[0] / workers, 3), "workers": workers,
+         "tiling_cpu_seconds": round(cpu() - c0 - cpu_model[0], 3)}
     if memory:
         r["tracemalloc_peak_mib"] = round(tracemalloc.get_traced_memory()[1] / 2 ** 20, 1)
         tracemalloc.stop()

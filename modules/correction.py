@@ -316,8 +316,10 @@ def _choice_meta(meta: dict, key: str, valid: tuple[str, ...], name: str) -> str
 
 
 def model_info(session, name: str = "model") -> ModelInfo:
-    """Parse a session's metadata and inputs; ConfigError naming the key,
-    value and valid choices on anything the stage cannot run."""
+    """Parse a session's metadata and inputs (an onnxruntime session, or
+    the file's :class:`~modules.common.onnx_header.ModelHeader`);
+    ConfigError naming the key, value and valid choices on anything the
+    stage cannot run."""
     meta = dict(session.get_modelmeta().custom_metadata_map)
     fov = _choice_meta(meta, "fov_encoding", FOV_ENCODINGS, name)
     attention = _choice_meta(meta, "attention", ATTENTION_MODES, name)
@@ -611,8 +613,11 @@ class Correction(StageBase):
 
     @cached_property
     def info(self) -> ModelInfo:
-        # the metadata does not depend on the threads: read it from the session tiles run on
-        return model_info(onnx_session(self.model, 1), Path(self.model).name)
+        # from the file itself (modules.common.onnx_header): checking a model when the
+        # pipeline is built needs no onnxruntime, whose session loads in the background
+        from modules.common.onnx_header import read_header
+
+        return model_info(read_header(self.model), Path(self.model).name)
 
     @cached_property
     def model_meta(self) -> dict[str, str]:
@@ -620,7 +625,9 @@ class Correction(StageBase):
         chosen per frame)."""
         if self.model is None or self.auto:
             return {}
-        return dict(onnx_session(self.model, 1).get_modelmeta().custom_metadata_map)
+        from modules.common.onnx_header import read_header
+
+        return read_header(self.model).metadata
 
     def summary(self, meta=None) -> dict:
         """What ``isp info`` reports: the model in use, where it comes from,
