@@ -12,11 +12,30 @@ True
 """
 
 from isp.errors import ConfigError, InputError, IspError, PlacementError
-from isp.frame import CFA, Domain, Frame, Step
-from isp.meta import CameraMeta
-from isp.pipeline import DEFAULT_STAGES, Pipeline
-from isp.registry import create_stage, list_stages, register_stage
-from isp.stage import Stage, StageBase
+
+#: the package's names, each imported from its module when first used (PEP 562):
+#: a command that needs only frames (``isp calib sfr``) does not load the
+#: pipeline, the stage registry and their imports
+_LAZY = {"CFA": "isp.frame", "Domain": "isp.frame", "Frame": "isp.frame", "Step": "isp.frame",
+         "CameraMeta": "isp.meta", "DEFAULT_STAGES": "isp.pipeline", "Pipeline": "isp.pipeline",
+         "create_stage": "isp.registry", "list_stages": "isp.registry", "register_stage": "isp.registry",
+         "Stage": "isp.stage", "StageBase": "isp.stage"}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'isp' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "CFA", "CameraMeta", "ConfigError", "DEFAULT_STAGES", "Domain", "Frame",

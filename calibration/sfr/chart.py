@@ -33,13 +33,15 @@ import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from isp.runtime.executor import Executor, create_executor
-
 from calibration.sfr.esfr import DEFAULT_METHOD, SfrError, measure_sfr
 from calibration.sfr.layout import ChartLayout, detection_image, recognise_chart
+
+if TYPE_CHECKING:   # the executor (and its multiprocessing) loads only where a chart is measured
+    from isp.runtime.executor import Executor
 
 GRID = (15, 20)
 #: what each end of a side loses to its corner, as a fraction of the side and in pixels
@@ -510,6 +512,8 @@ def measure_rois(rois, measure, *, executor: Executor | None = None, payload=Non
     settings) goes to each worker once, so a "processes" executor can
     measure a chart's edges on every core."""
     rois = list(rois)
+    from isp.runtime.executor import create_executor
+
     ex = create_executor("serial") if executor is None else executor
     boxes = [(roi.x, roi.y, roi.w, roi.h) for roi in rois]
     if payload is None:
