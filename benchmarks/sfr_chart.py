@@ -33,6 +33,14 @@ Charts:
 
 * ``headline``: 4000 × 3000, 9 × 13 squares (468 edges), σ 1.2 px, 5°,
   σₙ 0.3 % (SNR 200), 16 bit, with and without the pixel aperture;
+* ``warped``: 2000 × 1500, 6 × 8 squares (192 edges) at 5° and 8°, σ 1.2
+  px, σₙ 0.3 %, 16 bit, resampled (bicubic) through barrel distortion (the
+  radius scaled by ``1 − 0.12 r²``, ``r`` over the half-diagonal), a
+  perspective tilt (``1 + 0.15 y`` in the divisor, the top narrowed) and
+  both with 35 % vignetting: how many sides each tool finds and measures
+  where the edges curve, converge and darken (the resampling blurs, so no
+  error against the truth is reported; a measured edge is matched to its
+  side through the same mapping);
 * ``--sweep``: 2000 × 1500, 6 × 8 squares (192 edges) at angles cycling
   through 2–40° (clear of 14.04° and 26.57°), for every σ in 0.6, 1, 1.5,
   2 px, noise 0, 0.25, 0.5, 1 % (SNR ∞, 240, 120, 60), 8 and 16 bit, with
@@ -67,6 +75,9 @@ SWEEP_ANGLES = (2.0, 3.5, 5.0, 7.0, 9.0, 11.0, 12.5, 16.0, 19.0, 22.0, 24.5, 29.
 SWEEP_SIGMAS = (0.6, 1.0, 1.5, 2.0)
 SWEEP_NOISE = (0.0, 0.0025, 0.005, 0.01)
 STEP = 0.6
+#: the warped charts: barrel k1 (radius over the half-diagonal), perspective tilt, vignetting at the corners
+WARPS = {"barrel": (-0.12, 0.0, 0.0), "perspective": (0.0, 0.15, 0.0),
+         "barrel_perspective_vignetting": (-0.12, 0.15, 0.35)}
 #: issue targets at SNR ≥ 100, per-edge |ΔMTF50| %
 TARGETS = {"median": 0.06, "p95": 0.25, "worst": 0.41}
 
@@ -83,6 +94,7 @@ class ChartCase:
     noise: float
     bits: int
     aperture: bool
+    warp: tuple | None = None   #: (k1, tilt, vignetting): :data:`WARPS`
 
     @property
     def snr(self) -> float:
@@ -92,12 +104,33 @@ class ChartCase:
         return {"name": self.name, "size": [self.shape[1], self.shape[0]], "grid": list(self.grid),
                 "sigma_px": self.sigma, "noise": self.noise, "snr": None if self.noise == 0 else round(self.snr, 1),
                 "bits": self.bits, "pixel_aperture": self.aperture,
-                "angles_deg": [self.angles[0]] if len(set(self.angles)) == 1 else list(self.angles)}
+                "angles_deg": [self.angles[0]] if len(set(self.angles)) == 1 else list(self.angles),
+                **({"warp": dict(zip(("k1", "tilt", "vignetting"), self.warp))} if self.warp else {})}
 
 
 def headline_cases() -> list[ChartCase]:
     return [ChartCase(f"headline_{'aperture' if ap else 'point'}", (3000, 4000), (9, 13), 1.2, (5.0,), 0.003, 16, ap)
             for ap in (False, True)]
+
+
+def warped_cases() -> list[ChartCase]:
+    return [ChartCase(f"warped_{name}", (1500, 2000), (6, 8), 1.2, (5.0, 8.0), 0.003, 16, True, w)
+            for name, w in WARPS.items()]
+
+
+def warp_maps(shape: tuple[int, int], k1: float, tilt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where each pixel of the warped chart comes from in the rendered one:
+    ``(map_x, map_y)`` (float32, for ``cv2.remap``). In coordinates centred
+    on the frame and scaled by its half-diagonal, the perspective divides by
+    ``1 + tilt·y`` and the barrel scales the radius by ``1 + k1·r²``."""
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    cx, cy, r0 = w / 2.0, h / 2.0, float(np.hypot(w / 2.0, h / 2.0))
+    x, y = (xx - cx) / r0, (yy - cy) / r0
+    d = 1.0 + tilt * y
+    xs, ys = x / d, y / d
+    f = 1.0 + k1 * (xs * xs + ys * ys)
+    return (xs * f * r0 + cx).astype(np.float32), (ys * f * r0 + cy).astype(np.float32)
 
 
 def sweep_cases() -> list[ChartCase]:
@@ -108,11 +141,23 @@ def sweep_cases() -> list[ChartCase]:
     return out
 
 
-def write_chart(case: ChartCase, folder: Path, seed: int) -> tuple[Path, list]:
-    """Render, add noise, quantise and write ``case``; the file and its true edges."""
+def write_chart(case: ChartCase, folder: Path, seed: int) -> tuple[Path, list, tuple | None]:
+    """Render (and warp), add noise, quantise and write ``case``; the file,
+    its true edges and, for a warped chart, the maps of :func:`warp_maps`."""
     ch = render_square_chart(case.shape, case.grid, sigma_px=case.sigma, angles_deg=case.angles,
                              pixel_aperture=case.aperture, low=0.2, high=0.8)
     img = ch.image
+    maps = None
+    if case.warp:
+        import cv2
+
+        k1, tilt, vignetting = case.warp
+        maps = warp_maps(case.shape, k1, tilt)
+        img = cv2.remap(img.astype(np.float32), *maps, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+        h, w = case.shape
+        yy, xx = np.mgrid[0:h, 0:w]
+        r2 = ((xx - w / 2.0) ** 2 + (yy - h / 2.0) ** 2) / ((w / 2.0) ** 2 + (h / 2.0) ** 2)
+        img = img * (1.0 - vignetting * r2)
     if case.noise > 0:
         img = img + np.random.default_rng(seed).normal(0.0, case.noise, img.shape)
     top = 2 ** case.bits - 1
@@ -127,15 +172,20 @@ def write_chart(case: ChartCase, folder: Path, seed: int) -> tuple[Path, list]:
 
         path = folder / f"{case.name}.png"
         cv2.imwrite(str(path), codes)
-    return path, list(ch.edges)
+    return path, list(ch.edges), maps
 
 
-def match(measured: list[tuple[float, float, float]], truth: list) -> list[tuple[float, float]]:
+def match(measured: list[tuple[float, float, float]], truth: list, maps=None) -> list[tuple[float, float]]:
     """``(mtf50, truth)`` for every measured ``(x, y, mtf50)`` that lies
-    within a quarter side of a true edge's midpoint (the nearest one)."""
+    within a quarter side of a true edge's midpoint (the nearest one); with
+    ``maps`` (a warped chart) the position is first mapped back to the
+    rendered chart."""
     centres = np.array([e.centre for e in truth])
     out = []
     for x, y, m in measured:
+        if maps is not None:
+            i, j = min(max(int(round(y)), 0), maps[0].shape[0] - 1), min(max(int(round(x)), 0), maps[0].shape[1] - 1)
+            x, y = float(maps[0][i, j]), float(maps[1][i, j])
         d = np.hypot(centres[:, 0] - x, centres[:, 1] - y)
         i = int(np.argmin(d))
         if d[i] <= 0.25 * truth[i].length:
@@ -197,7 +247,7 @@ def run_mtf_mapper(exe: str, path: Path, folder: Path) -> tuple[list, dict, _har
 
 
 def run_case(case: ChartCase, tmp: Path, methods, peer: str | None, seed: int) -> dict:
-    path, truth = write_chart(case, tmp, seed)
+    path, truth, maps = write_chart(case, tmp, seed)
     row = {"chart": case.as_dict(), "edges_true": len(truth), "tools": {}}
     tools = [(f"ours_{m}", lambda p, o, m=m: run_ours(p, o / "ours.json", m)) for m in methods]
     if peer:
@@ -206,9 +256,12 @@ def run_case(case: ChartCase, tmp: Path, methods, peer: str | None, seed: int) -
         out = tmp / f"{case.name}_{name}"
         out.mkdir(exist_ok=True)
         measured, counts, child = fn(path, out)
-        pairs = match(measured, truth)
-        errors = errors_pct(pairs)
-        row["tools"][name] = {**counts, "matched": len(pairs), **error_stats(errors),
+        pairs = match(measured, truth, maps)
+        # a warped chart's resampling blurs: its edges have no analytic truth, only their count
+        errors = errors_pct(pairs) if maps is None else []
+        stats = error_stats(errors) if maps is None else \
+            {"mtf50_median": round(float(np.median([m for m, _ in pairs])), 4) if pairs else None}
+        row["tools"][name] = {**counts, "matched": len(pairs), **stats,
                               "wall_s": round(child.wall_s, 3), "cpu_s": round(child.cpu_s, 3),
                               "peak_mb": round(child.peak_mb, 1), "errors_pct": errors}
     return row
@@ -261,7 +314,7 @@ def main(argv=None) -> dict:
     if peer is None and not args.no_peer:
         print("mtf_mapper not found ($MTF_MAPPER, PATH, mtfmapper/build/bin beside the repository or in $TMPDIR): "
               "its half is skipped; build it with ../shared/tools/mtfmapper/build_mtf_mapper.sh", file=sys.stderr)
-    cases = headline_cases() + (sweep_cases() if args.sweep else [])
+    cases = headline_cases() + warped_cases() + (sweep_cases() if args.sweep else [])
     rows = []
     with tempfile.TemporaryDirectory(prefix="sfr_chart_") as tmp:
         tmp = Path(tmp)
@@ -277,7 +330,8 @@ def main(argv=None) -> dict:
     tools = sorted({t for r in rows for t in r["tools"]})
     summary = {}
     if args.sweep:
-        sweep = [r for r in rows if not r["chart"]["name"].startswith("headline")]
+        names = {c.name for c in sweep_cases()}
+        sweep = [r for r in rows if r["chart"]["name"] in names]
         for tool in tools:
             summary[tool] = {"snr_100_up": pooled(sweep, tool, lambda r: r["chart"]["noise"] <= STEP / 100),
                              **{f"noise_{n * 100:g}%": pooled(sweep, tool, lambda r, n=n: r["chart"]["noise"] == n)
@@ -291,8 +345,11 @@ def main(argv=None) -> dict:
     for r in rows:   # the pooled figures are computed; the per-edge lists stay out of the record
         for t in r["tools"].values():
             t.pop("errors_pct", None)
+    warped = {r["chart"]["name"].removeprefix("warped_"): {"sides": r["edges_true"],
+                                                           **{t: v["matched"] for t, v in r["tools"].items()}}
+              for r in rows if r["chart"].get("warp")}
     result = {"mtf_mapper": peer, "methods": args.methods, "targets_snr_100_up": TARGETS, "charts": rows,
-              "sweep_summary": summary,
+              "warped": warped, "sweep_summary": summary,
               "single_roi_s": {k: v.as_dict(3) for k, v in single.items()} if single else None}
     return _harness.publish("sfr_chart", result, args, argv)
 
