@@ -398,22 +398,24 @@ def run_tiled(fn: TileFn, image: np.ndarray, *, tile: int, margin: int, multiple
     free = [np.zeros(size, dtype) for _ in range(workers)]
 
     def one(t: Tile) -> None:
-        flat = free.pop()   # list.pop/append are atomic: each thread holds its own buffer
+        # list.pop/append are atomic: each thread holds its own buffer until its tile is
+        # stitched (the operator's output may be a view of it)
+        flat = free.pop()
         try:
             rows, cols = window_indices(t, (h, w))
             shape = (rows.size // s, cols.size // s)
             buf = flat[:depth * shape[0] * shape[1]].reshape(depth, *shape)
             y = fn(read_window(image, rows, cols, buf, s), rows, cols)
+            want = (out.shape[2] * s * s, *shape)
+            if y.shape != want:
+                raise ValueError(f"tile operator returned shape {y.shape} for a window "
+                                 f"{(c * s * s + extra_channels, *shape)}; expected {want}")
+            ci, cj = t.rows.core_in_window, t.cols.core_in_window
+            dst = out[t.rows.core_start:t.rows.core_stop, t.cols.core_start:t.cols.core_stop]
+            # cores start on the packing grid (margins are multiples of `multiple`)
+            write_planes(dst, y[:, ci.start // s:-(-ci.stop // s), cj.start // s:-(-cj.stop // s)], s)
         finally:
             free.append(flat)
-        want = (out.shape[2] * s * s, *shape)
-        if y.shape != want:
-            raise ValueError(f"tile operator returned shape {y.shape} for a window "
-                             f"{(c * s * s + extra_channels, *shape)}; expected {want}")
-        ci, cj = t.rows.core_in_window, t.cols.core_in_window
-        dst = out[t.rows.core_start:t.rows.core_stop, t.cols.core_start:t.cols.core_stop]
-        # cores start on the packing grid (margins are multiples of `multiple`)
-        write_planes(dst, y[:, ci.start // s:-(-ci.stop // s), cj.start // s:-(-cj.stop // s)], s)
         if bar is not None:
             bar.update()
 

@@ -171,6 +171,13 @@ def test_tiles_in_flight_at_once_give_the_same_frame(rng, packing):
     assert len(buffers_one) == 1 and 1 < len(set(seen)) <= 3   # a buffer per worker, reused
 
 
+def test_an_operator_returning_its_window_is_stitched_before_the_buffer_is_reused(rng):
+    # the identity returns a view of the worker's buffer: stitched before another tile reuses it
+    img = rng.random((150, 170, 3), dtype=np.float32)
+    out = run_tiled(lambda x, rows, cols: x, img, tile=40, margin=4, workers=2)
+    assert np.array_equal(out, img)
+
+
 def test_an_error_in_a_tile_on_a_worker_reaches_the_caller(rng):
     img = rng.random((100, 100, 3), dtype=np.float32)
 
