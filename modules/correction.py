@@ -490,7 +490,9 @@ class Correction(StageBase):
         (:data:`SHIPPED_MODELS`); ``"none"``: no model, the identity
         (``isp process --correction none``).
     threads : int
-        onnxruntime intra-op threads (the phone budget is 2).
+        Threads the model runs on (the phone budget is 2): that many tiles
+        at once, one onnxruntime intra-op thread each, on a frame of several
+        tiles; that many intra-op threads on a frame of one.
     tile_size : int, optional
         Override of the model's ``tile_size`` (px, margins included; 0: the
         whole frame in one call, memory growing with the frame).
