@@ -17,7 +17,8 @@ to exit and reads its CPU time (user + system) and peak resident memory
   on both; the ratio is of the medians;
 * **with correction**: the same ``isp process`` with ``--correction
   default`` (the packaged e9 profile's model forced onto the file), in the
-  same rotation, and the plain command once more with OpenCV's thread pool
+  same rotation, with ``--also NAME=MODEL`` other models forced alike (what
+  another network costs the whole render), and the plain command once more with OpenCV's thread pool
   on one thread (``OPENCV_FOR_THREADS_NUM=1``): what that pool's threads
   cost and give, its workers waiting actively between the many short
   parallel calls of a banded pipeline;
@@ -40,7 +41,7 @@ skipped with a message and ours is still measured.
 Targets, on two cores: single file ≤ 1.0× Adobe's wall time; batch ≤ 0.5× Adobe's time per
 file; peak ≤ 400 MB at 12 MP; ``isp info`` ≤ 0.3 s; with correction ≤ 2.0 s.
 
-Usage: python -m benchmarks.adobe_speed [--runs 3] [--batch 8] [--file DNG] [--info-file DNG]
+Usage: python -m benchmarks.adobe_speed [--runs 3] [--batch 8] [--file DNG] [--info-file DNG] [--also NAME=MODEL ...]
 """
 
 from __future__ import annotations
@@ -79,7 +80,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--batch", type=int, default=8, help="files in the batch (0: skip the batch)")
     ap.add_argument("--file", type=Path, default=DEFAULT_FILE, help="the 12 MP DNG")
     ap.add_argument("--info-file", type=Path, default=None, help="the small DNG for `isp info`")
+    ap.add_argument("--also", nargs="+", default=[], metavar="NAME=MODEL",
+                    help="also `isp process --correction MODEL` in the same rotation (another model's cost)")
     args = ap.parse_args(argv)
+    also = dict(a.split("=", 1) for a in args.also)
     if not args.file.is_file():
         print(f"skipped: {args.file} not found (the shared data is absent)", file=sys.stderr)
         return {}
@@ -101,6 +105,9 @@ def main(argv=None) -> dict:
         fns["ours_opencv_1"] = rec.task("ours_opencv_1", ours, env={"OPENCV_FOR_THREADS_NUM": "1"})
         fns["ours_corrected"] = rec.task("ours_corrected", ours[:-1] + [str(tmp / "corr.jpg"),
                                                                         "--correction", "default"])
+        for name, model in also.items():
+            fns[f"also_{name}"] = rec.task(f"also_{name}", ours[:-1] + [str(tmp / f"{name}.jpg"),
+                                                                         "--correction", model])
         _harness.interleaved(fns, runs=args.runs, warmup=1)
         t = {k: rec.wall(k) for k in fns}
         single = {"ours_s": t["ours"], "ours_cpu_s": rec.cpu("ours"), "ours_peak_mb": rec.peak_mb("ours"),
@@ -113,7 +120,11 @@ def main(argv=None) -> dict:
         single["ours_opencv_1_cpu_s"] = rec.cpu("ours_opencv_1")
         results["single"] = single
         results["correction"] = {"ours_s": t["ours_corrected"], "ours_cpu_s": rec.cpu("ours_corrected"),
-                                 "ours_peak_mb": rec.peak_mb("ours_corrected")}
+                                 "ours_peak_mb": rec.peak_mb("ours_corrected"),
+                                 "also": {name: {"model": model, "ours_s": t[f"also_{name}"],
+                                                 "ours_cpu_s": rec.cpu(f"also_{name}"),
+                                                 "ours_peak_mb": rec.peak_mb(f"also_{name}")}
+                                          for name, model in also.items()}}
 
         if args.batch > 0:
             folder, out = tmp / "batch", tmp / "batch_out"
@@ -183,6 +194,8 @@ def print_table(r: dict) -> None:
     row("dng_validate -cs1 -tif (one thread)", s["adobe_s"], s["adobe_cpu_s"], s["adobe_peak_mb"])
     row("isp process, OPENCV_FOR_THREADS_NUM=1", s["ours_opencv_1_s"], s["ours_opencv_1_cpu_s"])
     row("isp process --correction default", c["ours_s"], c["ours_cpu_s"], c["ours_peak_mb"])
+    for name, a in c.get("also", {}).items():
+        row(f"isp process --correction {name}", a["ours_s"], a["ours_cpu_s"], a["ours_peak_mb"])
     if b:
         row(f"isp batch, {b['files']} files: per file", b["ours_per_file_s"])
         row(f"dng_validate x {b['files']}: per file", b["adobe_per_file_s"])

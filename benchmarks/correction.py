@@ -20,7 +20,10 @@ is the ratio at the INT8 model's own tile, and ``sweep`` holds every
 median. ``--tile-size T`` times both at ``T`` only. The runs alternate
 between the two models and are spread over two passes of the tile sizes,
 the second reversed (:func:`sweep_models`), so that the machine's drift
-falls on both models alike.
+falls on both models alike. Then the INT8 model at its best tile once
+more, as the stage runs a frame of several tiles (two side by side, one
+intra-op thread each) against one tile at a time on both threads,
+alternated run by run (``tiles_at_once``).
 
 Models: by default the packaged INT8 model and its FP32 twin
 (:func:`export.quantize.dequantize_qdq`: the same graph with the weights
@@ -40,7 +43,7 @@ Run::
 
 Last line: a JSON object with ``fp32_s``, ``int8_s``, ``speedup`` (each
 at its best tile: ``tile_fp32``, ``tile_int8``), ``speedup_same_tile``,
-``ms_per_mp_int8``, ``peak_rss_mb``, ``sweep``. Targets: INT8 ≤ 2 s per 12 MP frame
+``ms_per_mp_int8``, ``peak_rss_mb``, ``sweep``, ``tiles_at_once``. Targets: INT8 ≤ 2 s per 12 MP frame
 (≤ 170 ms/MP) and ≥ 2× faster than FP32.
 """
 
@@ -108,6 +111,27 @@ def _summary(tiling: tuple, frame, cold: dict, warm: list[dict]) -> dict:
             "model_s": round(model, 3), "model_ms_per_computed_mp": round(1e9 * model / computed, 1),
             "computed_over_frame": round(computed / frame.data.shape[0] / frame.data.shape[1], 3),
             "outside_model_s": round(run.median - model, 3)}
+
+
+def tiles_at_once(path: Path, frame, threads: int, tile: int, runs: int) -> dict:
+    """The INT8 model at ``tile`` as the stage runs it (``threads`` tiles
+    side by side, one intra-op thread each) and one tile at a time on
+    ``threads`` intra-op threads, alternated run by run: median seconds."""
+    from modules.correction import Correction
+
+    class OneTileAtATime(Correction):
+        def workers(self, tiles: int) -> int:
+            return 1
+
+    one = OneTileAtATime(model=path, threads=threads, progress=False, tile_size=tile)
+    stages = {"side_by_side_s": _stage(path, frame, threads, tile), "one_at_a_time_s": one}
+    secs = {k: [] for k in stages}
+    for st in stages.values():   # each session built and warm before anything is timed
+        _run(st, frame)
+    for _ in range(runs):
+        for k, st in stages.items():
+            secs[k].append(_run(st, frame)["seconds"])
+    return {"tile": tile, **{k: round(statistics.median(v), 3) for k, v in secs.items()}}
 
 
 def sweep_models(paths: dict, frame, threads: int, runs: int, sizes: list[int], log=print) -> dict:
@@ -244,6 +268,7 @@ def main(argv=None) -> dict:
         t8 = min(sizes, key=lambda t: sweep[t]["int8"]["median_s"])
         r32, r8 = sweep[t32]["fp32"], sweep[t8]["int8"]
         same_tile = own if own in sweep else sizes[0]   # --tile-size: the one tile timed
+        at_once = tiles_at_once(int8, frame, args.threads, t8, args.runs)
         same = sweep[same_tile]
         # every node's time stays out of the JSON (benchmarks/int8_form.py reads it)
         profile = ({k: {f: v for f, v in op_shares(p, args.threads, 1072).items() if f != "node_ms"}
@@ -261,7 +286,7 @@ def main(argv=None) -> dict:
               "ms_per_mp_int8": round(1000 * r8["median_s"] / mp, 1),
               "peak_rss_mb": _peak_mb(r32, r8),
               "fp32": r32, "int8": r8, "model": str(fp32) if args.fp32 or args.checkpoint else f"dequantized {int8}",
-              "int8_model": str(int8)}
+              "int8_model": str(int8), "tiles_at_once": at_once}
     if profile is not None:
         result["op_profile"] = profile
     print(f"{w}×{h}, {args.threads} threads, median of {args.runs}, each at its best tile: FP32 "
@@ -269,6 +294,8 @@ def main(argv=None) -> dict:
           f"{result['ms_per_mp_int8']:.0f} ms/MP), speedup {result['speedup']:.2f}× "
           f"({result['speedup_same_tile']:.2f}× both at {same_tile} px), "
           f"peak RSS +{result['peak_rss_mb']} MB")
+    print(f"  INT8 at {t8} px: tiles side by side {at_once['side_by_side_s']:.2f} s, one at a time on "
+          f"{args.threads} threads {at_once['one_at_a_time_s']:.2f} s")
     for name, r in (("FP32", r32), ("INT8", r8)):
         print(f"  {name}: {r['model_s']:.2f} s in the model ({r['model_ms_per_computed_mp']:.0f} ms per MP computed, "
               f"{r['computed_over_frame']}× the frame with the overlap), {r['outside_model_s']:.2f} s outside it")

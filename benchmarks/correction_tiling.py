@@ -101,7 +101,7 @@ def measure_stage(stage, frame, memory: bool = False) -> dict:
     CPU seconds spent outside the model by the threads that tile (the
     tiling's own cost, which load does not inflate), and (``memory``)
     peak memory."""
-    workers = stage.workers(frame.data.shape[:2])
+    workers = stage.workers(stage.tile_count(frame.data.shape[:2]))
     sess, t_model, cpu_model = stage.tile_session(workers), [0.0], [0.0]
     run = sess.run
     lock = threading.Lock()

@@ -118,15 +118,23 @@ def warped_cases() -> list[ChartCase]:
             for name, w in WARPS.items()]
 
 
-def warp_maps(shape: tuple[int, int], k1: float, tilt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Where each pixel of the warped chart comes from in the rendered one:
-    ``(map_x, map_y)`` (float32, for ``cv2.remap``). In coordinates centred
-    on the frame and scaled by its half-diagonal, the perspective divides by
-    ``1 + tilt·y`` and the barrel scales the radius by ``1 + k1·r²``."""
+def centred(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, float]:
+    """Pixel coordinates ``(x, y)`` centred on the frame and scaled by its
+    half-diagonal ``r0`` (returned too): the field the warps are written in."""
     h, w = shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    cx, cy, r0 = w / 2.0, h / 2.0, float(np.hypot(w / 2.0, h / 2.0))
-    x, y = (xx - cx) / r0, (yy - cy) / r0
+    r0 = float(np.hypot(w / 2.0, h / 2.0))
+    return (xx - w / 2.0) / r0, (yy - h / 2.0) / r0, r0
+
+
+def warp_maps(shape: tuple[int, int], k1: float, tilt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where each pixel of the warped chart comes from in the rendered one:
+    ``(map_x, map_y)`` (float32, for ``cv2.remap``). In :func:`centred`
+    coordinates the perspective divides by ``1 + tilt·y`` and the barrel
+    scales the radius by ``1 + k1·r²``."""
+    h, w = shape
+    x, y, r0 = centred(shape)
+    cx, cy = w / 2.0, h / 2.0
     d = 1.0 + tilt * y
     xs, ys = x / d, y / d
     f = 1.0 + k1 * (xs * xs + ys * ys)
@@ -154,10 +162,8 @@ def write_chart(case: ChartCase, folder: Path, seed: int) -> tuple[Path, list, t
         k1, tilt, vignetting = case.warp
         maps = warp_maps(case.shape, k1, tilt)
         img = cv2.remap(img.astype(np.float32), *maps, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-        h, w = case.shape
-        yy, xx = np.mgrid[0:h, 0:w]
-        r2 = ((xx - w / 2.0) ** 2 + (yy - h / 2.0) ** 2) / ((w / 2.0) ** 2 + (h / 2.0) ** 2)
-        img = img * (1.0 - vignetting * r2)
+        x, y, _ = centred(case.shape)
+        img = img * (1.0 - vignetting * (x * x + y * y))
     if case.noise > 0:
         img = img + np.random.default_rng(seed).normal(0.0, case.noise, img.shape)
     top = 2 ** case.bits - 1

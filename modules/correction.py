@@ -17,8 +17,9 @@ sequential execution, all graph optimisations; one session per model file
 and thread count, shared by every stage that names it. A frame of several
 tiles runs ``threads`` tiles at once, each on its own thread with one
 intra-op thread (two whole-frame tiles side by side outrun one tile on two
-threads, whose many short parallel sections wait on each other: 1.33 s
-against 1.60 s for a 48-channel e9 network on a 12 MP frame, 2 cores); a frame
+threads, whose many short parallel sections wait on each other: 0.99 s
+against 1.09 s for the packaged model on a 12 MP frame, 2 cores,
+``benchmarks/correction.py``); a frame
 of one tile runs on ``threads`` intra-op threads. The session loads on a
 background thread as soon as the pipeline has the raw frame
 (:meth:`Correction.prepare`), so onnxruntime's import and the graph's
@@ -557,11 +558,15 @@ class Correction(StageBase):
         (:func:`onnx_session`)."""
         return onnx_session(self.model, self.threads)
 
-    def workers(self, shape: tuple[int, int]) -> int:
-        """Tiles run at once on a frame of ``shape = (H, W)``: ``threads``,
-        at most one per tile (module Notes)."""
+    def tile_count(self, shape: tuple[int, int]) -> int:
+        """Tiles of a frame of ``shape = (H, W)`` (:meth:`tiling`)."""
         tile, margin, mult, border = self.tiling()
-        return max(1, min(self.threads, len(plan_tiles(shape, tile, margin, mult, border))))
+        return len(plan_tiles(shape, tile, margin, mult, border))
+
+    def workers(self, tiles: int) -> int:
+        """Tiles run at once on a frame of ``tiles`` tiles: ``threads``, at
+        most one per tile (module Notes)."""
+        return max(1, min(self.threads, tiles))
 
     def tile_session(self, workers: int):
         """The session the tiles run on: one intra-op thread per worker's
@@ -580,7 +585,7 @@ class Correction(StageBase):
             return
         if stage.model is None:
             return
-        prefetch_session(lambda: stage.tile_session(stage.workers(frame.data.shape[:2])))
+        prefetch_session(lambda: stage.tile_session(stage.workers(stage.tile_count(frame.data.shape[:2]))))
 
     def for_frame(self, meta) -> tuple["Correction", str]:
         """The stage that runs on a frame of metadata ``meta``, and why.
@@ -614,12 +619,18 @@ class Correction(StageBase):
         return stage, found.reason()
 
     @cached_property
-    def info(self) -> ModelInfo:
-        # from the file itself (modules.common.onnx_header): checking a model when the
-        # pipeline is built needs no onnxruntime, whose session loads in the background
+    def header(self):
+        """The model file's metadata and inputs, read from the file itself
+        (:mod:`modules.common.onnx_header`): checking a model when the
+        pipeline is built needs no onnxruntime, whose session loads in the
+        background (:meth:`prepare`)."""
         from modules.common.onnx_header import read_header
 
-        return model_info(read_header(self.model), Path(self.model).name)
+        return read_header(self.model)
+
+    @cached_property
+    def info(self) -> ModelInfo:
+        return model_info(self.header, Path(self.model).name)
 
     @cached_property
     def model_meta(self) -> dict[str, str]:
@@ -627,9 +638,7 @@ class Correction(StageBase):
         chosen per frame)."""
         if self.model is None or self.auto:
             return {}
-        from modules.common.onnx_header import read_header
-
-        return read_header(self.model).metadata
+        return self.header.metadata
 
     def summary(self, meta=None) -> dict:
         """What ``isp info`` reports: the model in use, where it comes from,
@@ -719,8 +728,8 @@ class Correction(StageBase):
                               f"got shape {frame.data.shape}")
         info = self.info
         tile, margin, mult, border = self.tiling()
-        n = len(plan_tiles(frame.data.shape[:2], tile, margin, mult, border))
-        workers = self.workers(frame.data.shape[:2])
+        n = self.tile_count(frame.data.shape[:2])
+        workers = self.workers(n)
         sess = self.tile_session(workers)
         origin, full = frame.meta.origin, frame.full_size
         feeds = {}

@@ -130,29 +130,39 @@ class ModelHeader:
         return list(self.inputs)
 
 
-def _input(buf) -> InputArg:
-    name, elem, shape = "", 0, []
+def _messages(buf, number: int):
+    """The length-delimited fields ``number`` of a message (sub-messages, strings)."""
+    return (v for num, wire, v in fields(buf) if num == number and wire == 2)
+
+
+def _varint_field(buf, number: int, default: int = 0) -> int:
+    """The last varint field ``number`` of a message (protobuf's rule for a repeated scalar)."""
+    out = default
     for num, wire, v in fields(buf):
-        if num == _VALUE_NAME and wire == 2:
-            name = _text(v)
-        elif num == _VALUE_TYPE and wire == 2:
-            for tnum, twire, tv in fields(v):
-                if tnum != _TYPE_TENSOR or twire != 2:
-                    continue
-                for k, kw, kv in fields(tv):
-                    if k == _TENSOR_ELEM and kw == 0:
-                        elem = kv
-                    elif k == _TENSOR_SHAPE and kw == 2:
-                        for d, dw, dv in fields(kv):
-                            if d != _SHAPE_DIM or dw != 2:
-                                continue
-                            dim = None
-                            for dn, dnw, dnv in fields(dv):
-                                if dn == _DIM_VALUE and dnw == 0:
-                                    dim = dnv
-                                elif dn == _DIM_PARAM and dnw == 2:
-                                    dim = _text(dnv)
-                            shape.append(dim)
+        if num == number and wire == 0:
+            out = v
+    return out
+
+
+def _dim(buf):
+    """A ``TensorShapeProto.Dimension``: its value, its parameter's name, or None."""
+    dim = None
+    for num, wire, v in fields(buf):
+        if num == _DIM_VALUE and wire == 0:
+            dim = v
+        elif num == _DIM_PARAM and wire == 2:
+            dim = _text(v)
+    return dim
+
+
+def _input(buf) -> InputArg:
+    """A ``ValueInfoProto``: name, tensor element type and shape."""
+    name = next((_text(v) for v in _messages(buf, _VALUE_NAME)), "")
+    elem, shape = 0, []
+    for tensor in (t for typ in _messages(buf, _VALUE_TYPE) for t in _messages(typ, _TYPE_TENSOR)):
+        elem = _varint_field(tensor, _TENSOR_ELEM, elem)
+        for dims in _messages(tensor, _TENSOR_SHAPE):
+            shape += [_dim(d) for d in _messages(dims, _SHAPE_DIM)]
     return InputArg(name, ELEMENT_TYPES.get(elem, f"tensor(type {elem})"), shape)
 
 
@@ -172,16 +182,13 @@ def read_header(path: str | os.PathLike) -> ModelHeader:
     try:
         for num, wire, v in fields(buf):
             if num == _MODEL_METADATA and wire == 2:
-                entry = {k: _text(x) for k, w, x in fields(v) if w == 2 and k in (_ENTRY_KEY, _ENTRY_VALUE)}
-                metadata[entry.get(_ENTRY_KEY, "")] = entry.get(_ENTRY_VALUE, "")
+                key = next((_text(x) for x in _messages(v, _ENTRY_KEY)), "")
+                metadata[key] = next((_text(x) for x in _messages(v, _ENTRY_VALUE)), "")
             elif num == _MODEL_GRAPH and wire == 2:
                 graphs += 1
-                for g, gw, gv in fields(v):
-                    if g == _GRAPH_INPUT and gw == 2:
-                        inputs.append(_input(gv))
-                    elif g == _GRAPH_INITIALIZER and gw == 2:
-                        initializers.update(_text(x) for k, w, x in fields(gv)
-                                            if k == _INITIALIZER_NAME and w == 2)
+                inputs += [_input(i) for i in _messages(v, _GRAPH_INPUT)]
+                initializers.update(_text(n) for t in _messages(v, _GRAPH_INITIALIZER)
+                                    for n in _messages(t, _INITIALIZER_NAME))
     except (_Truncated, UnicodeDecodeError) as e:
         raise ConfigError(f"{p}: not a loadable ONNX model ({e})") from None
     if graphs != 1:

@@ -193,8 +193,8 @@ def test_two_threads_run_tiles_side_by_side_with_the_same_result(tmp_path, rng):
     m = _conv_model(tmp_path / "c.onnx")
     f = _rgb_frame(rng, 700, 900)
     two, one = Correction(model=m, threads=2), Correction(model=m, threads=1)
-    assert two.workers((700, 900)) == 2 and one.workers((700, 900)) == 1
-    assert two.workers((100, 100)) == 1          # one tile: two intra-op threads instead
+    assert two.workers(two.tile_count((700, 900))) == 2 and one.workers(one.tile_count((700, 900))) == 1
+    assert two.workers(two.tile_count((100, 100))) == 1   # one tile: two intra-op threads instead
     assert two.tile_session(2) is one.session and two.tile_session(1) is two.session
     assert np.array_equal(two(f).data, one(f).data)
 
