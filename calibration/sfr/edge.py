@@ -64,10 +64,12 @@ http://losburns.com/imaging/software/SFRedge/ .
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import as_strided
 
 __all__ = [
     "LSF_WINDOWS",
@@ -118,11 +120,19 @@ EXTENT_FLOOR = 0.01
 
 #: Cells per bin of the histogram of within-bin sample offsets (binning transfer).
 _OFFSET_CELLS = 64
+#: Longest edge-finding window kept in :func:`_tukey2_table` (4 MB), samples.
+_MAX_CACHED_WINDOW = 1024
 
 
 def mround(x):
     """MATLAB ``round``: halves away from zero."""
     return np.sign(x) * np.floor(np.abs(x) + 0.5)
+
+
+def _mround_int(x: float) -> int:
+    """``int(mround(x))`` for a scalar."""
+    r = math.floor(abs(x) + 0.5)
+    return r if x >= 0 else -r
 
 
 @dataclass(frozen=True)
@@ -146,32 +156,62 @@ class EdgeFit:
 def polyval(coef: np.ndarray, x):
     """``Σ coef[i]·x**i`` (ascending coefficients), by Horner's rule."""
     x = np.asarray(x, dtype=np.float64)
-    out = np.full(x.shape, coef[-1], dtype=np.float64)
-    for c in coef[-2::-1]:
-        out = out * x + c
-    return out
+    if len(coef) == 1:
+        return np.full(x.shape, coef[0], dtype=np.float64)
+    out = np.multiply(x, coef[-1], out=np.empty(x.shape))
+    for c in coef[-2:0:-1]:
+        out += c
+        out *= x
+    out += coef[0]
+    return out if out.ndim else out[()]
 
 
 def poly_compose_linear(coef: np.ndarray, a: float, b: float) -> np.ndarray:
     """Ascending coefficients of ``p(a·t + b)``."""
-    n = len(coef)
-    out = np.zeros(n)
-    for i, c in enumerate(coef):  # (a t + b)^i = Σ_k C(i,k) a^k b^(i−k) t^k
+    out = [0.0] * len(coef)
+    for i, c in enumerate(np.asarray(coef, dtype=np.float64).tolist()):  # (a t + b)^i = Σ_k C(i,k) a^k b^(i−k) t^k
         for k in range(i + 1):
             out[k] += c * math.comb(i, k) * a**k * b ** (i - k)
-    return out
+    return np.array(out)
 
 
 def _fit(rows: np.ndarray, loc: np.ndarray, order: int) -> np.ndarray:
     """Least-squares polynomial ``loc = p(rows)``, fitted on centred and
     scaled rows (as sfrmat5's ``polyfit`` with ``mu``), returned unscaled,
     ascending."""
-    mu = float(rows.mean())
-    sd = float(rows.std()) or 1.0
-    t = (rows - mu) / sd
-    v = np.vander(t, order + 1, increasing=True)
+    n = rows.size
+    mu = float(np.add.reduce(rows)) / n  # the sums of ndarray.mean and .std, without their overhead
+    dev = rows - mu
+    sd = math.sqrt(float(np.add.reduce(dev * dev)) / n) or 1.0
+    t = dev / sd
+    v = np.empty((n, order + 1))  # np.vander(t, order + 1, increasing=True)
+    v[:, 0] = 1.0
+    v[:, 1] = t
+    for i in range(2, order + 1):
+        np.multiply(v[:, i - 1], t, out=v[:, i])
     ct = np.linalg.lstsq(v, loc, rcond=None)[0]
     return poly_compose_linear(ct, 1.0 / sd, -mu / sd)
+
+
+def _clip(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``np.clip(x, lo, hi)`` of a float array, in place, without its overhead."""
+    return np.minimum(np.maximum(x, lo, out=x), hi, out=x)
+
+
+def _mean(x: np.ndarray) -> float:
+    """``x.mean()`` of a non-empty array (the same sum), without its overhead."""
+    return float(np.add.reduce(x, axis=None)) / x.size
+
+
+def _median(x: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D float array (the same order
+    statistics and mean), without its overhead."""
+    n = x.size
+    h = n // 2
+    part = np.partition(x, [h, n - 1] if n % 2 else [h - 1, h, n - 1])
+    if np.isnan(part[-1]):
+        return float("nan")
+    return float(part[h]) if n % 2 else (float(part[h - 1]) + float(part[h])) / 2.0
 
 
 def _hann_at(i: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -188,11 +228,55 @@ def _edge_window(m: int, mid: np.ndarray, kind: str) -> np.ndarray:
         mid = mid + 0.5
         wid = np.maximum(np.maximum(mid - 1.0, m - mid), 1e-9)
         return 0.54 + 0.46 * np.cos(np.pi * (i - mid) / wid)
-    n2 = mround(2.0 * np.maximum(mid, m - mid))
+    n2 = np.floor(2.0 * np.maximum(mid, m - mid) + 0.5)  # mround of a positive length
     # tukey2: the first m samples of a length-n2 window, or the last m.
     first = mid >= m / 2.0
+    longest = np.maximum.reduce(n2, axis=None)
+    if longest <= _MAX_CACHED_WINDOW:  # false for NaN, which takes the direct form
+        return _tukey2_rows(m, n2.ravel(), first.ravel(), int(longest))
     j = np.where(first, i - 1.0, i - 1.0 + n2 - m)
     return 0.95 * _hann_at(j, n2) + 0.05
+
+
+@functools.lru_cache(maxsize=64)
+def _centred_window(m: int, kind: str) -> np.ndarray:
+    """:func:`_edge_window` centred on the row, (1, m), read-only: the
+    first centroid pass's, the same for every ROI ``m`` samples wide."""
+    w = _edge_window(m, np.full((1, 1), (m + 1) / 2.0), kind)
+    w.flags.writeable = False
+    return w
+
+
+def _tukey2_rows(m: int, n2: np.ndarray, first: np.ndarray, longest: int) -> np.ndarray:
+    """(R, m) rows of :func:`_edge_window`'s Tukey windows: row ``r`` is the
+    first (``first[r]``) or last ``m`` values of :func:`_tukey2_scaled`
+    ``(n2[r])``, read from :func:`_tukey2_table` (``n2 ≤ longest``)."""
+    table = _tukey2_table(longest)
+    start = n2 * (n2 - 1) / 2 + np.where(first, 0.0, n2 - m)
+    rows = as_strided(table, (table.size - m + 1, m), table.strides * 2, writeable=False)  # rows[i] = table[i:i + m]
+    return rows[start.astype(np.intp)]
+
+
+_TUKEY2_TABLE = [np.zeros(0)]
+
+
+def _tukey2_table(longest: int) -> np.ndarray:
+    """:func:`_tukey2_scaled` of every length 1, 2, … up to at least
+    ``longest`` (≤ :data:`_MAX_CACHED_WINDOW`), back to back, length ``n``
+    from ``n(n − 1)/2`` on; computed once and extended when a longer one is
+    asked for."""
+    table = _TUKEY2_TABLE[0]
+    if table.size < longest * (longest + 1) // 2:
+        top = min(max(2 * longest, 256), _MAX_CACHED_WINDOW)
+        table = np.concatenate([_tukey2_scaled(n) for n in range(1, top + 1)])
+        table.flags.writeable = False
+        _TUKEY2_TABLE[0] = table
+    return table
+
+
+def _tukey2_scaled(n2: int) -> np.ndarray:
+    """``0.95·w + 0.05`` for the symmetric Hann window ``w`` of ``n2`` points."""
+    return 0.95 * _hann_at(np.arange(n2, dtype=np.float64), np.float64(n2)) + 0.05
 
 
 def _centroids(deriv: np.ndarray, win: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -200,7 +284,7 @@ def _centroids(deriv: np.ndarray, win: np.ndarray) -> tuple[np.ndarray, np.ndarr
     i.e. the position in sample units where sample ``j`` (0-based) of the
     derivative sits at ``j + ½``."""
     wd = deriv * win
-    den = wd.sum(axis=1)
+    den = np.add.reduce(wd, axis=1)
     idx = np.arange(1, deriv.shape[1] + 1, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         loc = (wd @ idx) / den - 0.5
@@ -253,29 +337,30 @@ def locate_edge(
     the windows and centroids work in sample indices.
     """
     m = values.shape[1]
-    d = (0.5 * sign) * np.diff(values, axis=1)
+    d = (0.5 * sign) * (values[:, 1:] - values[:, :-1])
     deriv = np.concatenate([d[:, 1:2], d[:, 1:], d[:, -1:]], axis=1) if m > 2 else np.repeat(d, 2, 1)
     x0c = np.asarray(x0, dtype=np.float64)
 
     def fit_from(win):
         q, den = _centroids(deriv, win)
-        ok = (den > 0) & np.isfinite(q) & (q >= 0.0) & (q <= m)
-        return q, ok
+        return q, (den > 0) & (q >= 0.0) & (q <= m)  # NaN and ±inf fail the bounds
 
-    q, valid = fit_from(_edge_window(m, np.full((1, 1), (m + 1) / 2.0), window))
-    bad = EdgeFit(np.full(order + 1, np.nan), np.full(2, np.nan), np.nan)
-    if valid.sum() < order + 2:
-        return bad, x0c + dx * q, valid
+    def bad():
+        return EdgeFit(np.full(order + 1, np.nan), np.full(2, np.nan), np.nan)
+
+    q, valid = fit_from(_centred_window(m, window))
+    if np.count_nonzero(valid) < order + 2:
+        return bad(), x0c + dx * q, valid
     coef = _fit(rows[valid], (x0c + dx * q)[valid], order)
     place = (polyval(coef, rows) - x0c) / dx
     q, valid = fit_from(_edge_window(m, place[:, None], window))
     loc = x0c + dx * q
-    if valid.sum() < order + 2:
-        return bad, loc, valid
+    if np.count_nonzero(valid) < order + 2:
+        return bad(), loc, valid
     coef = _fit(rows[valid], loc[valid], order)
     coef1 = coef if order == 1 else _fit(rows[valid], loc[valid], 1)
     resid = loc[valid] - polyval(coef, rows[valid])
-    rms = float(np.sqrt(np.mean(resid * resid)))
+    rms = math.sqrt(_mean(resid * resid))
     return EdgeFit(coef, coef1, rms), loc, valid
 
 
@@ -337,28 +422,29 @@ def refine_edge(
     coef = fit.coef
     loc = np.full(nlin, np.nan)
     valid = np.zeros(nlin, dtype=bool)
+    # derivative sample j (0-based) lies half-way between samples j and j + 1
+    deriv = ((0.5 * sign) * (values[:, 1:] - values[:, :-1])).ravel()
+    row_start = (np.arange(nlin) * (m - 1))[:, None]
     for _ in range(max(1, passes)):
         p = polyval(coef, rows)
-        # derivative sample j (0-based) lies half-way between samples j and j + 1
-        j0 = np.clip(np.floor((p - x0c - a - b) / dx - 0.5), 0, m - 1 - band).astype(np.intp)
-        j = j0[:, None] + np.arange(band)[None, :]
-        v0 = np.take_along_axis(values, j, axis=1)
-        v1 = np.take_along_axis(values, j + 1, axis=1)
-        d = (0.5 * sign) * (v1 - v0)
+        j0 = _clip(np.floor((p - x0c - a - b) / dx - 0.5), 0, m - 1 - band)
+        j = j0.astype(np.intp)[:, None] + np.arange(band)
+        d = deriv.take(row_start + j)
         xs = x0c[:, None] + dx * (j + 0.5)
-        r = np.abs(xs - p[:, None])
-        w = 0.5 * (1.0 + np.cos(np.pi * np.clip((r - a) / b, 0.0, 1.0)))
-        wd = w * d
-        den = wd.sum(axis=1)
+        t = np.abs(xs - p[:, None])
+        t -= a
+        t /= b
+        wd = _raised_cosine(_clip(t, 0.0, 1.0)) * d
+        den = np.add.reduce(wd, axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            loc = (wd * xs).sum(axis=1) / den
-        valid = (den > 0) & np.isfinite(loc) & (loc >= lo_x) & (loc <= hi_x)
-        if valid.sum() < order + 2:
+            loc = np.add.reduce(wd * xs, axis=1) / den
+        valid = (den > 0) & (loc >= lo_x) & (loc <= hi_x)  # NaN and ±inf fail the bounds
+        if np.count_nonzero(valid) < order + 2:
             return fit, loc, valid
         coef = _fit(rows[valid], loc[valid], order)
     coef1 = coef if order == 1 else _fit(rows[valid], loc[valid], 1)
     resid = loc[valid] - polyval(coef, rows[valid])
-    return EdgeFit(coef, coef1, float(np.sqrt(np.mean(resid * resid)))), loc, valid
+    return EdgeFit(coef, coef1, math.sqrt(_mean(resid * resid))), loc, valid
 
 
 def project_esf(
@@ -391,26 +477,41 @@ def project_esf(
         Bin centres in the same coordinate.
     """
     nlin = values.shape[0]
-    r0 = float(rows[0])
-    p0 = float(fit(r0))
     edge = fit(rows)[:, None]
-    u = np.broadcast_to(xs, values.shape) - edge
+    p0 = float(edge[0, 0])
+    u = xs - edge
     c1 = float(fit.coef[1])
-    off = int(mround(-oversampling * (nlin - 1) * c1))
-    k0 = min(off, 0) + int(mround(abs(off) / 2.0))
+    off = _mround_int(-oversampling * (nlin - 1) * c1)
+    k0 = min(off, 0) + _mround_int(abs(off) / 2.0)
     # ceil(t) for t = (x − p2)·os; bin k ↔ t ∈ (k + k0 − 1, k + k0].
-    k = np.ceil((u + p0) * oversampling).astype(np.intp).ravel() - k0
-    v = values.ravel()
-    # bins −1 and nn are kept for sfrmat's neighbour filling.
-    inside = (k >= -1) & (k <= nn)
-    if not inside.all():
-        k, v = k[inside], v[inside]
-    counts = np.bincount(k + 1, minlength=nn + 2).astype(np.float64)
-    sums = np.bincount(k + 1, weights=v, minlength=nn + 2)
-    empty = np.flatnonzero(counts[1 : nn + 1] == 0) + 1
-    nempty = empty.size
+    t = u + p0
+    t *= oversampling
+    np.ceil(t, out=t)
+    # bins −1 and nn are kept for sfrmat's neighbour filling, at k + 2; samples
+    # beyond them are counted apart, in bins 0 and nn + 3
+    k = t.ravel()
+    k -= k0 - 2
+    k = _clip(k, 0, nn + 3).astype(np.intp)
+    counts = np.bincount(k, minlength=nn + 4)[1:-1].astype(np.float64)
+    sums = np.bincount(k, weights=values.ravel(), minlength=nn + 4)[1:-1]
     raw_counts = counts[1 : nn + 1].astype(np.int64)
-    for i in empty:  # sfrmat5 order: earlier fills feed later ones
+    empty = (raw_counts == 0).nonzero()[0] + 1
+    if empty.size == 0:
+        esf = sums[1 : nn + 1] / counts[1 : nn + 1]
+    else:
+        esf = _fill_empty(counts, sums, empty)
+    uc = (np.arange(nn) + k0 - 0.5) / oversampling - p0
+    return esf, raw_counts, u, uc
+
+
+def _fill_empty(counts: np.ndarray, sums: np.ndarray, empty: np.ndarray) -> np.ndarray:
+    """ESF of bins ``1 … nn`` of ``counts`` and ``sums`` (bins ``0`` and
+    ``nn + 1`` being the neighbours outside), the ``empty`` ones filled as
+    sfrmat5: each takes the mean of its neighbours' counts and sums, in
+    order, so that earlier fills feed later ones (the last bin takes the
+    previous one's); what stays empty is interpolated."""
+    nn = counts.size - 2
+    for i in empty:
         if i == nn:
             counts[i], sums[i] = counts[i - 1], sums[i - 1]
         else:
@@ -418,12 +519,10 @@ def project_esf(
             sums[i] = 0.5 * (sums[i - 1] + sums[i + 1])
     with np.errstate(divide="ignore", invalid="ignore"):
         esf = sums[1 : nn + 1] / counts[1 : nn + 1]
-    if nempty and not np.isfinite(esf).all():
-        good = np.isfinite(esf)
-        if good.any():
-            esf = np.interp(np.arange(nn), np.flatnonzero(good), esf[good])
-    uc = (np.arange(nn) + k0 - 0.5) / oversampling - p0
-    return esf, raw_counts, u, uc
+    good = np.isfinite(esf)
+    if good.any() and not good.all():
+        esf = np.interp(np.arange(nn), np.flatnonzero(good), esf[good])
+    return esf
 
 
 def output_length(nn: int, oversampling: int) -> int:
@@ -436,7 +535,7 @@ def output_length(nn: int, oversampling: int) -> int:
     129
     """
     freqlim = 2 if oversampling == 1 else 1
-    return int(mround((nn // 2 + 1) * freqlim / 2.0))
+    return _mround_int((nn // 2 + 1) * freqlim / 2.0)
 
 
 def derivative_correction(nn2: int, nn: int | None = None) -> np.ndarray:
@@ -520,31 +619,58 @@ def binning_transfer(u: np.ndarray, uc: np.ndarray, oversampling: int, nfreq: in
     (0.9003, 0.9003)
     """
     nn = uc.size
-    t = (np.asarray(u, dtype=np.float64).ravel() - uc[0]) * oversampling
-    k = np.ceil(t - 0.5)
-    d = t - k
-    k = k.astype(np.intp)
-    inside = (k >= 0) & (k < nn)
-    k, d = k[inside], d[inside]
-    if k.size == 0:
+    t = np.asarray(u, dtype=np.float64).ravel() - uc[0]
+    t *= oversampling
+    k = t - 0.5
+    np.ceil(k, out=k)
+    d = t - k  # in (−½, ½ + ulp]
+    # bin k at k + 1; 0 and nn + 1 hold the samples outside the record, of weight 0
+    k += 1.0
+    b = _clip(k, 0, nn + 1).astype(np.intp)
+    n_b = np.bincount(b, minlength=nn + 2).astype(np.float64)
+    if n_b[0] + n_b[-1] == t.size:
         return np.ones(nfreq)
-    n_b = np.bincount(k, minlength=nn).astype(np.float64)
-    w = 1.0 / n_b[k]
-    cell = np.clip(((d + 0.5) * _OFFSET_CELLS).astype(np.intp), 0, _OFFSET_CELLS - 1)
-    h = np.bincount(cell, weights=w, minlength=_OFFSET_CELLS)
-    hd = np.bincount(cell, weights=w * d, minlength=_OFFSET_CELLS)
-    hdd = np.bincount(cell, weights=w * d * d, minlength=_OFFSET_CELLS)
+    inv = 1.0 / np.maximum(n_b, 1.0)
+    inv[0] = inv[-1] = 0.0
+    w = inv[b]
+    x = d + 0.5
+    x *= _OFFSET_CELLS
+    cell = np.minimum(x, _OFFSET_CELLS - 1, out=x).astype(np.intp)
+    # the samples of a row share a cell: sum runs of equal cells first
+    run = np.concatenate([[0], (cell[1:] != cell[:-1]).nonzero()[0] + 1])
+    wd = w * d
+    cell = cell[run]
+    h = np.bincount(cell, weights=np.add.reduceat(w, run), minlength=_OFFSET_CELLS)
+    hd = np.bincount(cell, weights=np.add.reduceat(wd, run), minlength=_OFFSET_CELLS)
+    hdd = np.bincount(cell, weights=np.add.reduceat(wd * d, run), minlength=_OFFSET_CELLS)
     used = h > 0
     h, dm = h[used], hd[used] / h[used]
     hv = np.maximum(hdd[used] - h * dm * dm, 0.0)  # weight × variance inside each cell
     nu = np.arange(nfreq, dtype=np.float64) / nn
-    ph = 2.0 * np.pi * np.outer(nu, dm)
-    c, s = np.cos(ph), np.sin(ph)
     # Σ w·exp(iφ) over a cell = h·exp(iφ̄)·(1 − 2π²ν²·var + O(ν⁴var²))
     damp = 2.0 * np.pi**2 * nu * nu
-    re = c @ h - damp * (c @ hv)
-    im = s @ h - damp * (s @ hv)
-    return np.hypot(re, im) / h.sum()
+    re, im = _phase_sums(dm, np.array([h, hv]), nfreq, nn)
+    return np.hypot(re[0] - damp * re[1], im[0] - damp * im[1]) / np.add.reduce(h)
+
+
+def _phase_sums(x: np.ndarray, g: np.ndarray, n: int, nn: int) -> tuple[np.ndarray, np.ndarray]:
+    """``Σ_c g[w, c]·cos φ_kc`` and ``Σ_c g[w, c]·sin φ_kc``, (W, n) each,
+    with ``φ_kc = 2π·k·x_c/nn``, ``k = 0 … n−1``.
+
+    With ``k = q + r``, ``q`` a multiple of ``s = ⌊√n⌋`` and ``0 ≤ r < s``,
+    ``e^{iφ} = e^{iφ_q}·e^{iφ_r}``: the sums are products of (q, c) and
+    (c, r) matrices, and only about ``2√n`` rows of sines and cosines are
+    evaluated (the sums agree with direct evaluation within a few ulp)."""
+    step = max(1, math.isqrt(n))
+    q = np.arange(0, n, step)
+    ph = (2.0 * np.pi / nn) * np.multiply.outer(np.concatenate([q, np.arange(step)]), x)
+    c, s = np.cos(ph), np.sin(ph)
+    nq = q.size
+    coarse = np.concatenate([c[:nq], s[:nq]])[None, :, :] * g[:, None, :]  # (W, 2q, c): cos, sin
+    m = coarse @ np.concatenate([c[nq:], s[nq:]]).T  # (W, 2q, 2r): products with cos, sin of φ_r
+    re = m[:, :nq, :step] - m[:, nq:, step:]
+    im = m[:, nq:, :step] + m[:, :nq, step:]
+    return re.reshape(len(g), -1)[:, :n], im.reshape(len(g), -1)[:, :n]
 
 
 def binning_correction(u: np.ndarray, uc: np.ndarray, oversampling: int, nfreq: int) -> np.ndarray:
@@ -581,13 +707,13 @@ def transition_width(esf: np.ndarray, sign: float, centre: float) -> float:
     e = np.asarray(esf, dtype=np.float64) * (1.0 if sign >= 0 else -1.0)
     nn = e.size
     m = max(4, nn // 10)
-    lo, hi = e[:m].mean(), e[-m:].mean()
+    lo, hi = _mean(e[:m]), _mean(e[-m:])
     if not hi > lo:
         return float("nan")
     en = (e - lo) / (hi - lo)
-    c = int(np.clip(round(centre), 1, nn - 2))
-    left = np.flatnonzero(en[: c + 1] <= 0.1)
-    right = np.flatnonzero(en[c:] >= 0.9)
+    c = min(max(round(centre), 1), nn - 2)
+    left = (en[: c + 1] <= 0.1).nonzero()[0]
+    right = (en[c:] >= 0.9).nonzero()[0]
     if left.size == 0 or right.size == 0:
         return float("nan")
     i = int(left[-1])
@@ -602,7 +728,7 @@ def _gauss_smooth(x: np.ndarray, sig: float) -> np.ndarray:
     outside the record); the sum is kept."""
     half = math.ceil(4.0 * sig)
     k = np.exp(-0.5 * (np.arange(-half, half + 1, dtype=np.float64) / sig) ** 2)
-    k /= k.sum()
+    k /= np.add.reduce(k)
     if half >= x.size:
         return np.full(x.size, x.sum() / x.size)
     return np.convolve(x, k, mode="full")[half : half + x.size]
@@ -666,20 +792,23 @@ def lsf_extent(
     sigma_s = 0.0
     if np.count_nonzero(far) >= 16:
         v = d2[far]
-        sigma_b = 1.4826 * float(np.median(np.abs(v - np.median(v)))) / math.sqrt(6.0)
-        h = _gauss_smooth(np.pad([0.5, 0.0, -0.5], math.ceil(4 * ds) + 2), ds)
-        sigma_s = sigma_b * float(np.sqrt(np.sum(h * h)))
-    thr = max(4.0 * sigma_s, EXTENT_FLOOR * float(sm.max()))
+        sigma_b = 1.4826 * _median(np.abs(v - _median(v))) / math.sqrt(6.0)
+        pad = math.ceil(4 * ds) + 2
+        h = np.zeros(2 * pad + 3)
+        h[pad], h[pad + 2] = 0.5, -0.5
+        h = _gauss_smooth(h, ds)
+        sigma_s = sigma_b * math.sqrt(np.add.reduce(h * h))
+    thr = max(4.0 * sigma_s, EXTENT_FLOOR * float(np.maximum.reduce(sm)))
     sig = np.abs(sm) > thr
     gap = max(2.0 * width, 2.0 * oversampling)
-    ic = int(np.clip(round(c), 0, nn - 1))
+    ic = min(max(round(c), 0), nn - 1)
 
     def reach(side: np.ndarray) -> float:
-        idx = np.flatnonzero(side)
+        idx = side.nonzero()[0]
         if idx.size == 0:
             return 0.0
         idx = np.concatenate([[0], idx])
-        jumps = np.flatnonzero(np.diff(idx) > gap)
+        jumps = (idx[1:] - idx[:-1] > gap).nonzero()[0]
         return float(idx[jumps[0]] if jumps.size else idx[-1])
 
     right = reach(sig[ic:]) + (ic - c)
@@ -738,7 +867,15 @@ def adaptive_window(
     b = max(taper * width, min_px * oversampling)
     i = np.arange(nn, dtype=np.float64) - centre
     a = np.where(i < 0, max(a0, extent[0]), max(a0, extent[1]))
-    return 0.5 * (1.0 + np.cos(np.pi * np.clip((np.abs(i) - a) / b, 0.0, 1.0)))
+    t = np.abs(i)
+    t -= a
+    t /= b
+    return _raised_cosine(_clip(t, 0.0, 1.0))
+
+
+def _raised_cosine(t: np.ndarray) -> np.ndarray:
+    """``½(1 + cos πt)``: 1 at ``t = 0`` down to 0 at ``t = 1``."""
+    return 0.5 * (1.0 + np.cos(np.pi * t))
 
 
 def _record_window(kind: str, nn: int, centre: float) -> np.ndarray:
@@ -887,8 +1024,8 @@ def esf_to_sfr(
     if sign < 0:
         lsf = -lsf
     if adaptive is None:
-        peak = float(np.mean(np.flatnonzero(lsf == lsf.max())))
-        shift = int(mround(peak - (mround((nn + 1) / 2.0) - 1)))  # sfrmat ``cent``
+        peak = _mean((lsf == np.maximum.reduce(lsf)).nonzero()[0])
+        shift = _mround_int(peak - (_mround_int((nn + 1) / 2.0) - 1))  # sfrmat ``cent``
         c = np.zeros(nn)
         if shift >= 0:
             c[: nn - shift] = lsf[shift:]
@@ -899,7 +1036,7 @@ def esf_to_sfr(
         # no shift: the modulus of the DFT does not depend on where the LSF lies
         c = apodize_lsf(lsf, esf, adaptive[0], adaptive[1], oversampling, window)
     spec = np.abs(np.fft.rfft(c))
-    dc = float(c.sum())
+    dc = float(np.add.reduce(c))
     nn2 = nn // 2 + 1
     key = (nn2, nn if exact_derivative else None)
     dcorr = _DCORR_CACHE.get(key)
@@ -929,7 +1066,7 @@ def crossing(freq: np.ndarray, sfr: np.ndarray, level: float = 0.5) -> float:
     >>> crossing(np.array([0.0, 0.1, 0.2]), np.array([1.0, 0.7, 0.3]))
     0.15
     """
-    below = np.flatnonzero(sfr < level)
+    below = (np.asarray(sfr) < level).nonzero()[0]
     if below.size == 0 or below[0] == 0:
         return float("nan")
     i = int(below[0])
@@ -970,9 +1107,13 @@ def area_weights(freq: np.ndarray, fmax: float) -> np.ndarray:
     """
     if freq[-1] < fmax:
         return np.array([np.nan])
-    n = int(np.searchsorted(freq, fmax, side="right"))
-    d = np.diff(np.append(freq[:n], fmax))
-    t = 0.5 * (np.append(0.0, d) + np.append(d, 0.0))   # trapezoid weights of the n + 1 points
+    n = int(freq.searchsorted(fmax, side="right"))
+    x = np.empty(n + 1)
+    x[:n] = freq[:n]
+    x[n] = fmax
+    d = np.zeros(n + 2)  # the gaps between the n + 1 points, and none beyond either end
+    d[1:-1] = x[1:] - x[:-1]
+    t = 0.5 * (d[:-1] + d[1:])   # trapezoid weights of the n + 1 points
     w = np.zeros(freq.size)
     w[:n] = t[:n]
     # the end value, interpolated between its neighbours, carries t[n]

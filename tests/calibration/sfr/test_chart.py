@@ -236,3 +236,61 @@ def test_a_mosaic_chart_measured_on_worker_processes_equals_one_measured_here():
         pooled = measure_chart_bayer(ch.image, CFA.RGGB, executor=ex)
     assert len(serial.edges) == 48
     assert [s.mtf50 for _, s in pooled.edges] == [s.mtf50 for _, s in serial.edges]
+
+
+@pytest.mark.property
+def test_the_roi_search_percentiles_are_numpys():
+    """The detector's partial-sort percentiles equal np.percentile, bit for
+    bit, on integer codes and floats."""
+    from calibration.sfr.chart import _percentiles
+
+    rng = np.random.default_rng(3)
+    for a in (rng.integers(0, 65536, (37, 41)).astype(np.uint16), rng.normal(size=1001) * 1e3,
+              rng.integers(0, 256, 7).astype(np.uint8), np.array([2.5])):
+        for q in ((5, 95), (1, 99), (0, 100), (50, 50)):
+            got, want = _percentiles(a, q), np.percentile(a, q)
+            assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+@pytest.mark.property
+def test_collinear_pieces_join_as_the_test_of_every_pair_joins_them():
+    """The pieces of one edge are joined as when every pair is tested: the
+    pre-selection of the pairs misses none, at the thresholds included."""
+    from calibration.sfr.chart import _join_collinear
+
+    def every_pair(seg, cos_tol=math.cos(math.radians(1.5)), offset=1.5, gap=6.0):
+        n = len(seg)
+        d = seg[:, 1] - seg[:, 0]
+        length = np.hypot(d[:, 0], d[:, 1])
+        u = d / np.maximum(length, 1e-9)[:, None]
+        label = np.arange(n)
+        for i in range(n - 1):
+            rel = seg[i + 1:] - seg[i, 0]
+            off = np.abs(rel[..., 0] * u[i, 1] - rel[..., 1] * u[i, 0]).max(axis=1)
+            t = rel @ u[i]
+            ok = ((np.abs(u[i + 1:] @ u[i]) >= cos_tol) & (off <= offset)
+                  & (t.min(axis=1) <= length[i] + gap) & (t.max(axis=1) >= -gap))
+            for j in np.flatnonzero(ok) + i + 1:
+                label[label == label[j]] = label[i]
+        return sorted(len(np.flatnonzero(label == k)) for k in np.unique(label))
+
+    rng = np.random.default_rng(5)
+    joins = 0
+    for _ in range(20):
+        n = int(rng.integers(2, 120))
+        p0 = rng.uniform(0, 2000, (n, 2))
+        ang = rng.choice([0.05, 1.6, 0.7]) + rng.normal(0, 0.02, n)
+        seg = np.stack([p0, p0 + rng.uniform(5, 300, n)[:, None] * np.stack([np.cos(ang), np.sin(ang)], 1)], 1)
+        more = []
+        for k in rng.integers(0, n, n // 2):           # continuations at and around the thresholds
+            d = seg[k, 1] - seg[k, 0]
+            u = d / np.hypot(*d)
+            a = (seg[k, 1] + rng.choice([6.0, -6.0, rng.uniform(-9, 9)]) * u
+                 + rng.choice([1.5, -1.5, rng.uniform(-2, 2)]) * np.array([u[1], -u[0]]))
+            more.append([a, a + rng.uniform(5, 100) * u])
+        seg = np.concatenate([seg, more])[rng.permutation(n + len(more))]
+        sizes = every_pair(seg)
+        joined = _join_collinear(seg)
+        assert len(joined) == len(sizes)
+        joins += len(seg) - len(sizes)
+    assert joins > 50

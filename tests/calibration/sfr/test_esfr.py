@@ -786,3 +786,24 @@ def test_the_noise_estimate_is_unbiased_on_short_rois(shape):
     clean = render_slanted_edge(shape, 5.0, 1.0)
     est = [measure_sfr(clean + rng.normal(0, 0.005, shape)).noise for _ in range(40)]
     assert np.mean(est) == pytest.approx(0.005, rel=0.03)
+
+
+@pytest.mark.property
+def test_the_core_helpers_equal_their_direct_forms():
+    """parity, bit for bit: the edge-finding windows read from the table of
+    Tukey windows against sfrmat5's ``tukey2`` formula, and the median and
+    the Horner sums against numpy's."""
+    rng = np.random.default_rng(2)
+    for m in (9, 64, 117):
+        mid = np.concatenate([rng.uniform(-m, 2 * m, 40), [0.0, m / 2.0, (m + 1) / 2.0, m]])[:, None]
+        i = np.arange(1, m + 1, dtype=np.float64)[None, :]
+        n2 = sfr_edge.mround(2.0 * np.maximum(mid, m - mid))
+        j = np.where(mid >= m / 2.0, i - 1.0, i - 1.0 + n2 - m)
+        direct = 0.95 * (0.5 - 0.5 * np.cos(2.0 * np.pi * j / np.maximum(n2 - 1, 1))) + 0.05
+        assert np.array_equal(sfr_edge._edge_window(m, mid, "tukey"), direct)
+    for n in (16, 17, 300):
+        x = rng.normal(size=n)
+        assert sfr_edge._median(x) == np.median(x)
+    coef = rng.normal(size=4)
+    x = rng.normal(size=50)
+    assert np.array_equal(sfr_edge.polyval(coef, x), np.polynomial.polynomial.polyval(x, coef))
