@@ -16,11 +16,17 @@ answer is no effect and a base at the noise floor. Recorded per lens:
 * the effects added (target: none) and the run's wall seconds (target
   ≤ 600 s on two cores; the loop's workers are two processes).
 
+The base fits every toleranced kind of perturbation and focus
+(:data:`calibration.loop.base.BASE_KINDS`); ``--kinds`` with ``--label``
+runs another base and keeps its results apart (``results.variants``), so
+that bases can be compared on the same devices.
+
 Results are kept per lens in ``benchmarks/results/loop_clean.json``; a lens
 recorded is not run again (``--redo`` runs the lenses named again). Prints
 one JSON object as the last line. Usage::
 
     python -m benchmarks.loop_clean [--lenses e1 e2 e9 e11] [--n-params N]
+    python -m benchmarks.loop_clean --label gaps_decenters_tilts --kinds decenter tilt thickness
 """
 
 from __future__ import annotations
@@ -39,14 +45,14 @@ from benchmarks.forward_fidelity import LENSES, PHONE  # noqa: E402
 from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
 
 
-def run_loop(lens_path, obs, n_params: int | None) -> tuple:
-    """``isp calib loop --lens LENS --measured CAPTURE`` on measured ``obs``:
-    (LoopReport, wall s)."""
+def run_loop(lens_path, obs, n_params: int | None, kinds) -> tuple:
+    """``isp calib loop --lens LENS --measured CAPTURE`` on measured ``obs``,
+    its base over the perturbations of ``kinds``: (LoopReport, wall s)."""
     from calibration.loop.base import make_base
     from calibration.loop.closure import close_loop
 
     t0 = time.perf_counter()
-    base = make_base(str(lens_path), obs, n_params=n_params)
+    base = make_base(str(lens_path), obs, n_params=n_params, kinds=kinds)
     rep = close_loop(base, obs)
     return rep, time.perf_counter() - t0
 
@@ -59,15 +65,33 @@ def main(argv=None) -> dict:
     ap.add_argument("--n-params", type=int, default=None,
                     help="the lens base's most sensitive perturbations (default all, as isp calib loop)")
     ap.add_argument("--redo", action="store_true", help="run the lenses again even where recorded")
+    ap.add_argument("--kinds", nargs="+", metavar="KIND",
+                    help="the base's kinds of perturbation (default calibration.loop.base.BASE_KINDS); with "
+                         "--label, to compare bases")
+    ap.add_argument("--label", help="keep these results apart, under results.variants[LABEL]")
     args = ap.parse_args(argv)
 
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
-    settings = {"seed": args.seed, "size": list(args.size), "n_params": args.n_params, "method": DEFAULT_METHOD}
+    from calibration.loop.base import BASE_KINDS
+
+    kinds = tuple(args.kinds) if args.kinds else BASE_KINDS
+    settings = {"seed": args.seed, "size": list(args.size), "n_params": args.n_params, "method": DEFAULT_METHOD,
+                "base_kinds": list(kinds)}
     path = _harness.results_dir(args) / "loop_clean.json"
-    old = json.loads(path.read_text()).get("results", {}) if path.is_file() else {}
-    done = old.get("lenses", {}) if old.get("settings") == settings else {}
+    record = json.loads(path.read_text()).get("results", {}) if path.is_file() else {}
+    variants = record.pop("variants", {})
+    mine = record if args.label is None else variants.get(args.label, {})
+    done = mine.get("lenses", {}) if mine.get("settings") == settings else {}
+
+    def save():
+        if args.label is None:
+            return _harness.publish("loop_clean", {"settings": settings, "lenses": done, "variants": variants},
+                                    args, argv)
+        variants[args.label] = {"settings": settings, "lenses": done}
+        return _harness.publish("loop_clean", {**record, "variants": variants}, args, argv)
+
     for name in args.lenses:
         if name in done and not args.redo:
             log(f"{name}: recorded, skipped (--redo to run again)")
@@ -77,7 +101,7 @@ def main(argv=None) -> dict:
         device, what, nominal, obs = capture_pair(lens_path, args.seed, args.size, 0.8, [DEFAULT_METHOD], log)
         first, second = obs[DEFAULT_METHOD]
         repeat = two_capture_noise(first, second)
-        rep, wall = run_loop(lens_path, first, args.n_params)
+        rep, wall = run_loop(lens_path, first, args.n_params, kinds)
         before = rep.error_before
         rec = {"lens": LENSES[name], "device": what, "edges": len(first),
                "base_sfra_rms": before["sfra_rms"], "noise_floor": rep.noise_floor,
@@ -90,8 +114,8 @@ def main(argv=None) -> dict:
         log(f"{name}: base SFRA {rec['base_sfra_rms']:.4f}, floor {rec['noise_floor']:.4f} ({rec['ratio']:.2f}×; "
             f"two captures {repeat:.4f}), χ² {rec['chi2_per_term']:.2f}, effects {rec['effects_added'] or 'none'}, "
             f"{rec['wall_s']} s")
-        _harness.publish("loop_clean", {"settings": settings, "lenses": done}, args, argv)
-    return _harness.publish("loop_clean", {"settings": settings, "lenses": done}, args, argv)
+        save()
+    return save()
 
 
 if __name__ == "__main__":

@@ -41,6 +41,12 @@ Charts:
   where the edges curve, converge and darken (the resampling blurs, so no
   error against the truth is reported; a measured edge is matched to its
   side through the same mapping);
+* ``scan``: the headline chart, point-sampled, at σ 1.1–1.3 px: the
+  per-edge scatter of both tools as the MTF50 moves against MTF Mapper's
+  fixed frequency grid (its SFR is sampled every 1/64 cycle/pixel and its
+  MTF50 read by a quadratic through the samples around the crossing, so
+  its scatter depends on where the crossing falls; σ 1.2 px puts it on a
+  sample);
 * ``--sweep``: 2000 × 1500, 6 × 8 squares (192 edges) at angles cycling
   through 2–40° (clear of 14.04° and 26.57°), for every σ in 0.6, 1, 1.5,
   2 px, noise 0, 0.25, 0.5, 1 % (SNR ∞, 240, 120, 60), 8 and 16 bit, with
@@ -74,6 +80,8 @@ from calibration.sfr.synthetic import render_square_chart  # noqa: E402
 SWEEP_ANGLES = (2.0, 3.5, 5.0, 7.0, 9.0, 11.0, 12.5, 16.0, 19.0, 22.0, 24.5, 29.0, 32.0, 35.0, 38.0, 40.0)
 SWEEP_SIGMAS = (0.6, 1.0, 1.5, 2.0)
 SWEEP_NOISE = (0.0, 0.0025, 0.005, 0.01)
+#: the headline chart's σ scanned (px): where the MTF50 falls against MTF Mapper's 1/64 cy/px grid
+SCAN_SIGMAS = (1.1, 1.15, 1.2, 1.25, 1.3)
 STEP = 0.6
 #: the warped charts: barrel k1 (radius over the half-diagonal), perspective tilt, vignetting at the corners
 WARPS = {"barrel": (-0.12, 0.0, 0.0), "perspective": (0.0, 0.15, 0.0),
@@ -111,6 +119,11 @@ class ChartCase:
 def headline_cases() -> list[ChartCase]:
     return [ChartCase(f"headline_{'aperture' if ap else 'point'}", (3000, 4000), (9, 13), 1.2, (5.0,), 0.003, 16, ap)
             for ap in (False, True)]
+
+
+def scan_cases() -> list[ChartCase]:
+    return [ChartCase(f"scan_s{sigma:g}", (3000, 4000), (9, 13), sigma, (5.0,), 0.003, 16, False)
+            for sigma in SCAN_SIGMAS]
 
 
 def warped_cases() -> list[ChartCase]:
@@ -211,7 +224,7 @@ def error_stats(errors: list[float]) -> dict:
     e = np.asarray(errors, dtype=np.float64)
     a = np.abs(e)
     return {"n": int(e.size), "median": round(float(np.median(a)), 4), "p95": round(float(np.percentile(a, 95)), 4),
-            "worst": round(float(a.max()), 4), "bias": round(float(e.mean()), 4)}
+            "worst": round(float(a.max()), 4), "bias": round(float(e.mean()), 4), "sd": round(float(e.std()), 4)}
 
 
 def run_ours(path: Path, out: Path, method: str) -> tuple[list, dict, _harness.Child]:
@@ -320,7 +333,7 @@ def main(argv=None) -> dict:
     if peer is None and not args.no_peer:
         print("mtf_mapper not found ($MTF_MAPPER, PATH, mtfmapper/build/bin beside the repository or in $TMPDIR): "
               "its half is skipped; build it with ../shared/tools/mtfmapper/build_mtf_mapper.sh", file=sys.stderr)
-    cases = headline_cases() + warped_cases() + (sweep_cases() if args.sweep else [])
+    cases = headline_cases() + warped_cases() + scan_cases() + (sweep_cases() if args.sweep else [])
     rows = []
     with tempfile.TemporaryDirectory(prefix="sfr_chart_") as tmp:
         tmp = Path(tmp)
@@ -354,8 +367,11 @@ def main(argv=None) -> dict:
     warped = {r["chart"]["name"].removeprefix("warped_"): {"sides": r["edges_true"],
                                                            **{t: v["matched"] for t, v in r["tools"].items()}}
               for r in rows if r["chart"].get("warp")}
+    scan = {f"σ {r['chart']['sigma_px']:g} px": {f"{t} {k}": v[k] for t, v in r["tools"].items() if v.get("n")
+                                                 for k in ("median", "p95", "worst", "sd")}
+            for r in rows if r["chart"]["name"].startswith("scan_")}
     result = {"mtf_mapper": peer, "methods": args.methods, "targets_snr_100_up": TARGETS, "charts": rows,
-              "warped": warped, "sweep_summary": summary,
+              "warped": warped, "sigma_scan": scan, "sweep_summary": summary,
               "single_roi_s": {k: v.as_dict(3) for k, v in single.items()} if single else None}
     return _harness.publish("sfr_chart", result, args, argv)
 

@@ -216,9 +216,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pixel-um", type=float, metavar="UM",
                    help=f"pixel pitch, µm (default: the raw file's, else {DEFAULT_PIXEL_UM:g})")
     p.add_argument("--n-params", type=_n_params, default=None, metavar="N|all",
-                   help="lens base: the N most sensitive perturbations, or all of them (default all, focus "
-                        "excepted; on a clean simulated e1 device, every tolerance drawn, all 42 fitted to SFRA "
-                        "0.0091 in 424 s, the 24 most sensitive to 0.0104 in 632 s: docs/results/loop.md)")
+                   help="lens base: the N most sensitive perturbations, or all of them (default all: every "
+                        "toleranced kind and focus, which a device with every tolerance drawn needs to reach the "
+                        "noise floor: docs/results/loop.md)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fold split and noise renders")
     p.add_argument("--basis", metavar="BASIS.npz",
                    help="the design's descriptor basis (`isp calib basis`): also write device.json, the "

@@ -710,22 +710,35 @@ def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor) -> ProxyF
 def coarse_subset(obs: Observations, grid=COARSE_GRID, min_obs: int = 1) -> np.ndarray | None:
     """Mask of the observations in a ``grid`` sub-grid of ``obs``'s regions:
     rows and columns evenly spread from edge to edge, so the corners stay
-    in. None where that would not at least halve the observations, or
-    would leave fewer than ``min_obs``.
+    in. Where ``grid`` holds fewer than ``min_obs`` observations, the
+    sub-grid grows (rows and columns in proportion) until it holds them:
+    a fit needs at least about two observations per parameter it fits,
+    and a fit of many parameters still gains from choosing its basin on
+    a sub-grid. None where the sub-grid would not at least halve the
+    observations.
 
     Examples
     --------
     A 15 × 20 grid keeps rows 0, 4, 7, 10, 14 and columns 0, 3, 6, 10, 13,
-    16, 19: 35 of its 300 regions.
+    16, 19: 35 of its 300 regions; asked for 36 observations or more (one
+    per region), it keeps 6 × 8 regions.
     """
     rows, cols = obs.grid
-    keep_r = np.unique(np.round(np.linspace(0, rows - 1, min(int(grid[0]), rows))).astype(int))
-    keep_c = np.unique(np.round(np.linspace(0, cols - 1, min(int(grid[1]), cols))).astype(int))
     region = obs.region
-    mask = np.isin(region[:, 0], keep_r) & np.isin(region[:, 1], keep_c)
-    if 2 * mask.sum() > len(obs) or mask.sum() < min_obs:
-        return None
-    return mask
+    g0, g1 = int(grid[0]), int(grid[1])
+    grow = 0
+    while True:
+        gr, gc = min(g0 + grow, rows), min(round(g1 * (g0 + grow) / g0), cols)
+        keep_r = np.unique(np.round(np.linspace(0, rows - 1, gr)).astype(int))
+        keep_c = np.unique(np.round(np.linspace(0, cols - 1, gc)).astype(int))
+        mask = np.isin(region[:, 0], keep_r) & np.isin(region[:, 1], keep_c)
+        if 2 * mask.sum() > len(obs):
+            return None
+        if mask.sum() >= min_obs:
+            return mask
+        if gr == rows and gc == cols:
+            return None
+        grow += 1
 
 
 def _coarse_to_fine(nominal, obs, mask, names, cfg: ProxyFitSettings, ex: Executor) -> ProxyFit:

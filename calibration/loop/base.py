@@ -4,9 +4,12 @@ A base model predicts every observation's SFR from its own parameters plus
 the hooks of added effects (:mod:`calibration.loop.effects`):
 
 * :class:`LensBase` — a lens prescription and its perturbations
-  (:class:`calibration.fit.forward_model.SfrModel`); its parameters are the
-  screened lens perturbations of :mod:`calibration.fit.proxy` *without* focus,
-  so that a focus shift is something the loop must find.
+  (:class:`calibration.fit.forward_model.SfrModel`); its parameters are
+  every toleranced perturbation of the lens and its focus
+  (:data:`BASE_KINDS`): a device with every tolerance drawn needs them
+  all to reach the noise floor. A focus shift within the base's range
+  (±2 focus tolerances) is the lens's focus parameter, reported with the
+  base's parameters; the ``focus_shift`` effect finds what lies beyond.
 * :class:`ParametricBase` — no prescription (an unknown camera): a
   diffraction-limited circular pupil at F-number N (ISO 12233 Annex /
   Goodman eq. 6-33) × a Gaussian aberration blur of σ px × the square pixel
@@ -27,7 +30,7 @@ from calibration.loop.effects import Geometry
 from calibration.fit.observations import Observations
 from calibration.fit.forward_model import BANDS, Prediction, aperture_mtf, band_means, measure_like, sfra_of
 
-__all__ = ["LensBase", "ParametricBase", "area_weights", "colour_shift_mtf", "diffraction_mtf", "disc_mtf",
+__all__ = ["BASE_KINDS", "LensBase", "ParametricBase", "area_weights", "colour_shift_mtf", "diffraction_mtf", "disc_mtf",
            "disc_otf", "edge_profile", "make_base"]
 
 
@@ -214,35 +217,44 @@ class ParametricBase:
 LOOP_WINDOW_UM = 45.0
 
 
+#: the kinds of perturbation :class:`LensBase` fits by default, focus among them
+#: (:func:`calibration.optics.perturb.default_names`). Why all of them: on e2's clean device
+#: (``isp calib simulate US-12210142-B2-e2.zmx --perturb random --seed 5 --size 2000,1500``, the
+#: coarse stage on 140–224 edges, the fit on all 1,200) the base over decenters, tilts and air gaps (47)
+#: ended at χ² 55 per residual, over them with focus and the glasses' indices (56) at 23, over
+#: every kind but focus (91) at 53, and over every kind and focus (92) at 14.2, where the
+#: device's own lens scores 14.1 (χ² with the fitter's default σ of 0.002 cycles/pixel per
+#: edge, about a quarter of this capture's noise)
+BASE_KINDS = ("curvature", "conic", "thickness", "decenter", "tilt", "nd", "vd", "focus")
+
+
 #: iterations of the base fit's stage on all edges (:class:`calibration.fit.proxy.ProxyFitSettings`'s
 #: ``fine_iter``): what the loop's ten minutes on two cores allow with every perturbation free
 LOOP_FINE_ITER = 12
 
 
 class LensBase:
-    """A lens prescription and its perturbations (module docstring).
-    ``n_params``: the most sensitive perturbations fitted, or None for all
-    of them (focus excepted). Why all by default: on e1's clean device,
-    every tolerance drawn, ``isp calib fit --window-um 45`` over all 42
-    perturbations (focus among them) ended at SFRA RMS 0.0091 in 424 s,
-    over the 24 most sensitive at 0.0104 in 632 s (more restarts), the
-    noise floor being 0.0078; the loop's base over the 41 without focus
-    ends at 0.0098 (``benchmarks/loop_clean.py``)."""
+    """A lens prescription and its perturbations (module docstring):
+    ``names``, or every one of :data:`BASE_KINDS`. ``n_params``: the most
+    sensitive of those fitted, or None for all of them. Why all by
+    default: on e1's clean device, every tolerance drawn, ``isp calib fit
+    --window-um 45`` over its 42 decenters, tilts, gaps and focus ended at
+    SFRA RMS 0.0091 in 424 s, over the 24 most sensitive at 0.0104 in 632 s
+    (more restarts), the noise floor being 0.0078."""
 
     refit_in_cv = False    # every evaluation traces the lens: candidates are fitted with it held
 
     def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int | None = None):
         from calibration.optics.perturb import nominal as as_perturbed
-        from calibration.fit.proxy import default_names, focus_name, parameter_space, screen_parameters
+        from calibration.fit.proxy import default_names, parameter_space, screen_parameters
         from calibration.fit.forward_model import ModelSettings, SfrModel
 
         self.model = SfrModel(nominal, obs, settings or ModelSettings().with_window(LOOP_WINDOW_UM))
         self.obs = obs
         self.nominal = nominal
-        if names is None:
-            names = [n for n in default_names(nominal) if n != focus_name(nominal)]
-            if n_params is not None and n_params < len(names):
-                names = screen_parameters(self.model, names, n_params)
+        names = default_names(nominal, BASE_KINDS) if names is None else list(names)
+        if n_params is not None and n_params < len(names):
+            names = screen_parameters(self.model, names, n_params)
         self.space = parameter_space(nominal, names)
         self.names = tuple(self.space.names)
         k = len(self.names)
@@ -392,12 +404,13 @@ def _edge_bias(obs: Observations, otf, default_roi=(64.0, 96.0)):
     return a_bias, c_bias, sd
 
 
-def make_base(lens: str, obs, *, f_number="fit", n_params: int | None = None, pixel_um: float | None = None):
+def make_base(lens: str, obs, *, f_number="fit", n_params: int | None = None, pixel_um: float | None = None,
+              kinds=BASE_KINDS):
     """The base model: ``"parametric"`` → :class:`ParametricBase` (F-number
     fitted from 2.0, or held at ``f_number``), else a lens file →
     :class:`LensBase` of the lens matched to the measurement's sensor
     (:func:`calibration.fit.measurements.match_sensor`; ``pixel_um`` its
-    pitch, µm). A bad lens file raises
+    pitch, µm) over its perturbations of ``kinds`` (:data:`BASE_KINDS`). A bad lens file raises
     :class:`~calibration.optics.lens.LensError` naming it."""
     if lens == "parametric":
         if f_number in (None, "fit"):
@@ -408,4 +421,6 @@ def make_base(lens: str, obs, *, f_number="fit", n_params: int | None = None, pi
 
     nominal = read_lens(lens)
     nominal, obs = match_sensor(nominal, obs, pixel_um=pixel_um)
-    return LensBase(nominal, obs, n_params=n_params)
+    from calibration.fit.proxy import default_names
+
+    return LensBase(nominal, obs, names=default_names(nominal, tuple(kinds)), n_params=n_params)

@@ -87,6 +87,7 @@ __all__ = [
     "interp_at",
     "locate_edge",
     "lsf_extent",
+    "mean_of",
     "mround",
     "output_length",
     "poly_compose_linear",
@@ -198,8 +199,13 @@ def _clip(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return np.minimum(np.maximum(x, lo, out=x), hi, out=x)
 
 
-def _mean(x: np.ndarray) -> float:
-    """``x.mean()`` of a non-empty array (the same sum), without its overhead."""
+def mean_of(x: np.ndarray) -> float:
+    """``x.mean()`` of a non-empty array (the same sum), without its overhead
+    (a measurement takes a few dozen means of small arrays).
+
+    >>> bool(mean_of(np.array([1.0, 2.0, 4.0])) == np.array([1.0, 2.0, 4.0]).mean())
+    True
+    """
     return float(np.add.reduce(x, axis=None)) / x.size
 
 
@@ -360,7 +366,7 @@ def locate_edge(
     coef = _fit(rows[valid], loc[valid], order)
     coef1 = coef if order == 1 else _fit(rows[valid], loc[valid], 1)
     resid = loc[valid] - polyval(coef, rows[valid])
-    rms = math.sqrt(_mean(resid * resid))
+    rms = math.sqrt(mean_of(resid * resid))
     return EdgeFit(coef, coef1, rms), loc, valid
 
 
@@ -444,7 +450,7 @@ def refine_edge(
         coef = _fit(rows[valid], loc[valid], order)
     coef1 = coef if order == 1 else _fit(rows[valid], loc[valid], 1)
     resid = loc[valid] - polyval(coef, rows[valid])
-    return EdgeFit(coef, coef1, math.sqrt(_mean(resid * resid))), loc, valid
+    return EdgeFit(coef, coef1, math.sqrt(mean_of(resid * resid))), loc, valid
 
 
 def project_esf(
@@ -707,7 +713,7 @@ def transition_width(esf: np.ndarray, sign: float, centre: float) -> float:
     e = np.asarray(esf, dtype=np.float64) * (1.0 if sign >= 0 else -1.0)
     nn = e.size
     m = max(4, nn // 10)
-    lo, hi = _mean(e[:m]), _mean(e[-m:])
+    lo, hi = mean_of(e[:m]), mean_of(e[-m:])
     if not hi > lo:
         return float("nan")
     en = (e - lo) / (hi - lo)
@@ -1024,7 +1030,7 @@ def esf_to_sfr(
     if sign < 0:
         lsf = -lsf
     if adaptive is None:
-        peak = _mean((lsf == np.maximum.reduce(lsf)).nonzero()[0])
+        peak = mean_of((lsf == np.maximum.reduce(lsf)).nonzero()[0])
         shift = _mround_int(peak - (_mround_int((nn + 1) / 2.0) - 1))  # sfrmat ``cent``
         c = np.zeros(nn)
         if shift >= 0:

@@ -501,20 +501,20 @@ def _is_horizontal(a: np.ndarray) -> bool:
     h, w = a.shape
     i = min(3, (h - 1) // 2)
     j = min(3, (w - 1) // 2)
-    testv = abs(core._mean(a[h - 1 - i, :]) - core._mean(a[i, :]))
-    testh = abs(core._mean(a[:, w - 1 - j]) - core._mean(a[:, j]))
+    testv = abs(core.mean_of(a[h - 1 - i, :]) - core.mean_of(a[i, :]))
+    testh = abs(core.mean_of(a[:, w - 1 - j]) - core.mean_of(a[:, j]))
     return bool(testv > testh)
 
 
 def _polarity(a: np.ndarray) -> float:
     """+1 if the mean rises from the left to the right columns."""
     n = max(1, min(5, a.shape[1] // 4))
-    return 1.0 if core._mean(a[:, -n:]) >= core._mean(a[:, :n]) else -1.0
+    return 1.0 if core.mean_of(a[:, -n:]) >= core.mean_of(a[:, :n]) else -1.0
 
 
 def _sample_std(x: np.ndarray) -> float:
     """``np.std(x, ddof=1)`` of a float array of two values or more (the same sums)."""
-    dev = x - core._mean(x)
+    dev = x - core.mean_of(x)
     return math.sqrt(float(np.add.reduce(dev * dev)) / (x.size - 1))
 
 
@@ -647,7 +647,7 @@ def _plateaus(c: _Core, vals: np.ndarray, sign: float, oversampling: int) -> tup
     e = c.esf if sign > 0 else c.esf[::-1]
     ucs = uc if sign > 0 else -uc[::-1]
     m = max(4, nn // 10)
-    lo, hi = core._mean(e[:m]), core._mean(e[-m:])
+    lo, hi = core.mean_of(e[:m]), core.mean_of(e[-m:])
     rise = hi - lo
     if rise > 0:
         en = (e - lo) / rise
@@ -669,8 +669,8 @@ def _plateaus(c: _Core, vals: np.ndarray, sign: float, oversampling: int) -> tup
         sel = left | right
         resid = vals - np.interp(u, uc, c.esf)
         noise = _sample_std(resid[sel]) if np.count_nonzero(sel) > 2 else float("nan")
-    lmean = core._mean(vals[left]) if left.any() else core._mean(c.esf[: max(1, nn // 20)])
-    rmean = core._mean(vals[right]) if right.any() else core._mean(c.esf[-max(1, nn // 20) :])
+    lmean = core.mean_of(vals[left]) if left.any() else core.mean_of(c.esf[: max(1, nn // 20)])
+    rmean = core.mean_of(vals[right]) if right.any() else core.mean_of(c.esf[-max(1, nn // 20) :])
     dark, bright = (lmean, rmean) if sign > 0 else (rmean, lmean)
     return dark, bright, noise, width
 

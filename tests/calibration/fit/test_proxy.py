@@ -132,7 +132,11 @@ def test_the_sub_grid_spans_the_field_corners_included(grid_device):
     assert mask.sum() == 35
     # nothing to gain on a grid no larger than twice the sub-grid, or below the least count
     assert coarse_subset(one_per_region(obs, (5, 7)), (5, 7)) is None
-    assert coarse_subset(full, (5, 7), min_obs=36) is None
+    # a fit of more parameters gets a larger sub-grid, spread the same way, as long as it halves the field
+    grown = coarse_subset(full, (5, 7), min_obs=36)
+    assert grown.sum() == 48
+    assert {0, 14} <= set(full.region[grown][:, 0]) and {0, 19} <= set(full.region[grown][:, 1])
+    assert coarse_subset(full, (5, 7), min_obs=151) is None
 
 
 def test_coarse_to_fine_recovers_the_device_as_the_full_fit_does(grid_device):
