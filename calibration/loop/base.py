@@ -235,7 +235,7 @@ LOOP_FINE_ITER = 12
 
 class LensBase:
     """A lens prescription and its perturbations (module docstring):
-    ``names``, or every one of :data:`BASE_KINDS`. ``n_params``: the most
+    ``names``, or every one of ``kinds`` (:data:`BASE_KINDS`). ``n_params``: the most
     sensitive of those fitted, or None for all of them. Why all by
     default: on e1's clean device, every tolerance drawn, ``isp calib fit
     --window-um 45`` over its 42 decenters, tilts, gaps and focus ended at
@@ -244,7 +244,8 @@ class LensBase:
 
     refit_in_cv = False    # every evaluation traces the lens: candidates are fitted with it held
 
-    def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int | None = None):
+    def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int | None = None,
+                 kinds=BASE_KINDS):
         from calibration.optics.perturb import nominal as as_perturbed
         from calibration.fit.proxy import default_names, parameter_space, screen_parameters
         from calibration.fit.forward_model import ModelSettings, SfrModel
@@ -252,7 +253,7 @@ class LensBase:
         self.model = SfrModel(nominal, obs, settings or ModelSettings().with_window(LOOP_WINDOW_UM))
         self.obs = obs
         self.nominal = nominal
-        names = default_names(nominal, BASE_KINDS) if names is None else list(names)
+        names = default_names(nominal, tuple(kinds)) if names is None else list(names)
         if n_params is not None and n_params < len(names):
             names = screen_parameters(self.model, names, n_params)
         self.space = parameter_space(nominal, names)
@@ -421,6 +422,4 @@ def make_base(lens: str, obs, *, f_number="fit", n_params: int | None = None, pi
 
     nominal = read_lens(lens)
     nominal, obs = match_sensor(nominal, obs, pixel_um=pixel_um)
-    from calibration.fit.proxy import default_names
-
-    return LensBase(nominal, obs, names=default_names(nominal, tuple(kinds)), n_params=n_params)
+    return LensBase(nominal, obs, n_params=n_params, kinds=kinds)
