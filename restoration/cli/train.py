@@ -48,6 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume", metavar="CKPT", help="continue from a checkpoint (e.g. OUT/last.pt)")
     p.add_argument("--out", help="output folder (overrides run.out)")
     p.add_argument("--steps", type=int, help="total optimiser steps (overrides run.steps)")
+    p.add_argument("--seconds", type=float, metavar="S",
+                   help="wall-clock budget of the steps (overrides run.seconds): the run measures its "
+                        "step time and ends within S seconds, at most run.steps steps")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), help="overrides run.device")
     p.add_argument("--threads", type=int, help="torch CPU threads (overrides run.threads)")
     p.add_argument("--lens", metavar="PROXY",
@@ -77,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"{args.resume}: the checkpoint holds no config; give --config")
         config = TrainConfig.from_dict(saved, where=f"{args.resume} (config)")
     changes = {k: v for k, v in (("out", args.out), ("steps", args.steps), ("device", args.device),
-                                                    ("threads", args.threads)) if v is not None}
+                                                    ("threads", args.threads),
+                                                    ("seconds", args.seconds)) if v is not None}
     if changes:
         config = config.replace("run", **changes)
     if args.lens is not None:

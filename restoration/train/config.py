@@ -127,6 +127,7 @@ class RunConfig:
     threads: int = 2
     checkpoint_every: int = 250
     out: str = "out/train"
+    seconds: float = 0.0
 
 
 #: section name → its dataclass (``synth`` is optional: absent = use existing data)
@@ -226,6 +227,8 @@ class TrainConfig:
         _positive(r.steps, "run.steps")
         _positive(r.threads, "run.threads")
         _positive(r.checkpoint_every, "run.checkpoint_every")
+        if not r.seconds >= 0:
+            raise ConfigError(f"run.seconds must be ≥ 0 (0: no time budget); got {r.seconds}")
         _choice(r.device, DEVICES, "run.device")
         if not r.out:
             raise ConfigError("run.out must name an output folder")

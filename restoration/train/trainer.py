@@ -109,6 +109,13 @@ key                            default              meaning
 ``run.threads``                2                    torch CPU threads
 ``run.checkpoint_every``       250                  steps between checkpoints (+ validation)
 ``run.out``                    ``"out/train"``      output folder (``--out``)
+``run.seconds``                0                    wall-clock budget of the steps, s (0: none;
+                                                    ``--seconds``): after
+                                                    :data:`BUDGET_PROBE` steps the run caps
+                                                    ``run.steps`` at what the rest of the budget
+                                                    allows at the measured step time (validation
+                                                    included), so that the cosine schedule still
+                                                    ends at 0; the log records the cap
 =============================  ===================  ===========================================
 
 An epoch is one crop from every training pair (``ceil(train pairs /
@@ -611,6 +618,42 @@ def loss_fn(name: str):
     return {"l2": F.mse_loss, "l1": F.l1_loss}[name]
 
 
+#: steps timed (after 5 of warm-up) before a time budget (``run.seconds``) fixes the step count
+BUDGET_PROBE = 50
+
+
+def budget_steps(step: int, steps: int, left_s: float, step_s: float, checkpoint_s: float,
+                 checkpoint_every: int) -> int:
+    """The step count a time budget allows (``run.seconds``).
+
+    Parameters
+    ----------
+    step : int
+        Steps done.
+    steps : int
+        The most the run may take (``run.steps``).
+    left_s : float
+        Seconds of the budget left.
+    step_s, checkpoint_s : float
+        Measured seconds per step and per checkpoint (its validation included).
+    checkpoint_every : int
+
+    Returns
+    -------
+    int
+        ``min(steps, step + n)``, ``n`` the steps (each with its share of a
+        checkpoint) that fit in ``left_s``, at least ``step + 1``.
+
+    Examples
+    --------
+    >>> budget_steps(55, 10_000, 100.0, 0.05, 1.0, 1000)   # 99 s at 0.051 s per step
+    1996
+    """
+    per_step = step_s + checkpoint_s / checkpoint_every
+    n = int(max(left_s - checkpoint_s, 0.0) / per_step) if per_step > 0 else steps
+    return int(min(steps, max(step + n, step + 1)))
+
+
 def learning_rate(config: TrainConfig, step: int, steps_per_epoch: float) -> float:
     """Learning rate of ``step`` (warm-up × schedule; a pure function)."""
     o = config.optim
@@ -908,10 +951,13 @@ def train(config: TrainConfig, *, resume=None, executor=None, log=print) -> dict
         log(f"nothing to do: the checkpoint is at step {step} ≥ run.steps = {r.steps}")
         checkpoint(step, final=True)
         return info
+    t_start = time.perf_counter()
     if not val_log and vbank is not None and step == 0:
         checkpoint(0)   # step 0: the untrained (near-identity) model and the uncorrected input
+    t_checkpoint = time.perf_counter() - t_start
     bar = ex.bar(total=r.steps, initial=step, desc="train", unit="step", smoothing=0.05)
     ema = None
+    first, t_probe = step, None
     try:
         while step < r.steps:
             t_step = time.perf_counter()
@@ -944,6 +990,23 @@ def train(config: TrainConfig, *, resume=None, executor=None, log=print) -> dict
             ema = lv if ema is None else 0.95 * ema + 0.05 * lv
             bar.set_postfix(loss=f"{ema:.3g}", lr=f"{lr:.2g}", T=f"{temp:.3g}", refresh=False)
             bar.update()
+            if r.seconds and step - first == 5:
+                t_probe = time.perf_counter()
+            elif r.seconds and step - first == 5 + BUDGET_PROBE:
+                now = time.perf_counter()
+                cap = budget_steps(step, r.steps, r.seconds - (now - t_start), (now - t_probe) / BUDGET_PROBE,
+                                   t_checkpoint, r.checkpoint_every)
+                config = config.replace("run", steps=cap)
+                r = config.run
+                info["config"] = config.to_dict()
+                info["time_budget"] = {"seconds": r.seconds, "step_s": round((now - t_probe) / BUDGET_PROBE, 5),
+                                       "checkpoint_s": round(t_checkpoint, 3), "steps": cap}
+                bar.total = cap
+                bar.refresh()
+                (tqdm.write if progress else log)(
+                    f"time budget {r.seconds:g} s: {cap} steps at {(now - t_probe) / BUDGET_PROBE:.4f} s/step")
+            if r.seconds and time.perf_counter() - t_start > r.seconds:
+                break
             if step % r.checkpoint_every == 0 and step < r.steps:
                 checkpoint(step)
     except KeyboardInterrupt:

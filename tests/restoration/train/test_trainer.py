@@ -329,3 +329,37 @@ def test_highpass_penalty_shrinks_what_the_highpass_removes(pairs, tmp_path):
 
     with pytest.raises(ConfigError, match="highpass_penalty"):
         TrainConfig.from_dict({"data": {"dirs": ["x"]}, "optim": {"highpass_penalty": -1.0}})
+
+
+def test_budget_steps_is_the_steps_that_fit_the_time_left():
+    from restoration.train.trainer import budget_steps
+
+    # 99 s (one checkpoint kept back) at 0.05 s per step plus 1 s per 1,000 steps' checkpoint
+    assert budget_steps(55, 10_000, 100.0, 0.05, 1.0, 1000) == 55 + int(99.0 / 0.051)
+    assert budget_steps(55, 500, 100.0, 0.05, 1.0, 1000) == 500          # run.steps stays the most
+    assert budget_steps(55, 500, 0.5, 0.05, 1.0, 1000) == 56             # no time left: one more step
+
+
+def test_a_time_budget_caps_the_steps_and_the_schedule(pairs, tmp_path):
+    """``run.seconds``: a budget spent before the first step ends the run
+    after it (the model is written); an ample one leaves ``run.steps`` as
+    it is and logs the measured step time; a negative one is refused."""
+    d = config_dict(pairs, tmp_path / "spent", steps=80, checkpoint_every=40)
+    assert main(["train", "--config", str(write_toml(tmp_path / "a.toml", d)), "--seconds", "1e-6", "-q"]) == 0
+    log = json.loads((tmp_path / "spent" / "train_log.json").read_text())
+    assert len(log["history"]["step"]) == 1 and (tmp_path / "spent" / "model.pt").is_file()
+
+    d = config_dict(pairs, tmp_path / "ample", steps=80, checkpoint_every=40, seconds=3600.0)
+    assert main(["train", "--config", str(write_toml(tmp_path / "b.toml", d)), "-q"]) == 0
+    log = json.loads((tmp_path / "ample" / "train_log.json").read_text())
+    assert len(log["history"]["step"]) == 80
+    assert log["time_budget"]["steps"] == 80 and 0 < log["time_budget"]["step_s"] < 10
+    # the cosine schedule's horizon is the capped count
+    from restoration.train.config import TrainConfig
+    from restoration.train.trainer import learning_rate
+
+    c = TrainConfig.from_dict({**d, "optim": {"lr": 1.0, "schedule": "cosine"}})
+    assert learning_rate(c, 40, 1.0) == pytest.approx(0.5)
+
+    d["run"]["seconds"] = -1.0
+    assert main(["train", "--config", str(write_toml(tmp_path / "c.toml", d)), "-q"]) == 2
