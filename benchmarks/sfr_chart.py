@@ -53,6 +53,16 @@ Charts:
   and without the aperture (64 charts). Pooled over SNR ≥ 100 and at
   each noise level.
 
+* ``real``: the chart photographs of ``../shared/data/edges`` (sRGB JPEG and
+  BMP: ours with ``--encoding srgb``, MTF Mapper without ``--linear``). No
+  truth, so each edge either tool measured is judged by one rule: usable
+  when its slant from the nearest axis is within 1–44° and its length
+  gives at least one whole phase cycle (``length · tan(slant) ≥ 1`` px),
+  which ISO 12233's 4× oversampled ESF needs. MTF Mapper's slant is its own
+  (``edge_sfr_values.txt``) and its edge's length twice the distance from
+  the edge's centroid to the corner it lists; ours are the detected angle
+  and the ROI's length along the edge.
+
 Usage::
 
     python -m benchmarks.sfr_chart [--sweep] [--methods accurate iso] [--no-peer]
@@ -86,6 +96,11 @@ STEP = 0.6
 #: the warped charts: barrel k1 (radius over the half-diagonal), perspective tilt, vignetting at the corners
 WARPS = {"barrel": (-0.12, 0.0, 0.0), "perspective": (0.0, 0.15, 0.0),
          "barrel_perspective_vignetting": (-0.12, 0.15, 0.35)}
+#: the real chart photographs measured (../shared/data/edges), all sRGB-encoded
+REAL_CHARTS = ("sfrmat3_ISO_DSC_300a.jpg", "rayxie_webcam_iso12233_original_img.bmp",
+               "sfrmat5_ISO_12233-2023_chart_digital.jpg")
+#: a usable edge's slant from the nearest axis, degrees (our chart finder's range)
+USABLE_SLANT = (1.0, 44.0)
 #: issue targets at SNR ≥ 100, per-edge |ΔMTF50| %
 TARGETS = {"median": 0.06, "p95": 0.25, "worst": 0.41}
 
@@ -265,6 +280,98 @@ def run_mtf_mapper(exe: str, path: Path, folder: Path) -> tuple[list, dict, _har
     return measured, {"found": listed, "skipped": listed - len(measured)}, child
 
 
+def usable(slant_deg: float, length_px: float) -> bool:
+    """Whether an edge can give ISO 12233's 4× oversampled ESF: its slant
+    from the nearest axis within :data:`USABLE_SLANT` and at least one whole
+    phase cycle along it (``length · tan(slant) ≥ 1`` px).
+
+    >>> usable(5.0, 100.0), usable(0.6, 54.0), usable(2.0, 20.0)
+    (True, False, False)
+    """
+    lo, hi = USABLE_SLANT
+    return lo <= slant_deg <= hi and length_px * np.tan(np.radians(slant_deg)) >= 1.0
+
+
+def axis_slant(angle_deg: float) -> float:
+    """An edge's slant from the nearest image axis, degrees in [0, 45]."""
+    a = float(angle_deg) % 90.0
+    return min(a, 90.0 - a)
+
+
+def mtf_mapper_edges(folder: Path) -> list[dict]:
+    """MTF Mapper's measured edges (MTF50 in (0, 1)) with their slant (its
+    own edge angle, ``edge_sfr_values.txt``) and length (twice the distance
+    from the edge's centroid to the corner it lists)."""
+    angle = {}
+    for line in (folder / "edge_sfr_values.txt").read_text().splitlines():
+        f = line.split()
+        if len(f) > 4 and not line.startswith("#"):
+            angle[(round(float(f[1]), 2), round(float(f[2]), 2))] = float(f[3])
+    out = []
+    for line in (folder / "edge_mtf_values.txt").read_text().splitlines():
+        f = line.split()
+        if len(f) < 6 or line.startswith("#"):
+            continue
+        x, y, m, cx, cy = (float(v) for v in f[1:6])
+        a = angle.get((round(x, 2), round(y, 2)))
+        if 0.0 < m < 1.0 and a is not None:
+            out.append({"x": x, "y": y, "mtf50": m, "slant_deg": axis_slant(a), "length_px": 2.0 * np.hypot(x - cx, y - cy)})
+    return out
+
+
+def our_edges(report: dict) -> list[dict]:
+    """Our measured edges with their slant and length (the ROI's side along the edge)."""
+    out = []
+    for e in report["edges"]:
+        if e.get("mtf50") is None or not np.isfinite(e["mtf50"]):
+            continue
+        w, h = e["roi"][2], e["roi"][3]
+        out.append({"x": e["roi"][0] + w / 2.0, "y": e["roi"][1] + h / 2.0, "mtf50": e["mtf50"],
+                    "slant_deg": axis_slant(e["angle_deg_detected"]),
+                    "length_px": float(h if e["direction"] == "vertical" else w)})
+    return out
+
+
+def judged(edges: list[dict]) -> dict:
+    """Counts of measured and usable edges, and the slants and MTF50s of the unusable ones."""
+    bad = [e for e in edges if not usable(e["slant_deg"], e["length_px"])]
+    span = (lambda k: [round(min(e[k] for e in bad), 3), round(max(e[k] for e in bad), 3)] if bad else None)
+    return {"measured": len(edges), "usable": len(edges) - len(bad), "unusable_slant_deg": span("slant_deg"),
+            "unusable_mtf50": span("mtf50")}
+
+
+def run_real(tmp: Path, peer: str | None) -> dict:
+    """Both tools on the real chart photographs (:data:`REAL_CHARTS`), each
+    measured edge judged by :func:`usable`."""
+    from restoration.synth.defaults import DATA
+
+    rows = {}
+    for name in REAL_CHARTS:
+        path = DATA / "edges" / name
+        if not path.is_file():
+            print(f"{path}: missing (../shared/data is needed); skipped", file=sys.stderr)
+            continue
+        out = tmp / f"real_{path.stem}"
+        out.mkdir(exist_ok=True)
+        cmd = [*_harness.isp_command(), "calib", "sfr", str(path), "--chart", "--encoding", "srgb",
+               "--json", str(out / "ours.json")]
+        child = _harness.run_child(cmd, _harness.child_env())
+        report = json.loads((out / "ours.json").read_text())
+        row = {"layout": report.get("layout", {}).get("name") if isinstance(report.get("layout"), dict)
+               else report.get("layout"),
+               "ours": {**judged(our_edges(report)), "skipped": len(report["skipped"]), "wall_s": round(child.wall_s, 3)}}
+        if peer:
+            (out / "mm").mkdir(exist_ok=True)
+            child = _harness.run_child([peer, str(path), str(out / "mm"), "-q"], _harness.child_env())
+            listed = read_mtf_mapper(out / "mm")[1]
+            row["mtf_mapper"] = {**judged(mtf_mapper_edges(out / "mm")), "listed": listed,
+                                 "wall_s": round(child.wall_s, 3)}
+        rows[path.stem] = row
+        print(f"{name}: " + "; ".join(f"{t} {v['usable']} usable of {v['measured']} measured"
+                                      for t, v in row.items() if isinstance(v, dict)), file=sys.stderr)
+    return rows
+
+
 def run_case(case: ChartCase, tmp: Path, methods, peer: str | None, seed: int) -> dict:
     path, truth, maps = write_chart(case, tmp, seed)
     row = {"chart": case.as_dict(), "edges_true": len(truth), "tools": {}}
@@ -343,6 +450,7 @@ def main(argv=None) -> dict:
             print(f"[{i + 1}/{len(cases)}] {case.name}", file=sys.stderr, flush=True)
             rows.append(run_case(case, tmp, args.methods, peer, args.seed + i))
         single = time_single_roi(tmp, peer, args.roi_runs) if args.roi_runs > 0 else None
+        real = run_real(tmp, peer)
     print_rows(rows)
     if single:
         print("\nsingle ROI, whole process: " + ", ".join(f"{k} {v}" for k, v in single.items()))
@@ -371,7 +479,7 @@ def main(argv=None) -> dict:
                                                  for k in ("median", "p95", "worst", "sd")}
             for r in rows if r["chart"]["name"].startswith("scan_")}
     result = {"mtf_mapper": peer, "methods": args.methods, "targets_snr_100_up": TARGETS, "charts": rows,
-              "warped": warped, "sigma_scan": scan, "sweep_summary": summary,
+              "warped": warped, "real": real, "sigma_scan": scan, "sweep_summary": summary,
               "single_roi_s": {k: v.as_dict(3) for k, v in single.items()} if single else None}
     return _harness.publish("sfr_chart", result, args, argv)
 
