@@ -336,6 +336,14 @@ def environment() -> dict:
             "load_average_end": [round(v, 2) for v in os.getloadavg()]}
 
 
+def write_record(path: Path, rec: dict) -> None:
+    """One case's or module's record as JSON, written atomically (a
+    resumable benchmark's part file is whole or absent)."""
+    from isp.io.files import write_bytes_atomic
+
+    write_bytes_atomic(path, (json.dumps(rec, indent=1) + "\n").encode())
+
+
 def results_dir(args=None) -> Path:
     """The folder results go to: ``args.results``, else :data:`RESULTS_ENV`, else :data:`RESULTS_DIR`."""
     chosen = getattr(args, "results", None) or os.environ.get(RESULTS_ENV)

@@ -89,12 +89,6 @@ def skimage_folder(into: Path) -> Path:
     return into
 
 
-def _save(path: Path, rec: dict) -> None:
-    from isp.io.files import write_bytes_atomic
-
-    write_bytes_atomic(path, (json.dumps(rec, indent=1) + "\n").encode())
-
-
 def prepare(rec: dict, work: Path, lens_path: Path, pl, basis_path: Path, size: str, fit_args: list) -> dict:
     """Steps 1 and 2 for one module (skipped where ``rec`` has them)."""
     from calibration.fit.device import device_calibration, load_basis
@@ -353,12 +347,12 @@ def main(argv=None) -> dict:
             if args.redo:
                 rec.pop("scores", None)
             files = prepare(rec, work[d], lens_path, pl, Path(args.basis), args.size, args.fit_args.split())
-            _save(part, rec)
+            _harness.write_record(part, rec)
             if args.quick:
                 files["quick"] = work[d] / "fit_quick" / "device.json"
                 if "fit_quick" not in rec or not files["quick"].is_file():
                     fit_module(rec, "fit_quick", work[d], lens_path, Path(args.basis), args.fit_args.split())
-                    _save(part, rec)
+                    _harness.write_record(part, rec)
             if args.fit_only:
                 continue
             scores = rec.setdefault("scores", {})
@@ -386,7 +380,7 @@ def main(argv=None) -> dict:
                         continue
                     scores.setdefault(light, {})[arm] = score(model, images, files["true_lens"], light,
                                                               args.positions, dev)
-                    _save(part, rec)
+                    _harness.write_record(part, rec)
             g = {a: round(gain(scores["default"], a, "0.9"), 2) for a in scores["default"]}
             print(f"{args.lens} module {d}: gain at FoV 0.9, default light: {g}", flush=True)
             records.append(rec)

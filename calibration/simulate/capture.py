@@ -698,7 +698,7 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
                      exposure: float = 1.0, rng=None, lens_shading: str = "gainmap", relative_illumination=None,
                      noise: bool = True, supersample: int | None = None, blend: str | None = None,
                      gain_map_points: tuple[int, int] = (17, 23), gain_map_fit: str = "lsq",
-                     psf_map_options: dict | None = None):
+                     psf_map_options: dict | None = None, injections=()):
     """Simulate the raw capture a device with this (perturbed) lens records.
 
     Parameters
@@ -736,6 +736,10 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
         Default "nearest" for charts, "bilinear" for raster scenes.
     gain_map_points, gain_map_fit
         See :func:`shading_gain_maps`.
+    injections : sequence of calibration.simulate.injected.Injection
+        Effects the lens model lacks, put into the mosaic: the ``"light"``
+        ones on the noise-free signal in their order, then the noise, then
+        the ``"chain"`` ones, then the quantisation.
 
     Returns
     -------
@@ -786,10 +790,10 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
         cols = max(1, min(cols, sensor.width_px // 48))
         scene = slanted_square_chart(sensor.height_px, sensor.width_px, (rows, cols))
     if isinstance(scene, Chart):
-        rend = render_chart(scene, psfmap, sensor, exposure=exposure, relative_illumination=ri, noise=noise,
-                            rng=gen, supersample=8 if supersample is None else supersample,
-                            blend=blend or "nearest")
-        raw = rend.raw
+        rend = render_chart(scene, psfmap, sensor, exposure=exposure, relative_illumination=ri,
+                            noise=noise and not injections, rng=gen,
+                            supersample=8 if supersample is None else supersample, blend=blend or "nearest")
+        raw = _injected(rend.signal, sensor, gen, noise, injections) if injections else rend.raw
     else:
         s = 1 if supersample is None else int(supersample)
         img = blur_image(scene, psfmap, pixel_pitch_um=sensor.pixel_pitch_um, supersample=s,
@@ -798,9 +802,30 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
             raise ImagingError(f"raster scene gives a {img.shape[:2]} image, the sensor is {sensor.shape} "
                                "(the scene must be (H·s, W·s, 3))")
         sig = float(exposure) * mosaic(img, sensor.cfa) * (1.0 if ri is None else ri)
-        raw = expose(sig, sensor, gen, noise=noise)
+        raw = _injected(sig, sensor, gen, noise, injections) if injections else expose(sig, sensor, gen, noise=noise)
     maps = shading_gain_maps(ri, sensor.cfa, gain_map_points, fit=gain_map_fit) if ri is not None else None
     return raw, capture_meta(sensor, gain_maps=maps, lens=lens)
+
+
+def _injected(signal: np.ndarray, sensor: SensorModel, rng, noise: bool, injections) -> np.ndarray:
+    """Raw DN of a noise-free mosaic with ``injections`` put in
+    (:mod:`calibration.simulate.injected`): the light ones, the noise, the
+    chain ones, the quantisation."""
+    from calibration.simulate.sensor import add_noise, quantise
+
+    bad = [i.where for i in injections if i.where not in ("light", "chain")]
+    if bad:
+        raise ImagingError(f"an injection acts on 'light' or 'chain', not {bad[0]!r}")
+    x = np.asarray(signal, dtype=np.float64)
+    for inj in injections:
+        if inj.where == "light":
+            x = inj.apply(x, sensor.cfa)
+    if noise:
+        x = add_noise(np.maximum(x, 0.0), sensor.noise_profile, rng, quantisation_step=1.0 / sensor.dn_range)
+    for inj in injections:
+        if inj.where == "chain":
+            x = inj.apply(x, sensor.cfa)
+    return quantise(x, sensor)
 
 
 def write_capture(path: str | os.PathLike, lens=None, *, capture: tuple | None = None, **kw) -> Path:

@@ -1,0 +1,189 @@
+"""Attribution that holds: the loop on devices with every tolerance drawn
+and zero to two effects put into their captures.
+
+Case ``k`` of the suite (``k`` = 0, 1, ...):
+
+* the lens cycles through e1, e2, e9, e11 (``k mod 4``);
+* the device is ``isp calib simulate LENS --perturb random --seed 100 + k
+  --size 2000,1500`` (every tolerance drawn, refocused);
+* a generator seeded with ``k`` draws how many effects (0, 1 or 2, equally
+  likely), which ones (without replacement, from :data:`RANGES`) and each
+  magnitude (uniform in its range); the effects go into the capture's
+  mosaic (:mod:`calibration.simulate.injected`: before the sensor noise,
+  or after it for processing such as sharpening);
+* the capture (noise seed = the device's) is measured as ``isp calib loop``
+  measures one and the loop runs as a user runs it (``make_base`` of the
+  lens, ``close_loop`` with every registry effect tried).
+
+Recorded per case: what went in, what the loop added, which of those are
+right (added and put in), missed (put in, not added) and false (added,
+not put in), the errors before and after against the loop's noise floor,
+what it left unexplained, and the wall seconds. The magnitude ranges are
+what a line meets and what the loop's tests use; they are not yet
+multiples of measured detection limits.
+
+Lateral colour is left out: the loop measures a capture's edges on the
+mosaic's green plane, which a shift of the red and blue planes does not
+reach.
+
+Each case is written to ``benchmarks/results/loop_suite_parts/case_KKK.json``
+as it ends, and a recorded case is not run again (``--redo``), so the
+suite runs in parts; the summary over the cases recorded so far
+(per effect: put in, named; false additions; clean devices given an
+effect) is ``loop_suite.json``. Prints one JSON object as the last line.
+Usage::
+
+    python -m benchmarks.loop_suite [--cases 24] [--only K [K ...]] [--max-seconds S]
+"""
+
+from __future__ import annotations
+
+from benchmarks import _harness
+
+if __name__ == "__main__":   # one BLAS thread per worker, set before numpy loads
+    _harness.pin_threads(2, blas=1)
+
+import json  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from benchmarks.forward_fidelity import LENSES, PHONE  # noqa: E402
+from benchmarks.loop_clean import run_loop  # noqa: E402
+
+#: the effects put in and their magnitude ranges (each parameter uniform between the two values;
+#: lengths on a Bayer plane: :mod:`calibration.simulate.injected`)
+RANGES = {
+    "focus_shift": {"sigma_px": (0.6, 1.5)},
+    "sensor_tilt": {"sigma_left_px": (0.0, 0.0), "sigma_right_px": (0.6, 1.5)},
+    "field_curvature": {"sigma_corner_px": (0.6, 1.5)},
+    "pixel_crosstalk": {"leak": (0.02, 0.06)},
+    "veiling_glare": {"share": (0.03, 0.12), "halo_sigma_px": (5.0, 15.0)},
+    "sharpening": {"gain": (0.4, 1.2), "sigma_px": (1.0, 1.0)},
+}
+SIZE = (2000, 1500)
+SEED0 = 100
+EXPOSURE = 0.8
+
+
+def draw_case(k: int) -> dict:
+    """Case ``k``: lens, device seed and the effects with their magnitudes."""
+    rng = np.random.default_rng(k)
+    names = list(RANGES)
+    n = int(rng.integers(0, 3))
+    picked = [names[i] for i in sorted(rng.choice(len(names), n, replace=False))]
+    effects = {e: {p: round(float(rng.uniform(lo, hi)), 4) for p, (lo, hi) in RANGES[e].items()} for e in picked}
+    lens = list(LENSES)[k % len(LENSES)]
+    return {"case": k, "lens": lens, "seed": SEED0 + k, "effects": effects}
+
+
+def capture(case: dict, log):
+    """The case's device captured with its effects put in, measured as the
+    loop measures a capture: ``(observations, device description)``."""
+    from calibration.fit.measurements import load_measured, match_sensor
+    from calibration.optics.io import read_lens
+    from calibration.optics.lens import Sensor
+    from calibration.sfr.esfr import DEFAULT_METHOD
+    from calibration.simulate.capture import simulate_capture, write_capture
+    from calibration.simulate.chart import slanted_square_chart
+    from calibration.simulate.device import device_lens
+    from calibration.simulate.injected import make_injection
+
+    lens_path = PHONE / f"{LENSES[case['lens']]}.zmx"
+    lens = read_lens(lens_path)
+    w, h = SIZE
+    lens = lens.replace(sensor=Sensor(pixel_pitch_um=lens.sensor.pixel_pitch_um * lens.sensor.width_px / w,
+                                      width_px=w, height_px=h))
+    device, what = device_lens(lens, "random", seed=case["seed"])
+    injections = [make_injection(e, **p) for e, p in case["effects"].items()]
+    with tempfile.TemporaryDirectory() as tmp:
+        log(f"case {case['case']}: capturing {case['lens']} device {case['seed']} with "
+            f"{', '.join(case['effects']) or 'no effect'} ...")
+        dng = write_capture(Path(tmp) / "capture.dng",
+                            capture=simulate_capture(device, slanted_square_chart(h, w), exposure=EXPOSURE,
+                                                     rng=case["seed"], injections=injections))
+        obs, _ = load_measured(str(dng), method=DEFAULT_METHOD)
+        _, obs = match_sensor(read_lens(lens_path), obs)
+    return lens_path, obs, what
+
+
+def run_case(case: dict, log) -> dict:
+    lens_path, obs, what = capture(case, log)
+    rep, wall = run_loop(lens_path, obs, None, None)
+    put, added = set(case["effects"]), set(rep.effects_added)
+    return {**case, "device": what, "edges": len(obs), "effects_added": list(rep.effects_added),
+            "effect_values": rep.effect_values, "right": sorted(put & added), "missed": sorted(put - added),
+            "false": sorted(added - put), "error_before": rep.error_before["sfra_rms"],
+            "error_after": rep.error_after["sfra_rms"], "noise_floor": rep.noise_floor,
+            "after_over_floor": rep.error_after["sfra_rms"] / rep.noise_floor,
+            "chi2_after": rep.error_after["chi2_per_obs"], "unexplained": rep.unexplained,
+            "wall_s": round(wall, 1)}
+
+
+def summarise(cases: list[dict]) -> dict:
+    """Per effect: put in and named; false additions per effect; clean
+    devices given an effect; the after/floor ratios and wall seconds."""
+    per = {e: {"put_in": 0, "named": 0} for e in RANGES}
+    false = {}
+    for c in cases:
+        for e in c["effects"]:
+            per[e]["put_in"] += 1
+            per[e]["named"] += e in c["right"]
+        for e in c["false"]:
+            false[e] = false.get(e, 0) + 1
+    clean = [c for c in cases if not c["effects"]]
+    ratio = [c["after_over_floor"] for c in cases]
+    return {"cases": len(cases), "per_effect": per, "false_additions": false,
+            "clean_cases": len(clean), "clean_given_an_effect": sum(bool(c["effects_added"]) for c in clean),
+            "all_right": sum(not c["missed"] and not c["false"] for c in cases),
+            "after_over_floor_median": round(float(np.median(ratio)), 3) if ratio else None,
+            "after_over_floor_max": round(float(np.max(ratio)), 3) if ratio else None,
+            "wall_s_median": round(float(np.median([c["wall_s"] for c in cases])), 1) if cases else None,
+            "wall_s_max": max((c["wall_s"] for c in cases), default=None)}
+
+
+def main(argv=None) -> dict:
+    ap = _harness.parser(__doc__)
+    ap.add_argument("--cases", type=int, default=24, help="cases 0 … N − 1 (default 24)")
+    ap.add_argument("--only", type=int, nargs="+", metavar="K", help="run these cases only")
+    ap.add_argument("--redo", action="store_true", help="run recorded cases again")
+    ap.add_argument("--max-seconds", type=float, default=0.0,
+                    help="start no case after this many seconds (0: no limit); the rest runs next time")
+    args = ap.parse_args(argv)
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    parts = _harness.results_dir(args) / "loop_suite_parts"
+    parts.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    todo = args.only if args.only is not None else range(args.cases)
+    for k in todo:
+        part = parts / f"case_{k:03d}.json"
+        if part.is_file() and not args.redo:
+            continue
+        if args.max_seconds and time.perf_counter() - t0 > args.max_seconds:
+            log(f"--max-seconds {args.max_seconds:g} reached: case {k} and after left for the next run")
+            break
+        rec = run_case(draw_case(k), log)
+        _harness.write_record(part, rec)
+        log(f"case {k} ({rec['lens']}): put in {', '.join(rec['effects']) or 'nothing'}; added "
+            f"{', '.join(rec['effects_added']) or 'nothing'}; after/floor {rec['after_over_floor']:.2f}; "
+            f"{rec['wall_s']} s")
+    cases = [json.loads(p.read_text()) for p in sorted(parts.glob("case_*.json"))]
+    summary = summarise(cases)
+    log(json.dumps(summary["per_effect"]))
+    return _harness.publish("loop_suite", {"size": list(SIZE), "seed0": SEED0, "ranges": RANGES,
+                                           "summary": summary,
+                                           "cases": [{k: c[k] for k in ("case", "lens", "seed", "effects",
+                                                                         "effects_added", "right", "missed", "false",
+                                                                         "error_before", "error_after", "noise_floor",
+                                                                         "after_over_floor", "wall_s")}
+                                                     for c in cases]}, args, argv)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,196 @@
+"""Effects put into a simulated capture's mosaic that the lens model lacks:
+what a production line meets between the lens and the measured DNG.
+
+Each maker returns an :class:`Injection`: a function of the mosaic (0..1
+signal, ``(H, W)``) and its CFA, and where it acts. ``"light"`` acts on the
+noise-free signal before the sensor's noise (optics and charge: glare,
+defocus, crosstalk, lateral colour), ``"chain"`` after the noise, before
+quantisation (processing in the measurement chain: sharpening).
+:func:`calibration.simulate.capture.simulate_capture` applies them
+(``injections=``); :func:`make_injection` builds one by the name of the
+loop's registry effect whose signature it leaves
+(:mod:`calibration.loop.effects`), so that a benchmark can check that the
+loop names what was put in.
+
+The injections are pixel-level stand-ins, not the registry's own model:
+defocus is a Gaussian blur of each Bayer plane whose σ varies over the
+field as that effect's defocus does (uniform for ``focus_shift``, linear in
+x for ``sensor_tilt``, ∝ r² for ``field_curvature``); crosstalk leaks charge
+to the four neighbouring sites whatever their colour; lateral colour
+magnifies the R and B planes about the centre; glare adds a share of each
+plane's light in a wide Gaussian halo; sharpening is an unsharp mask of each
+plane. Lengths on a plane are in plane pixels (two sensor pixels).
+
+Examples
+--------
+>>> import numpy as np
+>>> from isp.frame import CFA
+>>> flat = np.full((64, 64), 0.5)
+>>> bool(np.allclose(make_injection("sharpening", gain=0.8, sigma_px=1.0).apply(flat, CFA.RGGB), 0.5))
+True
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from isp.errors import ConfigError
+from isp.frame import CFA
+
+__all__ = ["Injection", "INJECTIONS", "make_injection"]
+
+#: σ levels a field-varying blur is interpolated between (per σ_max)
+BLUR_LEVELS = 9
+
+
+@dataclass(frozen=True)
+class Injection:
+    """An effect put into a mosaic.
+
+    Attributes
+    ----------
+    effect : str
+        The loop registry's effect whose signature it leaves.
+    params : dict
+        Its magnitudes (units in :data:`INJECTIONS`).
+    where : {"light", "chain"}
+        Before the sensor noise (``"light"``) or after it (``"chain"``).
+    apply : callable
+        ``apply(mosaic, cfa) -> mosaic``, both ``(H, W)`` float on 0..1.
+    """
+
+    effect: str
+    params: dict
+    where: str
+    apply: Callable[[np.ndarray, CFA], np.ndarray] = field(repr=False)
+
+
+def _planes(mosaic: np.ndarray):
+    """The four CFA phases: ``(dy, dx, plane)``."""
+    for dy in (0, 1):
+        for dx in (0, 1):
+            yield dy, dx, mosaic[dy::2, dx::2]
+
+
+def _per_plane(fn) -> Callable[[np.ndarray, CFA], np.ndarray]:
+    """``fn(plane, ys, xs, channel)`` on each phase, ``ys, xs`` the plane's
+    sensor coordinates relative to the centre over the half diagonal."""
+    def apply(mosaic: np.ndarray, cfa: CFA) -> np.ndarray:
+        m = np.asarray(mosaic, dtype=np.float64)
+        out = np.empty_like(m)
+        h, w = m.shape
+        half = 0.5 * np.hypot(h, w)
+        for dy, dx, p in _planes(m):
+            ys = (np.arange(dy, h, 2) - (h - 1) / 2.0) / half
+            xs = (np.arange(dx, w, 2) - (w - 1) / 2.0) / half
+            out[dy::2, dx::2] = fn(p, ys, xs, "RGB"[cfa.pattern[dy, dx]])
+        return out
+    return apply
+
+
+def _gauss(plane: np.ndarray, sigma: float) -> np.ndarray:
+    from scipy.ndimage import gaussian_filter
+
+    return plane if sigma <= 0 else gaussian_filter(plane, sigma, mode="nearest", truncate=4.0)
+
+
+def _varying_blur(plane: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """A Gaussian blur whose σ (plane px, broadcast to the plane) varies
+    over it: the plane blurred at :data:`BLUR_LEVELS` σ levels, each pixel
+    interpolated linearly between the two levels around its σ."""
+    sigma = np.broadcast_to(np.asarray(sigma, dtype=np.float64), plane.shape)
+    top = float(sigma.max())
+    if top <= 0:
+        return plane.copy()
+    levels = np.linspace(0.0, top, BLUR_LEVELS)
+    pos = np.clip(sigma / top * (BLUR_LEVELS - 1), 0, BLUR_LEVELS - 1)
+    lo = np.minimum(pos.astype(int), BLUR_LEVELS - 2)
+    t = pos - lo
+    out = np.zeros_like(plane)
+    for k, s in enumerate(levels):
+        wk = np.where(lo == k, 1.0 - t, 0.0) + np.where(lo == k - 1, t, 0.0)
+        if np.any(wk):
+            out += wk * _gauss(plane, s)
+    return out
+
+
+def _focus(sigma_px: float):
+    return _per_plane(lambda p, ys, xs, c: _gauss(p, sigma_px))
+
+
+def _tilt(sigma_left_px: float, sigma_right_px: float):
+    def fn(p, ys, xs, c):
+        u = (xs - xs.min()) / max(xs.max() - xs.min(), 1e-12)          # 0 at the left, 1 at the right
+        return _varying_blur(p, (sigma_left_px + (sigma_right_px - sigma_left_px) * u)[None, :])
+    return _per_plane(fn)
+
+
+def _curvature(sigma_corner_px: float):
+    def fn(p, ys, xs, c):
+        return _varying_blur(p, sigma_corner_px * (ys[:, None] ** 2 + xs[None, :] ** 2))
+    return _per_plane(fn)
+
+
+def _lateral_ca(red_px_at_corner: float, blue_px_at_corner: float):
+    from scipy.ndimage import map_coordinates
+
+    def fn(p, ys, xs, c):
+        k = {"R": red_px_at_corner, "B": blue_px_at_corner}.get(c, 0.0)
+        if k == 0.0:
+            return p
+        h, w = p.shape
+        half = 0.5 * np.hypot(h, w)                  # plane px; a shift of k sensor px at the corner
+        scale = 1.0 + 0.5 * k / half                 # the plane magnified about its centre
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        cy, cx = (h - 1) / 2.0, (w - 1) / 2.0
+        return map_coordinates(p, [cy + (yy - cy) / scale, cx + (xx - cx) / scale], order=3, mode="nearest")
+    return _per_plane(fn)
+
+
+def _glare(share: float, halo_sigma_px: float):
+    return _per_plane(lambda p, ys, xs, c: (1.0 - share) * p + share * _gauss(p, halo_sigma_px))
+
+
+def _sharpening(gain: float, sigma_px: float):
+    return _per_plane(lambda p, ys, xs, c: p + gain * (p - _gauss(p, sigma_px)))
+
+
+def _crosstalk(leak: float):
+    def apply(mosaic: np.ndarray, cfa: CFA) -> np.ndarray:
+        from scipy.ndimage import convolve
+
+        k = np.array([[0.0, leak, 0.0], [leak, 1.0 - 4.0 * leak, leak], [0.0, leak, 0.0]])
+        return convolve(np.asarray(mosaic, dtype=np.float64), k, mode="nearest")
+    return apply
+
+
+#: effect name → (maker, where, parameter names with units)
+INJECTIONS = {
+    "focus_shift": (_focus, "light", {"sigma_px": "plane px"}),
+    "sensor_tilt": (_tilt, "light", {"sigma_left_px": "plane px", "sigma_right_px": "plane px"}),
+    "field_curvature": (_curvature, "light", {"sigma_corner_px": "plane px"}),
+    "lateral_ca": (_lateral_ca, "light", {"red_px_at_corner": "sensor px", "blue_px_at_corner": "sensor px"}),
+    "pixel_crosstalk": (_crosstalk, "light", {"leak": "fraction to each neighbour"}),
+    "veiling_glare": (_glare, "light", {"share": "fraction", "halo_sigma_px": "plane px"}),
+    "sharpening": (_sharpening, "chain", {"gain": "-", "sigma_px": "plane px"}),
+}
+
+
+def make_injection(effect: str, **params: float) -> Injection:
+    """The injection leaving ``effect``'s signature, with its magnitudes
+    (:data:`INJECTIONS` names them and their units).
+
+    Raises
+    ------
+    ConfigError
+        An unknown effect, or parameters that are not its own.
+    """
+    if effect not in INJECTIONS:
+        raise ConfigError(f"no injection for effect {effect!r}; known: {', '.join(INJECTIONS)}")
+    maker, where, names = INJECTIONS[effect]
+    if set(params) != set(names):
+        raise ConfigError(f"{effect} takes {', '.join(names)}; got {', '.join(params) or 'nothing'}")
+    return Injection(effect, {k: float(params[k]) for k in names}, where, maker(**{k: float(params[k]) for k in names}))

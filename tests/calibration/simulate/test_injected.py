@@ -1,0 +1,158 @@
+"""Effects put into a simulated capture's mosaic (calibration/simulate/injected.py).
+
+Kind: property (analytic). Each injection against a closed form: the
+unsharp mask's and the crosstalk kernel's transfer on a sinusoid, a blur's
+σ from an impulse's second moment where the field puts it (uniform, linear
+in x, ∝ r²), lateral colour's radial shift from an impulse's centroid,
+glare's share of the light; and in a whole capture, a "light" injection
+acts before the noise and a "chain" one after it (sharpening amplifies the
+noise only as a chain effect).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from tests.helpers import gaussian_psf_map
+
+from calibration.optics.lens import Sensor
+from calibration.simulate.capture import simulate_capture
+from calibration.simulate.injected import INJECTIONS, make_injection
+from calibration.simulate.sensor import SensorModel, dn_to_linear
+from isp.errors import ConfigError
+from isp.frame import CFA
+
+pytestmark = pytest.mark.property
+
+
+def plane_sinusoid(shape, f_cycles_per_plane_px, axis=1):
+    """A mosaic whose four planes each hold cos(2π f u), u the plane column (or row)."""
+    h, w = shape
+    out = np.empty(shape)
+    for dy in (0, 1):
+        for dx in (0, 1):
+            ph, pw = out[dy::2, dx::2].shape
+            u = np.arange(pw if axis == 1 else ph)
+            wave = 0.5 + 0.2 * np.cos(2 * np.pi * f_cycles_per_plane_px * u)
+            out[dy::2, dx::2] = wave[None, :] if axis == 1 else wave[:, None]
+    return out
+
+
+def amplitude(mosaic, f):
+    """The amplitude at ``f`` of the first plane's middle row, away from the borders."""
+    row = mosaic[0::2, 0::2][mosaic.shape[0] // 4, 40:-40]
+    u = np.arange(row.size)
+    return 2 * abs(np.mean((row - row.mean()) * np.exp(-2j * np.pi * f * u)))
+
+
+@pytest.mark.parametrize("f", [0.05, 0.125, 0.25])
+def test_sharpening_transfer_is_the_unsharp_mask(f):
+    k, s = 0.8, 1.0
+    m = plane_sinusoid((200, 480), f)
+    out = make_injection("sharpening", gain=k, sigma_px=s).apply(m, CFA.RGGB)
+    want = 1 + k * (1 - math.exp(-2 * math.pi ** 2 * s ** 2 * f ** 2))
+    assert amplitude(out, f) / 0.2 == pytest.approx(want, rel=2e-3)
+
+
+def test_crosstalk_leaks_to_the_four_neighbours_and_keeps_the_charge():
+    m = np.zeros((9, 9))
+    m[4, 4] = 1.0
+    out = make_injection("pixel_crosstalk", leak=0.04).apply(m, CFA.GRBG)
+    assert out[4, 4] == pytest.approx(0.84) and out[3, 4] == out[5, 4] == out[4, 3] == out[4, 5] == pytest.approx(0.04)
+    assert out.sum() == pytest.approx(1.0) and out[3, 3] == 0.0
+
+
+def second_moment_sigma(img, y, x, r=12):
+    """σ (plane px) of an impulse's response at plane position (y, x)."""
+    win = img[y - r:y + r + 1, x - r:x + r + 1]
+    u = np.arange(-r, r + 1)
+    return math.sqrt(float((win.sum(axis=0) * u ** 2).sum() / win.sum()))
+
+
+def impulses(shape, spots):
+    m = np.zeros(shape)
+    for y, x in spots:
+        for dy in (0, 1):
+            for dx in (0, 1):
+                m[2 * y + dy, 2 * x + dx] = 1.0
+    return m
+
+
+def test_blurs_follow_their_field_dependence():
+    h, w = 240, 320                            # planes 120 × 160
+    spots = [(60, 20), (60, 80), (60, 140)]    # left, centre, right on the middle row
+    m = impulses((h, w), spots)
+    # σ ≥ 1 plane px, where a sampled Gaussian's second moment is its σ
+    tilt = make_injection("sensor_tilt", sigma_left_px=1.0, sigma_right_px=3.0).apply(m, CFA.RGGB)[0::2, 0::2]
+    u = [x / 159 for _, x in spots]                       # 0 at the left plane column, 1 at the right
+    for (y, x), ui in zip(spots, u):
+        assert second_moment_sigma(tilt, y, x) == pytest.approx(1.0 + 2.0 * ui, abs=0.05)
+    focus = make_injection("focus_shift", sigma_px=1.5).apply(m, CFA.RGGB)[0::2, 0::2]
+    assert [second_moment_sigma(focus, y, x) for y, x in spots] == pytest.approx([1.5] * 3, abs=0.02)
+    corner = [(12, 16), (60, 80)]               # near the corner, the centre
+    m = impulses((h, w), corner)
+    curv = make_injection("field_curvature", sigma_corner_px=2.0).apply(m, CFA.RGGB)[0::2, 0::2]
+    half = 0.5 * math.hypot(h, w)
+    r2 = ((2 * 12 - (h - 1) / 2) ** 2 + (2 * 16 - (w - 1) / 2) ** 2) / half ** 2
+    assert second_moment_sigma(curv, 12, 16, r=10) == pytest.approx(2.0 * r2, abs=0.1)
+    assert second_moment_sigma(curv, 60, 80) < 0.05
+
+
+def test_lateral_colour_moves_red_radially_by_its_corner_shift():
+    h, w = 240, 320
+    m = impulses((h, w), [(20, 30)])
+    out = make_injection("lateral_ca", red_px_at_corner=2.0, blue_px_at_corner=0.0).apply(m, CFA.RGGB)
+    red, green = out[0::2, 0::2], out[0::2, 1::2]        # RGGB: R at (0, 0), G at (0, 1)
+    ys, xs = np.mgrid[0:red.shape[0], 0:red.shape[1]]
+    cy, cx = (red.shape[0] - 1) / 2, (red.shape[1] - 1) / 2
+    moved = np.hypot((red * ys).sum() / red.sum() - cy, (red * xs).sum() / red.sum() - cx)
+    was = math.hypot(20 - cy, 30 - cx)
+    half = 0.5 * math.hypot(*red.shape)
+    assert moved - was == pytest.approx(2.0 / 2 * was / half, rel=0.02)   # plane px: half the sensor px
+    assert np.array_equal(green, m[0::2, 1::2])
+
+
+def test_glare_moves_its_share_into_the_halo():
+    m = impulses((400, 400), [(100, 100)])
+    out = make_injection("veiling_glare", share=0.1, halo_sigma_px=10.0).apply(m, CFA.RGGB)[0::2, 0::2]
+    assert out[100, 100] == pytest.approx(0.9 + 0.1 / (2 * math.pi * 100), rel=1e-2)
+    assert out.sum() == pytest.approx(1.0, rel=1e-6)
+
+
+def test_light_acts_before_the_noise_and_chain_after_it():
+    """A flat capture's noise: unchanged by a sharpening put in before the
+    noise (a flat field has nothing to sharpen), amplified by one after it
+    (white noise through (1 + k) − k·G has (1 + k)² − 2k(1 + k)·g₀ + k²·Σg²
+    times the plain noise's variance, g₀ the Gaussian kernel's centre weight)."""
+    sensor = Sensor(1.0, 400, 300)
+    pm = gaussian_psf_map(sensor, (3, 4), lambda r, c, k: 1.0, pitch_um=0.5, n=33)
+    sm = SensorModel.from_sensor(sensor, cfa="GRBG", noise_profile=(4e-4, 1e-5))
+    scene = np.broadcast_to(np.array([0.4, 0.4, 0.4]), (300, 400, 3))
+    sharp = dict(gain=1.0, sigma_px=1.0)
+    plain = dn_to_linear(simulate_capture(None, scene, psfmap=pm, sensor=sm, lens_shading="none", rng=3)[0], sm)
+    inj = make_injection("sharpening", **sharp)
+    before = type(inj)(inj.effect, inj.params, "light", inj.apply)
+    light = dn_to_linear(simulate_capture(None, scene, psfmap=pm, sensor=sm, lens_shading="none", rng=3,
+                                          injections=[before])[0], sm)
+    chain = dn_to_linear(simulate_capture(None, scene, psfmap=pm, sensor=sm, lens_shading="none", rng=3,
+                                          injections=[inj])[0], sm)
+    inner = (slice(20, -20), slice(20, -20))
+    v0, vl, vc = plain[inner].var(), light[inner].var(), chain[inner].var()
+    assert vl == pytest.approx(v0, rel=0.05)
+    from scipy.ndimage import gaussian_filter
+
+    d = np.zeros((41, 41))
+    d[20, 20] = 1.0
+    g = gaussian_filter(d, 1.0, truncate=4.0)
+    ratio = 4.0 - 4.0 * g[20, 20] + (g ** 2).sum()
+    assert vc / v0 == pytest.approx(ratio, rel=0.06)
+
+
+def test_unknown_effect_or_parameters_are_refused():
+    with pytest.raises(ConfigError, match="no injection"):
+        make_injection("dust", share=0.1)
+    with pytest.raises(ConfigError, match="takes gain, sigma_px"):
+        make_injection("sharpening", gain=0.5)
+    assert set(INJECTIONS) <= set(__import__("calibration.loop.effects", fromlist=["list_effects"]).list_effects())
