@@ -111,8 +111,10 @@ def capture(case: dict, log):
 
 
 def run_case(case: dict, log) -> dict:
+    from calibration.loop.base import BASE_KINDS
+
     lens_path, obs, what = capture(case, log)
-    rep, wall = run_loop(lens_path, obs, None, None)
+    rep, wall = run_loop(lens_path, obs, None, BASE_KINDS)
     put, added = set(case["effects"]), set(rep.effects_added)
     return {**case, "device": what, "edges": len(obs), "effects_added": list(rep.effects_added),
             "effect_values": rep.effect_values, "right": sorted(put & added), "missed": sorted(put - added),
@@ -177,12 +179,20 @@ def main(argv=None) -> dict:
     summary = summarise(cases)
     log(json.dumps(summary["per_effect"]))
     return _harness.publish("loop_suite", {"size": list(SIZE), "seed0": SEED0, "ranges": RANGES,
-                                           "summary": summary,
-                                           "cases": [{k: c[k] for k in ("case", "lens", "seed", "effects",
-                                                                         "effects_added", "right", "missed", "false",
-                                                                         "error_before", "error_after", "noise_floor",
-                                                                         "after_over_floor", "wall_s")}
-                                                     for c in cases]}, args, argv)
+                                           "summary": summary, "cases": [row(c) for c in cases]}, args, argv)
+
+
+def row(c: dict) -> dict:
+    """A case as one flat table row."""
+    def put(e, p):
+        return f"{e} ({', '.join(f'{k} {v:g}' for k, v in p.items() if not (k == 'sigma_left_px' and v == 0))})"
+
+    return {"case": c["case"], "lens": c["lens"], "device seed": c["seed"],
+            "put in": "; ".join(put(e, p) for e, p in c["effects"].items()) or "nothing",
+            "added": ", ".join(c["effects_added"]) or "nothing", "missed": ", ".join(c["missed"]) or "-",
+            "false": ", ".join(c["false"]) or "-", "SFRA RMS before": round(c["error_before"], 4),
+            "after": round(c["error_after"], 4), "floor": round(c["noise_floor"], 4),
+            "after / floor": round(c["after_over_floor"], 2), "wall s": c["wall_s"]}
 
 
 if __name__ == "__main__":

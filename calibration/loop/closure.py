@@ -38,7 +38,11 @@ effects of the registry (:mod:`calibration.loop.effects`):
    all three folds by > 1000×). The best consistent effect is kept if it
    explains at least ``min_gain`` of the held-out χ²; then all
    parameters are refitted together. Repeat until the SFRA residual is
-   within ``stop_ratio`` of the noise floor or nothing helps.
+   within ``stop_ratio`` of the noise floor or nothing helps. Each effect
+   tried carries its confidence: ``z``, the fall of the held-out χ² (the
+   penalty included) in units of that χ²'s own noise, √(2n) for n held-out
+   terms (z ≈ 0 for an effect that is not there, negative where it only
+   costs its penalty), and how many folds it improved.
 5. What is left is described: remaining χ² per field ring, orientation and
    band; where it exceeds the floor, the report says so ("unexplained
    residual") rather than attributing it. The LSF's asymmetry, which the
@@ -96,10 +100,22 @@ class LoopReport:
         return [{"name": n, "params": {k: float(v) for k, v in self.effect_values[n].items()}}
                 for n in self.effects_added]
 
+    def confidence(self) -> dict:
+        """Each kept effect's confidence when it was added (its held-out
+        gain, ``z`` and folds improved; :func:`confidence`)."""
+        out = {}
+        for k, name in enumerate(self.effects_added, 1):
+            t = next((t for t in self.tried if t["effect"] == name and t["round"] == k), None)
+            if t is not None:
+                out[name] = {"heldout_gain": round(float(t["gain"]), 4),
+                             **{x: t[x] for x in ("z", "folds_improved", "folds") if x in t}}
+        return out
+
     def to_dict(self) -> dict:
         return {"schema": "loop-report/v1", "base": self.base,
                 "base_parameters": {n: float(v) for n, v in zip(self.base_names, self.base_x)},
                 "effects_added": list(self.effects_added), "effect_values": self.effect_values,
+                "confidence": self.confidence(),
                 "tried": self.tried, "error_before": self.error_before, "error_after": self.error_after,
                 "noise_floor": self.noise_floor, "unexplained": self.unexplained,
                 "decomposition_before": self.decomposition_before,
@@ -289,7 +305,8 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
             consistent = _consistent(per_fold, len(e.names))
             rec = {"effect": name, "round": len(kept) + 1, "heldout_chi2_before": cv_old,
                    "heldout_chi2_after": cv_new, "gain": gain, "values": dict(zip(e.names, map(float, xs))),
-                   "fold_chi2": [[round(a, 2), round(b, 2)] for a, b, _ in per_fold], "consistent": consistent}
+                   "fold_chi2": [[round(a, 2), round(b, 2)] for a, b, _ in per_fold], "consistent": consistent,
+                   **confidence(per_fold)}
             tried.append(rec)
             if len(kept) == 0:
                 tick(f"{name}: gain {gain:.2f}{'' if consistent else ' (inconsistent across folds)'}")
@@ -447,6 +464,21 @@ def _cv_gain(prob: _Problem, p, e, fold, k):
     return gain, g_old, g_new, np.median(np.array(xs_all), axis=0), per_fold
 
 
+def confidence(per_fold) -> dict:
+    """How surely a tried effect is there, from its held-out folds
+    ``(χ² without, χ² with (penalty included), n terms)``: ``z``, the fall
+    of the held-out χ² over √(2 Σn), the χ²'s own noise; ``folds_improved``.
+
+    >>> confidence([(1200.0, 1000.0, 5000), (900.0, 880.0, 5000)])
+    {'z': 1.56, 'folds_improved': 2, 'folds': 2}
+    """
+    old = sum(f[0] for f in per_fold)
+    new = sum(f[1] for f in per_fold)
+    n = sum(f[2] for f in per_fold)
+    return {"z": round(float((old - new) / np.sqrt(2.0 * n)), 2) if n else 0.0,
+            "folds_improved": int(sum(f[1] < f[0] for f in per_fold)), "folds": len(per_fold)}
+
+
 def _consistent(per_fold, n_params: int) -> bool:
     """No held-out fold worse by more than the AIC penalty plus 3σ of its
     χ² (σ = √(2n), n its residual terms): see the module docstring."""
@@ -494,11 +526,12 @@ def write_report(report: LoopReport, obs, directory) -> dict:
         else:
             lines.append(f"| {k} | {v:.5g} | {after:.5g} |")
     lines += ["", "## Effects tried", "",
-              "| round | effect | held-out χ² before | after | gain | consistent across folds |",
-              "|---|---|---|---|---|---|"]
+              "| round | effect | held-out χ² before | after | gain | z | folds improved | consistent across folds |",
+              "|---|---|---|---|---|---|---|---|"]
     for t in report.tried:
         lines.append(f"| {t['round']} | {t['effect']} | {t['heldout_chi2_before']:.1f} | "
-                     f"{t['heldout_chi2_after']:.1f} | {t['gain']:+.2f} | "
+                     f"{t['heldout_chi2_after']:.1f} | {t['gain']:+.2f} | {t.get('z', float('nan')):+.1f} | "
+                     f"{t.get('folds_improved', '')}/{t.get('folds', '')} | "
                      f"{'yes' if t.get('consistent', True) else 'no'} |")
     lines += ["", "## Effects kept", ""]
     lines += [f"- **{n}**: " + ", ".join(f"{k} = {v:.4g}" for k, v in report.effect_values[n].items())

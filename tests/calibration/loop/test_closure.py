@@ -201,6 +201,9 @@ def test_each_effect_alone_is_named_measured_and_explained(name):
     for label, get, truth, tol in ALONE[name][3]:
         assert get(rep.effect_values[name]) == pytest.approx(truth, abs=tol), label
     _within_floor(rep)
+    # its confidence: the held-out χ² fell by many times its own noise, in every fold
+    conf = rep.confidence()[name]
+    assert conf["z"] > 5 and conf["folds_improved"] == conf["folds"] == 3, conf
     # the effect was there to find: beyond the loop's own stop ratio before
     assert rep.error_before["chi2_per_obs"] > 1.2 ** 2
 
@@ -282,8 +285,9 @@ def test_report_files(tmp_path):
     import json
 
     doc = json.loads(paths["json"].read_text())
-    for key in ("effects_added", "error_before", "error_after", "noise_floor"):
+    for key in ("effects_added", "error_before", "error_after", "noise_floor", "confidence"):
         assert key in doc
+    assert doc["confidence"]["field_curvature"]["z"] > 5
     assert doc["error_after"]["sfra_rms"] < doc["error_before"]["sfra_rms"]
     assert "field_curvature" in paths["md"].read_text()
 
