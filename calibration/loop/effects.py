@@ -10,7 +10,8 @@ three ways, each with a physical reason:
 * ``shifts_px(x, geom)`` — moves each colour's PSF sideways (lateral
   colour): changes what a mixed-colour ("L") edge measures;
 * ``transfer(x, geom)`` — multiplies the SFR by a transfer function of the
-  sensor or the processing (crosstalk, sharpening, glare).
+  sensor, the processing or the exposure (crosstalk, sharpening, glare,
+  motion blur).
 
 ``geom`` describes the observations and nodes (:class:`Geometry`).
 Registry: :func:`register_effect` (a decorator, like timm's
@@ -241,6 +242,29 @@ class Sharpening(Effect):
         f = geom.freq[None, :]
         return np.broadcast_to(1.0 + k * (1.0 - np.exp(-2.0 * np.pi ** 2 * s ** 2 * f ** 2)),
                                (len(geom.normal_deg), len(geom.freq)))
+
+
+@register_effect
+class MotionBlur(Effect):
+    """Motion blur: the camera or the chart moved L px along a direction θ
+    during the exposure (a test station's vibration, a conveyor).
+
+    The blur is a segment of length L along θ (θ from the x axis, y down):
+    an edge whose normal points at φ sees a box of L·|cos(φ − θ)| across it,
+    transfer |sinc(f·L·cos(φ − θ))| (sinc(u) = sin πu / πu). The same at
+    every field position and turning with the edge's orientation, which no
+    lens perturbation does: a lens's blur turns with the field angle. θ and
+    θ + 180° are one blur."""
+
+    name = "motion_blur"
+    names, units = ("length_px", "angle_deg"), ("px", "degree")
+    x0, lower, upper, scale = (1.0, 0.0), (0.0, -90.0), (20.0, 90.0), (0.5, 10.0)
+    starts = ((1.0, 60.0), (1.0, -60.0))
+
+    def transfer(self, x, geom):
+        length, theta = float(x[0]), math.radians(float(x[1]))
+        across = length * np.abs(np.cos(np.radians(geom.normal_deg) - theta))
+        return np.abs(np.sinc(across[:, None] * geom.freq[None, :]))
 
 
 @register_effect

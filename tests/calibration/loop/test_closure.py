@@ -104,6 +104,12 @@ def _crosstalk(c):
     return lambda img, x, y: convolve(img, k, mode="nearest")
 
 
+def _motion(length_px, angle_deg):
+    from calibration.simulate.injected import motion_blur
+
+    return lambda img, x, y: motion_blur(img, length_px, angle_deg)
+
+
 def _glare(share, sigma_px):
     # a halo of `share` of the light; mode="nearest" continues the edge's plateaus beyond the ROI
     return lambda img, x, y: (1.0 - share) * img + share * gaussian_filter(img, sigma_px, mode="nearest", truncate=6.0)
@@ -147,6 +153,11 @@ ALONE = {
     "pixel_crosstalk": ({}, (_crosstalk(0.08),), ("G",), [("leak", lambda v: v["leak"], 0.08, 0.02)]),
     "sharpening": ({}, (_sharpen(0.8, 1.2),), ("G",),
                    [("gain", lambda v: v["gain"], 0.8, 0.2), ("sigma px", lambda v: v["sigma_px"], 1.2, 0.3)]),
+    # horizontal motion: vertical edges blurred, horizontal ones not; θ and θ + 180° are one blur
+    "motion_blur": ({}, (_motion(2.5, 0.0),), ("G",),
+                    [("length px", lambda v: v["length_px"], 2.5, 0.3),
+                     ("|angle| from the x axis, degree", lambda v: min(abs(v["angle_deg"]), 180 - abs(v["angle_deg"])),
+                      0.0, 8.0)]),
     "veiling_glare": ({}, (_glare(0.04, 12.0),), ("G",),
                       [("share", lambda v: v["share"], 0.04, 0.008),
                        ("shelf depth", lambda v: _glare_shelf(v["share"], v["halo_sigma_px"]),

@@ -156,3 +156,25 @@ def test_unknown_effect_or_parameters_are_refused():
     with pytest.raises(ConfigError, match="takes gain, sigma_px"):
         make_injection("sharpening", gain=0.5)
     assert set(INJECTIONS) <= set(__import__("calibration.loop.effects", fromlist=["list_effects"]).list_effects())
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0])
+def test_motion_blur_is_the_box_along_its_direction(angle):
+    """A smooth vertical edge (Gaussian σ 1.5 px) moved L px along θ: across
+    the edge a box of L·cos θ, so the profile is Φ ⊗ box, in closed form
+    (σ/w)·[G((x + w/2)/σ) − G((x − w/2)/σ)], G(z) = zΦ(z) + φ(z)."""
+    from scipy.stats import norm
+
+    from calibration.simulate.injected import motion_blur
+
+    sigma, length = 1.5, 4.0
+    x = np.arange(128) - 63.5
+    img = np.broadcast_to(norm.cdf(x / sigma), (64, 128)).copy()
+    out = motion_blur(img, length, angle)[32]
+    w = length * math.cos(math.radians(angle))
+
+    def g(z):
+        return z * norm.cdf(z) + norm.pdf(z)
+
+    want = sigma / w * (g((x + w / 2) / sigma) - g((x - w / 2) / sigma))
+    assert np.abs(out - want)[8:-8].max() < 2e-4
