@@ -70,3 +70,25 @@ def test_mtf_mappers_table_and_the_matching(tmp_path):
 def test_the_single_roi_run_is_timed_whole_process(tmp_path):
     t = sfr_chart.time_single_roi(tmp_path, None, runs=1)
     assert set(t) == {"ours"} and len(t["ours"].runs) == 1 and 0 < t["ours"].median < 30
+
+
+def test_usable_edges_need_a_slant_and_a_whole_phase_cycle():
+    """ISO 12233's 4× ESF needs the edge to cross at least one whole pixel
+    phase along its length: 54 px at 0.6° cross 0.57 px (unusable), at 1.1°
+    1.04 px (usable); slants outside 1–44° are refused whatever the length."""
+    assert not sfr_chart.usable(0.6, 54.0) and sfr_chart.usable(1.1, 54.0)
+    assert not sfr_chart.usable(0.9, 1000.0) and not sfr_chart.usable(44.5, 100.0)
+    assert [sfr_chart.axis_slant(a) for a in (5.0, 85.0, 95.0, -3.0, 180.5)] == pytest.approx([5.0, 5.0, 5.0, 3.0, 0.5])
+
+
+def test_mtf_mapper_edges_take_its_angle_and_corner(tmp_path):
+    (tmp_path / "edge_mtf_values.txt").write_text(
+        "0 434.6 1062.1 0.358 435.3 1035.1\n0 446.4 1034.9 1.000 457.3 1034.9\n1 500.0 500.0 0.30 500.0 450.0\n")
+    (tmp_path / "edge_sfr_values.txt").write_text(
+        "0 434.6 1062.1 0.600 0.6 1 1\n0 446.4 1034.9 0.046 83.5 1 1\n1 500.0 500.0 84.0 2.0 1 1\n")
+    edges = sfr_chart.mtf_mapper_edges(tmp_path)
+    assert len(edges) == 2                                     # the 1.0 ("not measured") left out
+    assert edges[0]["slant_deg"] == pytest.approx(0.6) and edges[0]["length_px"] == pytest.approx(54.0, abs=0.1)
+    assert edges[1]["slant_deg"] == pytest.approx(6.0) and edges[1]["length_px"] == pytest.approx(100.0)
+    j = sfr_chart.judged(edges)
+    assert j["measured"] == 2 and j["usable"] == 1 and j["unusable_slant_deg"] == [0.6, 0.6]

@@ -1,0 +1,39 @@
+"""benchmarks/loop_suite.py (kind: property): a case is the same on every
+run (so the suite resumes in parts), its effects come from the ranges and
+have injections, and the summary counts right, missed and false effects."""
+
+import pytest
+
+from benchmarks import loop_suite
+from calibration.simulate.injected import INJECTIONS
+
+pytestmark = pytest.mark.property
+
+
+def test_cases_are_fixed_and_within_their_ranges():
+    cases = [loop_suite.draw_case(k) for k in range(24)]
+    assert cases == [loop_suite.draw_case(k) for k in range(24)]
+    assert [c["lens"] for c in cases[:4]] == ["e1", "e2", "e9", "e11"]
+    assert {len(c["effects"]) for c in cases} == {0, 1, 2}
+    for c in cases:
+        for e, p in c["effects"].items():
+            assert e in INJECTIONS and set(p) == set(loop_suite.RANGES[e])
+            for k, v in p.items():
+                lo, hi = loop_suite.RANGES[e][k]
+                assert lo - 1e-4 <= v <= hi + 1e-4
+
+
+def test_summary_counts_what_was_named():
+    def case(put, added):
+        c = {"effects": {e: {} for e in put}, "effects_added": added, "right": sorted(set(put) & set(added)),
+             "missed": sorted(set(put) - set(added)), "false": sorted(set(added) - set(put)),
+             "after_over_floor": 1.1, "wall_s": 100.0}
+        return c
+
+    s = loop_suite.summarise([case(["sharpening"], ["sharpening"]), case(["pixel_crosstalk", "sharpening"],
+                                                                          ["sharpening", "focus_shift"]),
+                              case([], []), case([], ["veiling_glare"])])
+    assert s["per_effect"]["sharpening"] == {"put_in": 2, "named": 2}
+    assert s["per_effect"]["pixel_crosstalk"] == {"put_in": 1, "named": 0}
+    assert s["false_additions"] == {"focus_shift": 1, "veiling_glare": 1}
+    assert s["clean_cases"] == 2 and s["clean_given_an_effect"] == 1 and s["all_right"] == 2
