@@ -209,10 +209,10 @@ def write_chart(case: ChartCase, folder: Path, seed: int) -> tuple[Path, list, t
     return path, list(ch.edges), maps
 
 
-def match(measured: list[tuple[float, float, float]], truth: list, maps=None) -> list[tuple[float, float]]:
-    """``(mtf50, truth)`` for every measured ``(x, y, mtf50)`` that lies
-    within a quarter side of a true edge's midpoint (the nearest one); with
-    ``maps`` (a warped chart) the position is first mapped back to the
+def match_sides(measured: list[tuple[float, float, float]], truth: list, maps=None) -> list[tuple[int, float]]:
+    """``(side index, mtf50)`` for every measured ``(x, y, mtf50)`` that
+    lies within a quarter side of a true side's midpoint (the nearest one);
+    with ``maps`` (a warped chart) the position is first mapped back to the
     rendered chart."""
     centres = np.array([e.centre for e in truth])
     out = []
@@ -223,8 +223,39 @@ def match(measured: list[tuple[float, float, float]], truth: list, maps=None) ->
         d = np.hypot(centres[:, 0] - x, centres[:, 1] - y)
         i = int(np.argmin(d))
         if d[i] <= 0.25 * truth[i].length:
-            out.append((m, truth[i].mtf50))
+            out.append((i, m))
     return out
+
+
+def match(measured: list[tuple[float, float, float]], truth: list, maps=None) -> list[tuple[float, float]]:
+    """``(mtf50, truth)`` of every measured edge matched to a true side (:func:`match_sides`)."""
+    return [(m, truth[i].mtf50) for i, m in match_sides(measured, truth, maps)]
+
+
+def sides_in_frame(truth: list, maps, shape: tuple[int, int], margin: int = 8, step: int = 2) -> set[int]:
+    """The true sides a warped chart shows whole (their indices): five points along
+    each (its ends at 0.9 of its half-length) must each be the source of an
+    output pixel at least ``margin`` px inside the frame (within 1.5 sample
+    steps). A side the warp pushes across the frame's border can be
+    measured by no tool."""
+    from scipy.spatial import cKDTree
+
+    h, w = shape
+    ys, xs = np.mgrid[margin:h - margin:step, margin:w - margin:step]
+    tree = cKDTree(np.column_stack([maps[0][ys, xs].ravel(), maps[1][ys, xs].ravel()]))
+    centre = {}
+    for e in truth:
+        centre.setdefault(e.square, []).append(e.centre)
+    whole = set()
+    for k, e in enumerate(truth):
+        sq = np.mean(centre[e.square], axis=0)
+        normal = np.subtract(e.centre, sq)
+        along = np.array([-normal[1], normal[0]]) / np.hypot(*normal)
+        pts = [np.add(e.centre, t * 0.5 * e.length * along) for t in (-0.9, -0.45, 0.0, 0.45, 0.9)]
+        dist, _ = tree.query(pts)
+        if np.all(dist <= 1.5 * step):
+            whole.add(k)
+    return whole
 
 
 def errors_pct(pairs: list[tuple[float, float]]) -> list[float]:
@@ -375,6 +406,9 @@ def run_real(tmp: Path, peer: str | None) -> dict:
 def run_case(case: ChartCase, tmp: Path, methods, peer: str | None, seed: int) -> dict:
     path, truth, maps = write_chart(case, tmp, seed)
     row = {"chart": case.as_dict(), "edges_true": len(truth), "tools": {}}
+    whole = sides_in_frame(truth, maps, case.shape) if maps is not None else None
+    if whole is not None:
+        row["sides_in_frame"] = len(whole)
     tools = [(f"ours_{m}", lambda p, o, m=m: run_ours(p, o / "ours.json", m)) for m in methods]
     if peer:
         tools.append(("mtf_mapper", lambda p, o: run_mtf_mapper(peer, p, o / "mm")))
@@ -382,11 +416,14 @@ def run_case(case: ChartCase, tmp: Path, methods, peer: str | None, seed: int) -
         out = tmp / f"{case.name}_{name}"
         out.mkdir(exist_ok=True)
         measured, counts, child = fn(path, out)
-        pairs = match(measured, truth, maps)
+        sides = match_sides(measured, truth, maps)
+        pairs = [(m, truth[i].mtf50) for i, m in sides]
         # a warped chart's resampling blurs: its edges have no analytic truth, only their count
         errors = errors_pct(pairs) if maps is None else []
         stats = error_stats(errors) if maps is None else \
             {"mtf50_median": round(float(np.median([m for m, _ in pairs])), 4) if pairs else None}
+        if whole is not None:
+            stats["whole_matched"] = len(whole & {i for i, _ in sides})
         row["tools"][name] = {**counts, "matched": len(pairs), **stats,
                               "wall_s": round(child.wall_s, 3), "cpu_s": round(child.cpu_s, 3),
                               "peak_mb": round(child.peak_mb, 1), "errors_pct": errors}
@@ -472,9 +509,10 @@ def main(argv=None) -> dict:
     for r in rows:   # the pooled figures are computed; the per-edge lists stay out of the record
         for t in r["tools"].values():
             t.pop("errors_pct", None)
-    warped = {r["chart"]["name"].removeprefix("warped_"): {"sides": r["edges_true"],
-                                                           **{t: v["matched"] for t, v in r["tools"].items()}}
-              for r in rows if r["chart"].get("warp")}
+    warped = {r["chart"]["name"].removeprefix("warped_"): {
+        "sides": r["edges_true"], **{t: v["matched"] for t, v in r["tools"].items()},
+        "shown whole": r["sides_in_frame"], **{f"{t} of those": v["whole_matched"] for t, v in r["tools"].items()}}
+        for r in rows if r["chart"].get("warp")}
     scan = {f"σ {r['chart']['sigma_px']:g} px": {f"{t} {k}": v[k] for t, v in r["tools"].items() if v.get("n")
                                                  for k in ("median", "p95", "worst", "sd")}
             for r in rows if r["chart"]["name"].startswith("scan_")}

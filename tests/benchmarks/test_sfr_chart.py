@@ -92,3 +92,15 @@ def test_mtf_mapper_edges_take_its_angle_and_corner(tmp_path):
     assert edges[1]["slant_deg"] == pytest.approx(6.0) and edges[1]["length_px"] == pytest.approx(100.0)
     j = sfr_chart.judged(edges)
     assert j["measured"] == 2 and j["usable"] == 1 and j["unusable_slant_deg"] == [0.6, 0.6]
+
+
+def test_sides_shown_whole_follow_the_warp():
+    """Unwarped, every side of the chart is shown whole; shifted half a
+    frame sideways, only the sides of the squares still inside are."""
+    from calibration.sfr.synthetic import render_square_chart
+
+    ch = render_square_chart((300, 400), (2, 4), sigma_px=1.0, angles_deg=(5.0,))
+    yy, xx = np.mgrid[0:300, 0:400].astype(np.float32)
+    assert len(sfr_chart.sides_in_frame(list(ch.edges), (xx, yy), (300, 400))) == 32
+    whole = sfr_chart.sides_in_frame(list(ch.edges), (xx + 200.0, yy), (300, 400))   # shows columns 2 and 3
+    assert {ch.edges[k].square % 4 for k in whole} == {2, 3} and len(whole) == 16
