@@ -43,7 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      "through a proxy camera (paper, section 4.1).")
     p.epilog = EPILOG
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.add_argument("--lens", required=True, help="lens file (lens/v1 JSON, .zmx, ...) or fitted proxy file")
+    p.add_argument("--lens", required=True,
+                   help="lens file (lens/v1 JSON, .zmx, ...) or fitted proxy file; data:REST is REST in the "
+                        "shared data folder")
     p.add_argument("--samples", type=int, default=1,
                    help="1: the lens itself (single sample); N: the lens and N-1 lenses drawn within "
                         "tolerance (multiple samples); default 1")
@@ -106,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--samples must be ≥ 1, got {args.samples}")
     if args.pairs < 1 or (args.workers is not None and args.workers < 1) or args.shard_size < 1:
         raise ConfigError("--pairs, --workers and --shard-size must be ≥ 1")
+    from restoration.train.config import resolve_path
+
+    args.lens = str(resolve_path(args.lens))     # data:REST, as in a training config
     if not Path(args.lens).exists():
         raise InputError(args.lens, "no such lens file")
     if args.pixel_um is not None and not 0.2 <= args.pixel_um <= 20.0:
