@@ -22,6 +22,11 @@ what it left unexplained, and the wall seconds. The magnitude ranges are
 what a line meets and what the loop's tests use; they are not yet
 multiples of measured detection limits.
 
+The defocus effects (focus shift, sensor tilt, field curvature) go in as
+Gaussian blurs of the Bayer planes, stand-ins whose transfer differs from a
+defocus through the lens (:mod:`calibration.simulate.injected` says how):
+a miss or a wrong name on them measures the stand-in as much as the loop.
+
 Lateral colour is left out: the loop measures a capture's edges on the
 mosaic's green plane, which a shift of the red and blue planes does not
 reach.

@@ -15,7 +15,13 @@ loop names what was put in.
 The injections are pixel-level stand-ins, not the registry's own model:
 defocus is a Gaussian blur of each Bayer plane whose σ varies over the
 field as that effect's defocus does (uniform for ``focus_shift``, linear in
-x for ``sensor_tilt``, ∝ r² for ``field_curvature``); crosstalk leaks charge
+x for ``sensor_tilt``, ∝ r² for ``field_curvature``). A real defocus is the
+lens's own rays cut further from focus (a disc-like blur through the
+aberrations), which is what the loop's defocus effects model; a Gaussian
+blur's transfer is closer to crosstalk's, and the loop may name crosstalk
+for it. Defocus put in through the optics (the device's
+focus, a tilted or curved image surface in its PSF map) is the faithful
+injection for those three; crosstalk leaks charge
 to the four neighbouring sites whatever their colour; lateral colour
 magnifies the R and B planes about the centre; glare adds a share of each
 plane's light in a wide Gaussian halo; motion blur spreads each plane's
