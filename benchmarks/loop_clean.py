@@ -45,14 +45,15 @@ from benchmarks.forward_fidelity import LENSES, PHONE  # noqa: E402
 from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
 
 
-def run_loop(lens_path, obs, n_params: int | None, kinds) -> tuple:
+def run_loop(lens_path, obs, n_params: int | None = None, kinds=None) -> tuple:
     """``isp calib loop --lens LENS --measured CAPTURE`` on measured ``obs``,
-    its base over the perturbations of ``kinds``: (LoopReport, wall s)."""
-    from calibration.loop.base import make_base
+    its base over the perturbations of ``kinds`` (default
+    :data:`~calibration.loop.base.BASE_KINDS`): (LoopReport, wall s)."""
+    from calibration.loop.base import BASE_KINDS, make_base
     from calibration.loop.closure import close_loop
 
     t0 = time.perf_counter()
-    base = make_base(str(lens_path), obs, n_params=n_params, kinds=kinds)
+    base = make_base(str(lens_path), obs, n_params=n_params, kinds=kinds or BASE_KINDS)
     rep = close_loop(base, obs)
     return rep, time.perf_counter() - t0
 

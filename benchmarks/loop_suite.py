@@ -116,10 +116,8 @@ def capture(case: dict, log):
 
 
 def run_case(case: dict, log) -> dict:
-    from calibration.loop.base import BASE_KINDS
-
     lens_path, obs, what = capture(case, log)
-    rep, wall = run_loop(lens_path, obs, None, BASE_KINDS)
+    rep, wall = run_loop(lens_path, obs)
     put, added = set(case["effects"]), set(rep.effects_added)
     return {**case, "device": what, "edges": len(obs), "effects_added": list(rep.effects_added),
             "effect_values": rep.effect_values, "right": sorted(put & added), "missed": sorted(put - added),

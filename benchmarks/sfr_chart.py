@@ -227,10 +227,6 @@ def match_sides(measured: list[tuple[float, float, float]], truth: list, maps=No
     return out
 
 
-def match(measured: list[tuple[float, float, float]], truth: list, maps=None) -> list[tuple[float, float]]:
-    """``(mtf50, truth)`` of every measured edge matched to a true side (:func:`match_sides`)."""
-    return [(m, truth[i].mtf50) for i, m in match_sides(measured, truth, maps)]
-
 
 def sides_in_frame(truth: list, maps, shape: tuple[int, int], margin: int = 8, step: int = 2) -> set[int]:
     """The true sides a warped chart shows whole (their indices): five points along
@@ -320,7 +316,7 @@ def usable(slant_deg: float, length_px: float) -> bool:
     (True, False, False)
     """
     lo, hi = USABLE_SLANT
-    return lo <= slant_deg <= hi and length_px * np.tan(np.radians(slant_deg)) >= 1.0
+    return bool(lo <= slant_deg <= hi and length_px * np.tan(np.radians(slant_deg)) >= 1.0)
 
 
 def axis_slant(angle_deg: float) -> float:
@@ -388,8 +384,7 @@ def run_real(tmp: Path, peer: str | None) -> dict:
                "--json", str(out / "ours.json")]
         child = _harness.run_child(cmd, _harness.child_env())
         report = json.loads((out / "ours.json").read_text())
-        row = {"layout": report.get("layout", {}).get("name") if isinstance(report.get("layout"), dict)
-               else report.get("layout"),
+        row = {"layout": (report["layout"] or {}).get("name"),
                "ours": {**judged(our_edges(report)), "skipped": len(report["skipped"]), "wall_s": round(child.wall_s, 3)}}
         if peer:
             (out / "mm").mkdir(exist_ok=True)

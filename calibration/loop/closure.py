@@ -530,8 +530,8 @@ def write_report(report: LoopReport, obs, directory) -> dict:
               "|---|---|---|---|---|---|---|---|"]
     for t in report.tried:
         lines.append(f"| {t['round']} | {t['effect']} | {t['heldout_chi2_before']:.1f} | "
-                     f"{t['heldout_chi2_after']:.1f} | {t['gain']:+.2f} | {t.get('z', float('nan')):+.1f} | "
-                     f"{t.get('folds_improved', '')}/{t.get('folds', '')} | "
+                     f"{t['heldout_chi2_after']:.1f} | {t['gain']:+.2f} | {t['z']:+.1f} | "
+                     f"{t['folds_improved']}/{t['folds']} | "
                      f"{'yes' if t.get('consistent', True) else 'no'} |")
     lines += ["", "## Effects kept", ""]
     lines += [f"- **{n}**: " + ", ".join(f"{k} = {v:.4g}" for k, v in report.effect_values[n].items())

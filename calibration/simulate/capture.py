@@ -813,9 +813,6 @@ def _injected(signal: np.ndarray, sensor: SensorModel, rng, noise: bool, injecti
     chain ones, the quantisation."""
     from calibration.simulate.sensor import add_noise, quantise
 
-    bad = [i.where for i in injections if i.where not in ("light", "chain")]
-    if bad:
-        raise ImagingError(f"an injection acts on 'light' or 'chain', not {bad[0]!r}")
     x = np.asarray(signal, dtype=np.float64)
     for inj in injections:
         if inj.where == "light":

@@ -74,6 +74,10 @@ class Injection:
     where: str
     apply: Callable[[np.ndarray, CFA], np.ndarray] = field(repr=False)
 
+    def __post_init__(self):
+        if self.where not in ("light", "chain"):
+            raise ConfigError(f"an injection acts on 'light' or 'chain', not {self.where!r}")
+
 
 def _planes(mosaic: np.ndarray):
     """The four CFA phases: ``(dy, dx, plane)``."""
@@ -232,4 +236,5 @@ def make_injection(effect: str, **params: float) -> Injection:
     maker, where, names = INJECTIONS[effect]
     if set(params) != set(names):
         raise ConfigError(f"{effect} takes {', '.join(names)}; got {', '.join(params) or 'nothing'}")
-    return Injection(effect, {k: float(params[k]) for k in names}, where, maker(**{k: float(params[k]) for k in names}))
+    values = {k: float(params[k]) for k in names}
+    return Injection(effect, values, where, maker(**values))

@@ -994,17 +994,17 @@ def train(config: TrainConfig, *, resume=None, executor=None, log=print) -> dict
                 t_probe = time.perf_counter()
             elif r.seconds and step - first == 5 + BUDGET_PROBE:
                 now = time.perf_counter()
-                cap = budget_steps(step, r.steps, r.seconds - (now - t_start), (now - t_probe) / BUDGET_PROBE,
-                                   t_checkpoint, r.checkpoint_every)
+                step_s = (now - t_probe) / BUDGET_PROBE
+                cap = budget_steps(step, r.steps, r.seconds - (now - t_start), step_s, t_checkpoint,
+                                   r.checkpoint_every)
                 config = config.replace("run", steps=cap)
                 r = config.run
                 info["config"] = config.to_dict()
-                info["time_budget"] = {"seconds": r.seconds, "step_s": round((now - t_probe) / BUDGET_PROBE, 5),
+                info["time_budget"] = {"seconds": r.seconds, "step_s": round(step_s, 5),
                                        "checkpoint_s": round(t_checkpoint, 3), "steps": cap}
                 bar.total = cap
                 bar.refresh()
-                (tqdm.write if progress else log)(
-                    f"time budget {r.seconds:g} s: {cap} steps at {(now - t_probe) / BUDGET_PROBE:.4f} s/step")
+                (tqdm.write if progress else log)(f"time budget {r.seconds:g} s: {cap} steps at {step_s:.4f} s/step")
             if r.seconds and time.perf_counter() - t_start > r.seconds:
                 break
             if step % r.checkpoint_every == 0 and step < r.steps:

@@ -61,8 +61,10 @@ def test_mtf_mappers_table_and_the_matching(tmp_path):
         def __init__(self, c, m):
             self.centre, self.mtf50, self.length = c, m, 100.0
 
-    pairs = sfr_chart.match(rows, [E((101.0, 52.0), 0.151), E((900.0, 900.0), 0.2)])
-    assert pairs == [(0.15, 0.151)]                        # the edge at (500, 500) matches no true side
+    truth = [E((101.0, 52.0), 0.151), E((900.0, 900.0), 0.2)]
+    sides = sfr_chart.match_sides(rows, truth)
+    assert sides == [(0, 0.15)]                            # the edge at (500, 500) matches no true side
+    pairs = [(m, truth[i].mtf50) for i, m in sides]
     s = sfr_chart.error_stats(sfr_chart.errors_pct(pairs))
     assert s["n"] == 1 and s["bias"] == pytest.approx(-0.6623, abs=1e-3)
 
