@@ -125,7 +125,7 @@ def run_case(case: dict, log) -> dict:
             "error_after": rep.error_after["sfra_rms"], "noise_floor": rep.noise_floor,
             "after_over_floor": rep.error_after["sfra_rms"] / rep.noise_floor,
             "chi2_after": rep.error_after["chi2_per_obs"], "unexplained": rep.unexplained,
-            "wall_s": round(wall, 1)}
+            "wall_s": round(wall, 1), "seconds_by_step": {k: round(v, 1) for k, v in rep.steps_s.items()}}
 
 
 def summarise(cases: list[dict]) -> dict:
@@ -196,7 +196,8 @@ def row(c: dict) -> dict:
             "added": ", ".join(c["effects_added"]) or "nothing", "missed": ", ".join(c["missed"]) or "-",
             "false": ", ".join(c["false"]) or "-", "SFRA RMS before": round(c["error_before"], 4),
             "after": round(c["error_after"], 4), "floor": round(c["noise_floor"], 4),
-            "after / floor": round(c["after_over_floor"], 2), "wall s": c["wall_s"]}
+            "after / floor": round(c["after_over_floor"], 2), "wall s": c["wall_s"],
+            **{f"{k} s": c.get("seconds_by_step", {}).get(k, "-") for k in ("base", "noise", "trials", "refits")}}
 
 
 if __name__ == "__main__":
