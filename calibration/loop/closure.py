@@ -41,8 +41,8 @@ effects of the registry (:mod:`calibration.loop.effects`):
    the Jacobian from the fitter's cheaper model on the executor's workers,
    refreshed every few steps as the fitter's; from a 1,200-edge e1
    capture, 81 parameters, from the nominal lens: 3 iterations to χ² 16.8
-   per term in 53 s on two cores, 12 to 5.5 in 153 s, where the serial
-   fit with a full-model Jacobian every step took 641 s for 3, to 16.5). Repeat until the SFRA residual is
+   per term in 53 s on two cores, where the serial fit with a full-model
+   Jacobian every step took 641 s for 3, to 16.5; :data:`POOLED_ITER_FACTOR`). Repeat until the SFRA residual is
    within ``stop_ratio`` of the noise floor or nothing helps. Each effect
    tried carries its confidence: ``z``, the fall of the held-out χ² (the
    penalty included) in units of that χ²'s own noise, √(2n) for n held-out
@@ -254,20 +254,23 @@ def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None,
     return full(res.x), res
 
 
-def _bind_problem(prob: _Problem, ex):
-    """``ex`` bound to workers that each hold ``prob`` and its twin on the
-    fitter's cheaper Jacobian model (:data:`calibration.fit.forward_model.FAST_JACOBIAN`);
-    None where ``ex`` is serial or the base has no cheaper model (a
-    parametric base is cheap already)."""
+def _bind_problem(prob: _Problem, ex, cheap: bool = True):
+    """``ex`` bound to workers that each hold ``prob`` and, with ``cheap``,
+    its twin on the fitter's cheaper Jacobian model
+    (:data:`calibration.fit.forward_model.FAST_JACOBIAN`); None where ``ex``
+    is serial or the base has no cheaper model (a parametric base is cheap
+    already, and fast enough in this process)."""
     if not ex.parallel or not hasattr(prob.base, "with_settings"):
         return None
     from calibration.fit.forward_model import FAST_JACOBIAN
 
-    return ex.bind((prob, FAST_JACOBIAN), setup=_problem_pair)
+    return ex.bind((prob, FAST_JACOBIAN if cheap else None), setup=_problem_pair)
 
 
 def _problem_pair(payload) -> dict:
     prob, settings = payload
+    if settings is None:
+        return {"full": prob}
     cheap = copy.copy(prob)
     cheap.base = prob.base.with_settings(settings)
     return {"full": prob, "cheap": cheap}
@@ -283,22 +286,31 @@ def _cheap_problem_residuals(p) -> np.ndarray:
     return prob.residuals(prob.predict(p))
 
 
+#: iterations of the refit on workers per iteration of the serial one: its Jacobian is refreshed
+#: every third step, Broyden updates between. On the loop suite's case 0 (e1, 81 parameters, the
+#: refit after sharpening was kept; two cores): 12 iterations ended at χ² 1.311 per term in 143 s,
+#: 24 at 1.186 in 271 s, where 12 serial ones with a full-model Jacobian at each step had ended at
+#: 1.182 in about 35 minutes (12 with a cheap Jacobian at each step: 1.176 in 321 s)
+POOLED_ITER_FACTOR = 2
+
+
 def _joint_fit(prob: _Problem, p, lower, upper, max_iter: int, ex):
     """Every parameter refitted together (after an effect is kept). A lens
     base's 80–92 parameters make this the loop's longest step: serial,
     full-model Jacobians at every step took ~35 min on a 2-core machine
     (``benchmarks/loop_suite.py`` case 0); here the Jacobian comes from
     the cheaper model on the executor's workers every
-    :data:`calibration.fit.proxy.REFRESH` steps, as the fitter's, each step
-    still accepted on the full model."""
+    :data:`calibration.fit.proxy.REFRESH` steps, as the fitter's, for
+    :data:`POOLED_ITER_FACTOR` × ``max_iter`` iterations, each step still
+    accepted on the full model."""
     from calibration.fit.proxy import REFRESH
 
     pool = _bind_problem(prob, ex)
     if pool is None:
         return _fit(prob, p, lower, upper, np.ones(len(p), bool), max_iter=max_iter)
     with pool:
-        return _fit(prob, p, lower, upper, np.ones(len(p), bool), max_iter=max_iter, pool=pool,
-                    refresh=REFRESH)
+        return _fit(prob, p, lower, upper, np.ones(len(p), bool), max_iter=POOLED_ITER_FACTOR * max_iter,
+                    pool=pool, refresh=REFRESH)
 
 
 def prob_scale(prob: _Problem) -> np.ndarray:
@@ -378,23 +390,28 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
             break
         best = None
         t = time.perf_counter()
-        for name in names:
-            if name in [e.name for e in prob.effects]:
-                continue
-            e = create_effect(name)
-            gain, cv_old, cv_new, xs, per_fold = _cv_gain(prob, p, e, fold, folds)
-            consistent = _consistent(per_fold, len(e.names))
-            rec = {"effect": name, "round": len(kept) + 1, "heldout_chi2_before": cv_old,
-                   "heldout_chi2_after": cv_new, "gain": gain, "values": dict(zip(e.names, map(float, xs))),
-                   "fold_chi2": [[round(a, 2), round(b, 2)] for a, b, _ in per_fold], "consistent": consistent,
-                   **confidence(per_fold)}
-            tried.append(rec)
-            if len(kept) == 0:
-                tick(f"{name}: gain {gain:.2f}{'' if consistent else ' (inconsistent across folds)'}")
-            if not consistent:
-                continue
-            if best is None or gain > best[0]:
-                best = (gain, e, xs)
+        pool = _bind_problem(prob, ex, cheap=False)
+        try:
+            for name in names:
+                if name in [e.name for e in prob.effects]:
+                    continue
+                e = create_effect(name)
+                gain, cv_old, cv_new, xs, per_fold = _cv_gain(prob, p, e, fold, folds, pool)
+                consistent = _consistent(per_fold, len(e.names))
+                rec = {"effect": name, "round": len(kept) + 1, "heldout_chi2_before": cv_old,
+                       "heldout_chi2_after": cv_new, "gain": gain, "values": dict(zip(e.names, map(float, xs))),
+                       "fold_chi2": [[round(a, 2), round(b, 2)] for a, b, _ in per_fold], "consistent": consistent,
+                       **confidence(per_fold)}
+                tried.append(rec)
+                if len(kept) == 0:
+                    tick(f"{name}: gain {gain:.2f}{'' if consistent else ' (inconsistent across folds)'}")
+                if not consistent:
+                    continue
+                if best is None or gain > best[0]:
+                    best = (gain, e, xs)
+        finally:
+            if pool is not None:
+                pool.close()
         t = timed("trials", t)
         if best is None or best[0] < min_gain:
             say(f"loop: no effect explains ≥ {min_gain:.0%} of the held-out residual; stopping")
@@ -514,9 +531,10 @@ def _sigma_law(obs, sd) -> np.ndarray:
     return out
 
 
-def _cv_gain(prob: _Problem, p, e, fold, k):
+def _cv_gain(prob: _Problem, p, e, fold, k, pool=None):
     """Held-out χ² without and with effect ``e`` (its parameters fitted on
-    the other folds, the rest held)."""
+    the other folds, the rest held). ``pool`` (:func:`_bind_problem` of
+    ``prob``): the folds' fits on its workers."""
     g_old = g_new = 0.0
     xs_all, per_fold = [], []
     trial = copy.copy(prob)
@@ -532,10 +550,11 @@ def _cv_gain(prob: _Problem, p, e, fold, k):
     pred_old = prob.predict(p)
     r_old = prob.residuals(pred_old).reshape(len(prob.obs), -1)
     starts = [q0] + [np.concatenate([p, np.asarray(x, float)]) for x in getattr(e, "starts", ())]
+    tasks = [(e, s, lo, hi, free, fold != j) for j in range(k) for s in starts]
+    fitted = pool.map(_cv_fit_task, tasks) if pool is not None else [_cv_fit(trial, *t) for t in tasks]
     for j in range(k):
+        q = min(fitted[j * len(starts):(j + 1) * len(starts)], key=lambda f: f[1])[0]
         train = fold != j
-        fits = [_fit(trial, s, lo, hi, free, mask=train, max_iter=6) for s in starts]
-        q, _ = min(fits, key=lambda qr: float(np.sum(trial.residuals(trial.predict(qr[0]), train) ** 2)))
         r_new = trial.residuals(trial.predict(q)).reshape(len(prob.obs), -1)
         old_j = float(np.sum(r_old[~train] ** 2))
         new_j = float(np.sum(r_new[~train] ** 2)) + 2.0 * len(e.names)
@@ -545,6 +564,22 @@ def _cv_gain(prob: _Problem, p, e, fold, k):
         xs_all.append(q[len(p):])
     gain = 1.0 - g_new / g_old if g_old > 0 else 0.0
     return gain, g_old, g_new, np.median(np.array(xs_all), axis=0), per_fold
+
+
+def _cv_fit(trial: _Problem, e, start, lo, hi, free, train) -> tuple[np.ndarray, float]:
+    """One fold's fit of a candidate effect (``trial``'s last) from
+    ``start`` on the ``train`` observations: its parameters and its
+    training χ²."""
+    q, _ = _fit(trial, start, lo, hi, free, mask=train, max_iter=6)
+    return q, float(np.sum(trial.residuals(trial.predict(q), train) ** 2))
+
+
+def _cv_fit_task(task) -> tuple[np.ndarray, float]:
+    prob = worker_payload()["full"]
+    e = task[0]
+    trial = copy.copy(prob)
+    trial.effects = prob.effects + [e]
+    return _cv_fit(trial, *task)
 
 
 def confidence(per_fold) -> dict:

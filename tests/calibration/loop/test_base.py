@@ -78,8 +78,7 @@ def test_the_joint_refit_on_workers_lands_where_the_serial_one_does(lens_base):
     χ² (within 5 %), both near the device."""
     from calibration.loop import closure as loop
 
-    a0, c0, sd0 = lens_base.measurement_bias(U_TRUE)
-    prob = loop._Problem(lens_base, lens_base.obs, a0, c0, loop._sigma_law(lens_base.obs, sd0))
+    prob = loop_problem(lens_base)
     start = U_TRUE + np.array([0.3, -0.3])
     lo, hi = np.asarray(lens_base.lower, float), np.asarray(lens_base.upper, float)
     p_pool, _ = loop._joint_fit(prob, start, lo, hi, 8, pool_executor(2))
@@ -89,6 +88,31 @@ def test_the_joint_refit_on_workers_lands_where_the_serial_one_does(lens_base):
     assert abs(chi2[0] / chi2[1] - 1.0) < 0.05, chi2
     assert np.abs(p_pool - U_TRUE).max() < 0.15, p_pool
     assert loop._bind_problem(prob, pool_executor(1)) is None      # serial: the plain fit
+
+
+def test_a_candidate_tried_on_workers_scores_as_in_this_process(lens_base):
+    """A candidate effect's fold fits on two workers give the gain, fitted
+    values and folds that the same fits give in this process."""
+    from calibration.loop import closure as loop
+    from calibration.loop.effects import create_effect
+
+    prob = loop_problem(lens_base)
+    fold = loop._folds(lens_base.obs, 3, 0)
+    e = create_effect("pixel_crosstalk")
+    serial = loop._cv_gain(prob, U_TRUE, e, fold, 3)
+    with loop._bind_problem(prob, pool_executor(2), cheap=False) as pool:
+        pooled = loop._cv_gain(prob, U_TRUE, e, fold, 3, pool)
+    assert pooled[0] == pytest.approx(serial[0], abs=1e-9)
+    np.testing.assert_allclose(pooled[3], serial[3], rtol=0, atol=1e-9)
+    np.testing.assert_allclose([f[:2] for f in pooled[4]], [f[:2] for f in serial[4]], rtol=1e-9)
+
+
+def loop_problem(lens_base):
+    """The loop's weighted problem on ``lens_base`` with its noise at the device."""
+    from calibration.loop import closure as loop
+
+    a0, c0, sd0 = lens_base.measurement_bias(U_TRUE)
+    return loop._Problem(lens_base, lens_base.obs, a0, c0, loop._sigma_law(lens_base.obs, sd0))
 
 
 def test_a_raw_observation_re_rendered_scatters_as_a_mosaic_plane_does(make_observations):
