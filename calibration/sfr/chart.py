@@ -181,7 +181,8 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
     slanted ``min_slant_deg``–``max_slant_deg`` from an axis and at least
     ``min_length`` long gets the largest axis-aligned ROI that holds it
     alone (:func:`_edge_roi`): the whole piece but its ends, ±40 px across,
-    narrower where other edges crowd; a piece no ROI isolates is left out.
+    narrower (to ±14 px) and then shorter where other edges crowd; a piece
+    no ROI isolates is left out.
 
     Parameters
     ----------
@@ -369,11 +370,14 @@ def _edge_roi(p, q, g, min_length, min_slant, max_slant, contrast):
     # and shorter ones where edges crowd. The SFR's noise falls as the
     # square root of the rows measured (benchmarks/sfr_chart.py: the middle
     # 60 % of each side gave a median |ΔMTF50| of 0.13 %, the whole side
-    # 0.10 %, on the same chart).
+    # 0.10 %, on the same chart). So the box narrows (down to ±20 px across) before it shortens:
+    # slanted 19–40°, a whole side's ±28 px box reaches the square's neighbouring sides, and a
+    # box of half the side (53–64 of 137 rows) scatters the per-edge MTF50 of the sweep's
+    # σ 0.6–2 px charts up to 1.4× more (benchmarks/sfr_chart.py --sweep).
     whole = max(length - 2.0 * (CORNER_MARGIN * length + CORNER_MARGIN_PX), 0.4 * length)
     inside = False
-    for along, across in ((whole, 40.0), (whole, 28.0), (0.5 * length, 20.0), (0.4 * length, 14.0),
-                          (0.4 * length, 10.0)):
+    for along, across in ((whole, 40.0), (whole, 28.0), (whole, 20.0), (0.8 * whole, 20.0), (whole, 14.0),
+                          (0.5 * length, 20.0), (0.4 * length, 14.0), (0.4 * length, 10.0)):
         across = min(across, max(10.0, 0.22 * length))
         x, y, rw, rh = box(along, across)
         if x < 0 or y < 0 or x + rw > w or y + rh > h or min(rw, rh) < 8:
