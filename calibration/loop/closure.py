@@ -42,8 +42,8 @@ effects of the registry (:mod:`calibration.loop.effects`):
    refreshed every few steps as the fitter's; from a 1,200-edge e1
    capture, 81 parameters, from the nominal lens: 3 iterations to χ² 16.8
    per term in 53 s on two cores, where the serial fit with a full-model
-   Jacobian every step took 641 s for 3, to 16.5; :data:`POOLED_ITER_FACTOR`). Repeat until the SFRA residual is
-   within ``stop_ratio`` of the noise floor or nothing helps. Each effect
+   Jacobian every step took 641 s for 3, to 16.5;
+   :data:`POOLED_ITER_FACTOR`). Repeat until the SFRA residual is within ``stop_ratio`` of the noise floor or nothing helps. Each effect
    tried carries its confidence: ``z``, the fall of the held-out χ² (the
    penalty included) in units of that χ²'s own noise, √(2n) for n held-out
    terms (z ≈ 0 for an effect that is not there, negative where it only
@@ -63,6 +63,7 @@ and χ² per observation.
 from __future__ import annotations
 
 import copy
+import functools
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -241,10 +242,10 @@ def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None,
     many = cheap = None
     if pool is not None:
         def many(qs):
-            return pool.map(_problem_residuals, [full(q) for q in qs])
+            return pool.map(functools.partial(_worker_residuals, "full"), [full(q) for q in qs])
 
         def cheap(qs):
-            return pool.map(_cheap_problem_residuals, [full(q) for q in qs])
+            return pool.map(functools.partial(_worker_residuals, "cheap"), [full(q) for q in qs])
 
     settings = DLSSettings(h=0.5 if h is None else h, max_iter=max_iter, ftol=1e-3, refresh=refresh,
                            trials=1 if pool is None else pool.workers,
@@ -276,13 +277,9 @@ def _problem_pair(payload) -> dict:
     return {"full": prob, "cheap": cheap}
 
 
-def _problem_residuals(p) -> np.ndarray:
-    prob = worker_payload()["full"]
-    return prob.residuals(prob.predict(p))
-
-
-def _cheap_problem_residuals(p) -> np.ndarray:
-    prob = worker_payload()["cheap"]
+def _worker_residuals(which: str, p) -> np.ndarray:
+    """The residuals at ``p`` of the worker's ``which`` problem ("full" or "cheap")."""
+    prob = worker_payload()[which]
     return prob.residuals(prob.predict(p))
 
 
