@@ -273,10 +273,7 @@ class LensBase:
         model of other ``settings`` (e.g. the fitter's cheaper Jacobian
         model, :data:`calibration.fit.forward_model.FAST_JACOBIAN`); the
         measurement bias it holds is kept."""
-        out = LensBase(self.nominal, self.obs, settings=settings, names=self.names)
-        if hasattr(self, "odd_bias"):
-            out.odd_bias = self.odd_bias
-        return out
+        return _rebuilt_lens_base(self.nominal, self.obs, settings, self.names, getattr(self, "odd_bias", None))
 
     def __reduce__(self):
         # rebuilt where unpickled (a worker process): the model's caches are ~180 MB pickled on a
