@@ -239,14 +239,10 @@ def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None,
     def fun(q):
         return prob.residuals(prob.predict(full(q)), mask)
 
-    many = cheap = None
-    if pool is not None:
-        def many(qs):
-            return pool.map(functools.partial(_worker_residuals, "full"), [full(q) for q in qs])
+    def on_pool(which):
+        return lambda qs: pool.map(functools.partial(_worker_residuals, which), [full(q) for q in qs])
 
-        def cheap(qs):
-            return pool.map(functools.partial(_worker_residuals, "cheap"), [full(q) for q in qs])
-
+    many, cheap = (None, None) if pool is None else (on_pool("full"), on_pool("cheap"))
     settings = DLSSettings(h=0.5 if h is None else h, max_iter=max_iter, ftol=1e-3, refresh=refresh,
                            trials=1 if pool is None else pool.workers,
                            jacobian="auto" if pool is None else "forward")

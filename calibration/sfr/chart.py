@@ -370,8 +370,9 @@ def _edge_roi(p, q, g, min_length, min_slant, max_slant, contrast):
     # and shorter ones where edges crowd. The SFR's noise falls as the
     # square root of the rows measured (benchmarks/sfr_chart.py: the middle
     # 60 % of each side gave a median |ΔMTF50| of 0.13 %, the whole side
-    # 0.10 %, on the same chart). So the box narrows (down to ±20 px across) before it shortens:
-    # slanted 19–40°, a whole side's ±28 px box reaches the square's neighbouring sides, and a
+    # 0.10 %, on the same chart). So the box narrows (±20 px; then 0.8 of the side, or ±14 px)
+    # before it falls to half the side: slanted 19–40°, a whole side's ±28 px box reaches the
+    # square's neighbouring sides, and a
     # box of half the side (53–64 of 137 rows) scatters the per-edge MTF50 of the sweep's
     # σ 0.6–2 px charts up to 1.4× more (benchmarks/sfr_chart.py --sweep).
     whole = max(length - 2.0 * (CORNER_MARGIN * length + CORNER_MARGIN_PX), 0.4 * length)
