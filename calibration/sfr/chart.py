@@ -211,33 +211,63 @@ def find_edges(image, *, channel=None, encoding: str = "linear", min_length: flo
     index of the edge piece.
     """
     g = _gray(image, channel, encoding)
+    pieces, spec = _edge_pieces(g, centre=centre, min_length=min_length, min_slant_deg=min_slant_deg,
+                                max_slant_deg=max_slant_deg)
+    return _select_rois([_piece_roi(g, k, p, q, spec) for k, (p, q) in enumerate(pieces)], rejected)
+
+
+@dataclass(frozen=True)
+class _PieceSpec:
+    """What :func:`_piece_roi` needs beside the image and the piece: the
+    search's settings and the chart's levels and geometry."""
+
+    min_length: float
+    min_slant_deg: float
+    max_slant_deg: float
+    contrast: float
+    centre: tuple[float, float]
+    half_diagonal: float
+
+
+def _edge_pieces(g: np.ndarray, *, centre=None, min_length: float = 40.0, min_slant_deg: float = 1.0,
+                 max_slant_deg: float = 44.0) -> tuple[list, _PieceSpec]:
+    """The straight edge pieces of a grey chart (:func:`_line_segments`,
+    joined by :func:`_join_collinear`), longest first, and the settings
+    :func:`_piece_roi` judges each with."""
     if g.dtype.kind == "f" and not np.all(np.isfinite(g)):
         raise SfrError("chart image has NaN or inf pixels")
     h, w = g.shape
     lo, hi = _percentiles(g[::4, ::4], (1, 99))
     if hi - lo <= 1e-9:
         raise SfrError("chart image is uniform: no edges to find")
-    pieces = _join_collinear(_line_segments(g, lo, hi))
-    cx, cy = centre if centre is not None else (w / 2.0, h / 2.0)
-    half_diag = 0.5 * math.hypot(w, h)
-    found: list[EdgeROI] = []
-    refused: list = []
-    for k, (p, q) in enumerate(pieces):
-        roi, why = _edge_roi(p, q, g, min_length, min_slant_deg, max_slant_deg, contrast=0.1 * (hi - lo))
-        if roi is None:
-            continue
-        x, y, rw, rh, slant, direction = roi
-        radius, fang = field_position(x + rw / 2, y + rh / 2, (cx, cy), half_diag)
-        orient = classify_orientation(q[0] - p[0], q[1] - p[1], radius, fang)
-        e = EdgeROI(x, y, rw, rh, slant, direction, radius, fang, orient, k)
-        if why:
-            refused.append((e, why))
-        else:
-            found.append(e)
-    found = _deduplicate(found)
+    spec = _PieceSpec(float(min_length), float(min_slant_deg), float(max_slant_deg), 0.1 * float(hi - lo),
+                      centre if centre is not None else (w / 2.0, h / 2.0), 0.5 * math.hypot(w, h))
+    return _join_collinear(_line_segments(g, lo, hi)), spec
+
+
+def _piece_roi(g: np.ndarray, k: int, p, q, spec: _PieceSpec) -> tuple[EdgeROI | None, str]:
+    """Piece ``k`` (p→q) as an EdgeROI: ``(roi, "")`` where an ROI holds it
+    alone, ``(roi of its middle, reason)`` where it is long enough but
+    unusable, ``(None, "")`` where it is too short or leaves the image
+    (:func:`_edge_roi`)."""
+    roi, why = _edge_roi(p, q, g, spec.min_length, spec.min_slant_deg, spec.max_slant_deg, spec.contrast)
+    if roi is None:
+        return None, ""
+    x, y, rw, rh, slant, direction = roi
+    radius, fang = field_position(x + rw / 2, y + rh / 2, spec.centre, spec.half_diagonal)
+    orient = classify_orientation(q[0] - p[0], q[1] - p[1], radius, fang)
+    return EdgeROI(x, y, rw, rh, slant, direction, radius, fang, orient, k), why
+
+
+def _select_rois(candidates, rejected: list | None = None) -> list[EdgeROI]:
+    """The usable ROIs of :func:`_piece_roi`'s ``(roi, why)`` per piece
+    (longest piece first), an edge found twice kept once
+    (:func:`_deduplicate`), sorted top-to-bottom, left-to-right;
+    ``rejected`` receives the unusable pieces no kept ROI already covers."""
+    found = _deduplicate([roi for roi, why in candidates if roi is not None and not why])
     if rejected is not None:
         placed = _Centres(found)
-        rejected += [(e, why) for e, why in refused if not placed.near(e)]
+        rejected += [(roi, why) for roi, why in candidates if roi is not None and why and not placed.near(roi)]
     return sorted(found, key=lambda e: (round(e.centre[1] / 8), e.centre[0]))
 
 
@@ -535,17 +565,46 @@ def measure_chart(image, *, channel=None, encoding: str = "linear", centre=None,
     but could not use (:func:`find_edges`, ``rejected``), are listed in
     ``skipped`` with the reason, not dropped.
     """
-    a = np.asarray(image)
-    g = _gray(a, channel, encoding)
+    from concurrent.futures import ThreadPoolExecutor
+
+    from isp.runtime.executor import create_executor
+
+    g = _gray(np.asarray(image), channel, encoding)
     h, w = g.shape
-    rejected: list = []
-    rois = find_edges(g, centre=centre, min_length=min_length, rejected=rejected)
-    res = ChartResult(w, h, centre if centre is not None else (w / 2.0, h / 2.0), grid=grid, method=method,
-                      layout=recognise_chart(g))
     settings = dict(edge_fit_order=edge_fit_order, pixel_pitch_um=pixel_pitch_um, method=method)
-    res.edges, res.skipped = measure_rois(rois, _measure_image_box, executor=executor, payload=(g, settings))
+    ex = create_executor("serial") if executor is None else executor
+    # the workers start while the edges are found here; each piece's ROI is then chosen and
+    # measured in one task, on the workers, while the layout is recognised here
+    with ex.bind((g, settings)).start() as bound, ThreadPoolExecutor(1) as side:
+        pieces, spec = _edge_pieces(g, centre=centre, min_length=min_length)
+        layout = side.submit(recognise_chart, g)
+        done = bound.map(_measure_piece, [(spec, k, p, q) for k, (p, q) in enumerate(pieces)], desc="SFR",
+                         unit="piece")
+        layout = layout.result()
+    rejected: list = []
+    rois = _select_rois([(roi, why) for roi, why, _ in done], rejected)
+    res = ChartResult(w, h, spec.centre, grid=grid, method=method, layout=layout)
+    res.edges, res.skipped = _sort_measured(rois, [done[roi.shape][2] for roi in rois])
     res.skipped += rejected
     return res
+
+
+def _measure_piece(task):
+    """A worker's task of :func:`measure_chart`: ``(spec, k, p, q)``, piece
+    ``k``'s ROI and why it is unusable (:func:`_piece_roi`), and for a
+    usable one its measurement as ``(result, None)`` or ``(None, reason)``;
+    the worker's payload is ``(image, settings)``."""
+    from isp.runtime.executor import worker_payload
+
+    g, settings = worker_payload()
+    spec, *piece = task
+    roi, why = _piece_roi(g, *piece, spec)
+    if roi is None or why:
+        return roi, why, None
+    try:
+        return roi, why, (measure_sfr(g, box=(roi.x, roi.y, roi.w, roi.h), **settings), None)
+    except SfrError as e:
+        return roi, why, (None, str(e))
 
 
 def measure_rois(rois, measure, *, executor: Executor | None = None, payload=None) -> tuple[list, list]:
@@ -577,6 +636,13 @@ def measure_rois(rois, measure, *, executor: Executor | None = None, payload=Non
         with ex.bind(payload) as bound:
             results = bound.map(_measure_with_payload, [(measure, b) for b in boxes], desc="SFR", unit="edge")
 
+    return _sort_measured(rois, results)
+
+
+def _sort_measured(rois, results) -> tuple[list, list]:
+    """``(edges, skipped)`` of the ROIs' ``(result, error)``: edges as (roi,
+    result); refused measurements and results that are not a clean edge
+    (:func:`_not_a_clean_edge`) as (roi, reason)."""
     edges, skipped = [], []
     for roi, (r, err) in zip(rois, results):
         if err is not None:
@@ -600,13 +666,6 @@ def _measure_with_payload(task):
         return measure(worker_payload(), box), None
     except SfrError as e:
         return None, str(e)
-
-
-def _measure_image_box(payload, box):
-    """:func:`calibration.sfr.esfr.measure_sfr` of one ROI of a chart image
-    (``payload = (image, settings)``)."""
-    image, settings = payload
-    return measure_sfr(image, box=box, **settings)
 
 
 _RESIDUAL = re.compile(r"edge-fit residual ([0-9.]+) px")

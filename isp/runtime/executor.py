@@ -131,7 +131,9 @@ class Backend(Protocol):
     call of ``map`` or ``as_completed`` may start its workers, ``close``
     stops them. ``map`` yields ``fn(task)`` in task order and raises the
     first error in that order; ``as_completed`` yields ``(index, value,
-    error)`` as tasks finish and never raises a task's error.
+    error)`` as tasks finish and never raises a task's error. A backend
+    may also have ``start()``, which starts its workers without waiting
+    for them (:meth:`Executor.start`).
     """
 
     def map(self, fn: Callable, tasks: list, chunksize: int) -> Iterator: ...
@@ -223,6 +225,11 @@ class _Pool:
 
     def map(self, fn, tasks, chunksize):
         return self.pool().map(fn, tasks, chunksize=chunksize)
+
+    def start(self) -> None:
+        pool = self.pool()
+        for _ in range(getattr(self, "workers", None) or 1):   # a no-op each: the pool starts its workers
+            pool.submit(int)
 
     def as_completed(self, fn, tasks):
         pool = self.pool()
@@ -499,6 +506,21 @@ class Executor:
         finally:
             if bar is not None:
                 bar.close()
+
+    def start(self) -> "Executor":
+        """Start the workers now, without waiting for them, so that they
+        start (fork, import, run the payload's setup) while this process
+        prepares the tasks; returns the executor. Without it they start at
+        the first ``map``.
+
+        >>> with create_executor("threads", workers=2).start() as ex:
+        ...     ex.map(abs, [-1, 2])
+        [1, 2]
+        """
+        start = getattr(self._get_backend(), "start", None)
+        if start is not None:
+            start()
+        return self
 
     def close(self) -> None:
         """Stop the workers (waits for running tasks). The executor starts

@@ -195,3 +195,26 @@ def test_shared_threads_are_one_pool_per_size():
     assert a is shared_threads(2) and a.kind == "threads"
     assert shared_threads(1).kind == "serial"
     assert a.map(_square, range(5)) == [0, 1, 4, 9, 16]
+
+
+def _mark_started(folder):
+    """A setup that leaves a file per worker process that ran it."""
+    (Path(folder) / str(os.getpid())).touch()
+    return folder
+
+
+def test_start_starts_the_workers_before_any_task(tmp_path):
+    """``start()`` forks the workers and runs their setup without a task in
+    sight (a chart's workers start while its edges are found); without it
+    no worker exists until the first map."""
+    import time
+
+    with create_executor("processes", workers=2).bind(str(tmp_path), setup=_mark_started) as idle:
+        time.sleep(0.5)
+        assert list(tmp_path.iterdir()) == []
+        assert idle.start() is idle
+        deadline = time.monotonic() + 30
+        while len(list(tmp_path.iterdir())) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(list(tmp_path.iterdir())) == 2
+        assert idle.map(_square, [3]) == [9]
