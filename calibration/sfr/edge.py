@@ -106,10 +106,23 @@ LSF_WINDOWS = ("full", "adaptive")
 #: sfrmat caps the derivative correction at this factor (and the binning correction here).
 MAX_DERIVATIVE_CORRECTION = 10.0
 
-#: Adaptive LSF window, in units of the ESF's 10–90 % rise distance ``w``: flat
-#: (weight 1) over the LSF's significant structure and at least ``ADAPTIVE_FLAT·w``
-#: either side of the edge, then a raised-cosine taper over a further
-#: ``ADAPTIVE_TAPER·w``; at least ``ADAPTIVE_MIN_PX`` px each.
+#: Adaptive LSF window (:func:`apodize_lsf`), in units of the ESF's 10–90 % rise
+#: distance ``w``: flat (weight 1) over the LSF's significant structure
+#: (:func:`lsf_extent`) and at least ``LSF_FLAT·w`` either side of the edge, then a
+#: raised-cosine taper over a further ``LSF_TAPER·w``; at least ``LSF_MIN_PX`` px
+#: each. On a side where the structure reaches past that least flat top it fades
+#: out below the threshold there (a sharpening halo's tail, a glare halo), and the
+#: taper is the longer ``LSF_TAIL_TAPER·w``, at least ``LSF_TAIL_MIN_PX`` px. So
+#: the window is narrower only where the LSF is compact: against 1.5·w, 1·w and
+#: 2 px throughout, the MTF50 of Gaussian edges (σ 0.6–2 px, 100 rows, SNR 120)
+#: scatters 2–5 % less, for the same error noise-free.
+LSF_FLAT = 1.0
+LSF_TAPER = 0.75
+LSF_MIN_PX = 1.0
+LSF_TAIL_TAPER = 1.0
+LSF_TAIL_MIN_PX = 2.0
+#: :func:`refine_edge`'s centroid window, the same shape: flat ``ADAPTIVE_FLAT·w``,
+#: taper ``ADAPTIVE_TAPER·w``, at least ``ADAPTIVE_MIN_PX`` px each.
 ADAPTIVE_FLAT = 1.5
 ADAPTIVE_TAPER = 1.0
 ADAPTIVE_MIN_PX = 2.0
@@ -767,7 +780,7 @@ def lsf_extent(
     left, right : float
         Distance from ``centre`` to the outermost bin, on each side, where
         the LSF smoothed by a Gaussian of ``max(w/4, ½ px)`` exceeds
-        ``T = max(4·σ_s, 0.01·peak)``, walking outward and stopping at the
+        ``T = max(4·σ_s, EXTENT_FLOOR·peak)``, walking outward and stopping at the
         first gap longer than ``max(2w, 2 px)``.
 
     Notes
@@ -829,9 +842,9 @@ def adaptive_window(
     oversampling: int,
     *,
     extent: tuple[float, float] = (0.0, 0.0),
-    flat: float = ADAPTIVE_FLAT,
-    taper: float = ADAPTIVE_TAPER,
-    min_px: float = ADAPTIVE_MIN_PX,
+    flat: float = LSF_FLAT,
+    taper: float = LSF_TAPER,
+    min_px: float = LSF_MIN_PX,
 ) -> np.ndarray:
     """LSF window that follows the LSF's extent: flat-topped, raised-cosine
     edges, zero beyond.
@@ -861,18 +874,23 @@ def adaptive_window(
         ``1`` for ``−a_l ≤ i − centre ≤ a_r``, ``½(1 + cos(π(d − a)/b))``
         for a distance ``d`` up to ``a + b`` beyond, 0 further out;
         ``a = max(flat·width, min_px·os, extent)`` per side,
-        ``b = max(taper·width, min_px·os)``.
+        ``b = max(taper·width, min_px·os)``, or on a side whose extent
+        passes ``max(flat·width, min_px·os)``
+        ``b = max(LSF_TAIL_TAPER·width, LSF_TAIL_MIN_PX·os)``.
 
     Examples
     --------
-    >>> w = adaptive_window(64, 32.0, 4.0, 4)     # a = b = 8 bins
-    >>> float(w[32]), float(w[40]), float(w[44]), float(w[48]), float(w[60])
+    >>> w = adaptive_window(64, 32.0, 4.0, 4)     # a = b = 4 bins
+    >>> float(w[32]), float(w[36]), float(w[38]), float(w[40]), float(w[60])
     (1.0, 1.0, 0.5, 0.0, 0.0)
     """
     a0 = max(flat * width, min_px * oversampling)
-    b = max(taper * width, min_px * oversampling)
+    b0 = max(taper * width, min_px * oversampling)
+    tail = max(LSF_TAIL_TAPER * width, LSF_TAIL_MIN_PX * oversampling)
     i = np.arange(nn, dtype=np.float64) - centre
+    left, right = (tail if e > a0 else b0 for e in extent)
     a = np.where(i < 0, max(a0, extent[0]), max(a0, extent[1]))
+    b = np.where(i < 0, left, right)
     t = np.abs(i)
     t -= a
     t /= b
@@ -924,7 +942,8 @@ def apodize_lsf(
     (nn,) ndarray
         ``w·LSF + G ⊛ ((1 − w)·W·LSF)``: ``w`` = :func:`adaptive_window`
         (flat over the LSF's significant structure, :func:`lsf_extent`, and
-        at least ``max(1.5·width, 2 px)``; taper ``max(width, 2 px)``), ``W``
+        at least ``max(width, 1 px)``; taper ``max(0.75·width, 1 px)``, or
+        ``max(width, 2 px)`` where the structure reaches past that), ``W``
         the record-length window centred on the edge, ``G`` a normalised
         Gaussian of standard deviation ``max(width, 2 px)``.
 
@@ -948,8 +967,8 @@ def apodize_lsf(
     """
     nn = lsf.size
     ext = lsf_extent(lsf, esf, centre, width, oversampling)
-    b = max(ADAPTIVE_TAPER * width, ADAPTIVE_MIN_PX * oversampling)
-    # the core's taper must end inside the record
+    b = max(LSF_TAIL_TAPER * width, LSF_TAIL_MIN_PX * oversampling)
+    # the core's taper (the longer, a tail's) must end inside the record
     ext = (min(ext[0], centre - b), min(ext[1], nn - 1 - centre - b))
     core = adaptive_window(nn, centre, width, oversampling, extent=ext)
     far = (1.0 - core) * _record_window(window, nn, centre) * lsf

@@ -53,10 +53,12 @@ option                      what it does (equations in :mod:`.sfr_edge`)
                             ``fir2fix`` uses ``2π(k+1)/(nn+4)`` (+0.1 % MTF50)
 ``lsf_window``              ``"adaptive"``: LSF kept as is over its
                             significant structure (above 4× its noise and 1 %
-                            of the peak; at least ±1.5 w, ``w`` the ESF's
-                            10–90 % rise, ≥ 2 px), then a raised-cosine taper
-                            of ``w``; beyond, low-pass filtered (Gaussian
-                            σ = w) under sfrmat's record-length window
+                            of the peak; at least ±w, ``w`` the ESF's 10–90 %
+                            rise, ≥ 1 px), then a raised-cosine taper of
+                            0.75 w (≥ 1 px; w, ≥ 2 px, beyond structure that
+                            reaches past that); beyond, low-pass filtered
+                            (Gaussian σ = w, ≥ 2 px) under sfrmat's
+                            record-length window
 ``refine_edge``             per-row derivative centroids re-taken under that
                             narrow window around the first fit, and refitted
 =========================== ===================================================
@@ -936,9 +938,10 @@ def measure_sfr(
         whole record, centred on the LSF peak); ``"adaptive"`` = the LSF
         kept as it is over its significant structure (above 4× its noise
         and 1 % of its peak, e.g. a sharpening halo) and at least
-        ``max(1.5·w, 2 px)`` from the fitted edge (``w`` the ESF's 10–90 %
+        ``max(w, 1 px)`` from the fitted edge (``w`` the ESF's 10–90 %
         rise distance), a raised-cosine taper over a further
-        ``max(w, 2 px)``, and beyond that smoothed by a Gaussian of
+        ``max(0.75·w, 1 px)`` (``max(w, 2 px)`` beyond structure that
+        reaches past that), and beyond that smoothed by a Gaussian of
         σ = ``max(w, 2 px)`` under ``window`` (keeps the low-frequency
         shelf of flare, drops the noise; see
         :func:`calibration.sfr.edge.apodize_lsf`). Default: from ``method``.
