@@ -31,8 +31,9 @@ SFR of every observation directly from the lens:
    aperture of side ``a``), times any multiplicative transfer the caller
    adds (the loop's effects: crosstalk, sharpening, glare).
 
-Defocus per node (``defocus_mm``: a focus shift, a tilted or curved sensor)
-moves the reference plane of the already traced rays; no retrace. Traced
+Defocus per node (``defocus_mm``: a focus shift, a tilted or curved sensor),
+or per node and colour (longitudinal colour), moves the reference plane of
+the already traced rays; no retrace. Traced
 rays are cached per lens, so effects that only move the plane are cheap.
 
 The measured SFRA is raised by the measurement's own noise (paper eq. 14
@@ -277,8 +278,12 @@ class SfrModel:
 
     def node_psfs(self, lens, defocus_mm=None) -> np.ndarray:
         """(nodes, channels, m, m) PSFs, each node's centred on its chief
-        ray at the primary wavelength; ``defocus_mm`` (scalar or per node)
-        moves the image plane along the axis (+: away from the lens).
+        ray at the primary wavelength; ``defocus_mm`` (scalar, per node
+        (nodes,), or per node and channel (nodes, channels)) moves the
+        image plane along the axis (+: away from the lens); with one plane
+        per channel each wavelength is traced to the planes of the channels
+        it counts in, and each channel's PSFs are centred on the chief ray
+        in its own plane.
 
         The traced rays (and their pupil fit,
         :attr:`calibration.optics.psf.pupil.TracedNodes.jac`) are reused; a new plane
@@ -293,23 +298,29 @@ class SfrModel:
         s = self.settings
         traced = self._trace(pl)
         k = len(self.regions)
-        dz = np.broadcast_to(np.asarray(0.0 if defocus_mm is None else defocus_mm, float), (k,))
+        dz = np.asarray(0.0 if defocus_mm is None else defocus_mm, float)
+        planes = ([np.broadcast_to(dz, (k,))] if dz.ndim < 2 else
+                  [np.broadcast_to(dz, (k, len(self.channels)))[:, c] for c in range(len(self.channels))])
         o = grid_offsets_mm(self.psf_n, self.pitch_um)
         ref = int(np.argmin(np.abs(self.wavelengths - pl.nominal.primary_nm)))
-        z = traced[ref].z_image + dz
-        centre = traced[ref].chief_image_points(z)
         out = np.zeros((k, len(self.channels), self.psf_n, self.psf_n))
         energy = np.zeros((k, len(self.channels)))
-        for j, tn in enumerate(traced):
-            if not np.any(self.wl_weights[:, j]):
-                continue
-            if s.method == "debye":
-                data, e = debye_node_psfs(tn, centre, z, o, o, energy=True)
-            else:
-                pairs = [monochromatic_samples(reference_sphere(tn.node(i, z[i]), centre[i]), s.method, o, o, workers=1) for i in range(k)]
-                data, e = np.stack([p[0] for p in pairs]), np.array([p[1] for p in pairs])
-            out += self.wl_weights[None, :, j, None, None] * data[:, None]
-            energy += self.wl_weights[None, :, j] * e[:, None]
+        for q, d in enumerate(planes):
+            # one plane for every channel, or channel q's own
+            weights = self.wl_weights if len(planes) == 1 else np.eye(len(self.channels))[:, [q]] * self.wl_weights
+            z = traced[ref].z_image + d
+            centre = traced[ref].chief_image_points(z)
+            for j, tn in enumerate(traced):
+                if not np.any(weights[:, j]):
+                    continue
+                if s.method == "debye":
+                    data, e = debye_node_psfs(tn, centre, z, o, o, energy=True)
+                else:
+                    pairs = [monochromatic_samples(reference_sphere(tn.node(i, z[i]), centre[i]), s.method, o, o,
+                                                   workers=1) for i in range(k)]
+                    data, e = np.stack([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+                out += weights[None, :, j, None, None] * data[:, None]
+                energy += weights[None, :, j] * e[:, None]
         return out, energy
 
     # -- prediction ----------------------------------------------------------------------
@@ -371,8 +382,9 @@ class SfrModel:
         Parameters
         ----------
         lens : Lens or PerturbedLens
-        defocus_mm : float or (nodes,) array, optional
-            Image-plane shift per node (see :meth:`node_psfs`).
+        defocus_mm : float, (nodes,) or (nodes, channels) array, optional
+            Image-plane shift per node, or per node and channel
+            (longitudinal colour; see :meth:`node_psfs`).
         transfer : (N, F) array, optional
             Extra multiplicative transfer (sensor MTF, sharpening, glare).
         """

@@ -169,7 +169,10 @@ class ParametricBase:
         sfr = sfr * self._ap
         if defocus_mm is not None:
             d_px = np.abs(np.asarray(defocus_mm, float)) / n / pitch_mm
-            sfr = sfr * disc_mtf(f, d_px[:, None])
+            if d_px.ndim == 1:
+                sfr = sfr * disc_mtf(f, d_px[:, None])
+            else:   # per colour: each observation's colours' blurs, mixed as its edge mixes them
+                sfr = sfr * np.abs(np.einsum("nc,ncf->nf", self._mix, disc_otf(f[None], d_px[:, :, None])))
         if shifts_px is not None:
             sfr = sfr * colour_shift_mtf(self._mix, shifts_px, obs.normal_deg, obs.freq)
         if transfer is not None:

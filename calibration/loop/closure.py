@@ -440,13 +440,17 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
 
 def effect_terms(base, effects) -> tuple:
     """(defocus_mm, shifts_px, transfer) of ``effects`` ((Effect,
-    parameters) pairs): defocus and shifts add, transfer functions
-    multiply; None where no effect has the term."""
+    parameters) pairs): defocus and shifts add (a node's defocus, (K,),
+    to each of its colours' where another effect's is per colour, (K, C)),
+    transfer functions multiply; None where no effect has the term."""
     g = base.geometry
     dz = shifts = transfer = None
     for e, x in effects:
         d = e.defocus_mm(x, g)
         if d is not None:
+            d = np.asarray(d, float)
+            if dz is not None and dz.ndim != d.ndim:
+                dz, d = (dz[:, None], d) if dz.ndim == 1 else (dz, d[:, None])
             dz = d if dz is None else dz + d
         s = e.shifts_px(x, g)
         if s is not None:

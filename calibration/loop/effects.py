@@ -5,8 +5,9 @@ An effect adds a few parameters and changes the predicted SFR in one of
 three ways, each with a physical reason:
 
 * ``defocus_mm(x, geom)`` — moves the image plane at every node (focus
-  shift, a tilted sensor, a curved field): the PSFs are recomputed from the
-  same traced rays;
+  shift, a tilted sensor, a curved field), (K,), or each colour's
+  separately (longitudinal colour), (K, C) in ``geom.channels``' order:
+  the PSFs are recomputed from the same traced rays;
 * ``shifts_px(x, geom)`` — moves each colour's PSF sideways (lateral
   colour): changes what a mixed-colour ("L") edge measures;
 * ``transfer(x, geom)`` — multiplies the SFR by a transfer function of the
@@ -204,6 +205,33 @@ class LateralCA(Effect):
         for c, k in (("R", x[0]), ("B", x[1])):
             if c in geom.channels:
                 out[:, geom.channels.index(c)] = k * radial
+        return out
+
+
+@register_effect
+class LongitudinalCA(Effect):
+    """Longitudinal chromatic aberration: R and B focus Δz from G (a glass
+    or an IR-cut filter off its design), the same at every field position.
+
+    Each colour's PSFs are traced at its own image plane. Separate R, G and
+    B edges see it as one defocus per colour, which no achromatic effect
+    gives; a mixed ("L") edge sees its colours' blurs averaged. G is the
+    reference (a focus shift of all three is ``focus_shift``); without R or
+    B observations it is not seen. The blur of a small Δz is even in Δz, so
+    the fit starts from both signs."""
+
+    name = "longitudinal_ca"
+    names, units = ("red_dz_um", "blue_dz_um"), ("µm", "µm")
+    x0, lower, upper, scale = (0.0, 0.0), (-40.0, -40.0), (40.0, 40.0), (3.0, 3.0)
+    starts = ((6.0, 6.0), (-6.0, -6.0), (6.0, -6.0), (-6.0, 6.0))
+
+    def defocus_mm(self, x, geom):
+        if not {"R", "B"} & set(geom.channels):
+            return None
+        out = np.zeros((len(geom.x_mm), len(geom.channels)))
+        for c, dz in (("R", x[0]), ("B", x[1])):
+            if c in geom.channels:
+                out[:, geom.channels.index(c)] = 1e-3 * dz
         return out
 
 

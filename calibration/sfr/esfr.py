@@ -66,7 +66,7 @@ option                      what it does (equations in :mod:`.sfr_edge`)
 Measured with ``benchmarks/sfr_accuracy.py`` (σ 0.5–2 px, 2–12°, 8/16-bit,
 ROI 128 px across, SNR = step/σ_noise): noise-free, "accurate" is within
 0.03 % of the true MTF50 (16-bit; 8-bit codes add a deterministic ±0.1–0.25 %)
-against 0.75 % for "iso"; at SNR 60 its median/worst |ΔMTF50| are 0.37/1.8 %
+against 0.75 % for "iso"; at SNR 60 its median/worst |ΔMTF50| are 0.38/1.8 %
 on 100 rows and 0.22/1.1 % on 300 rows ("iso": 0.77/4.6 %, 0.45/3.9 %). The
 SFR's own noise, ≈ 2πf·(σ_noise/step)·√(L/2R) for an LSF kept over L px and
 R rows, is what remains: the largest |ΔSFR| up to Nyquist of the sweep at

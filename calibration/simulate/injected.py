@@ -23,7 +23,9 @@ for it. Defocus put in through the optics (the device's
 focus, a tilted or curved image surface in its PSF map) is the faithful
 injection for those three; crosstalk leaks charge
 to the four neighbouring sites whatever their colour; lateral colour
-magnifies the R and B planes about the centre; glare adds a share of each
+magnifies the R and B planes about the centre; longitudinal colour blurs
+the R and B planes by a uniform disc each (a colour focused off the
+sensor, :func:`disc_blur`), G untouched; glare adds a share of each
 plane's light in a wide Gaussian halo; motion blur spreads each plane's
 light along a segment (:func:`motion_blur`); sharpening is an unsharp mask
 of each plane. Lengths on a plane are in plane pixels (two sensor pixels).
@@ -47,7 +49,7 @@ import numpy as np
 from isp.errors import ConfigError
 from isp.frame import CFA
 
-__all__ = ["Injection", "INJECTIONS", "motion_blur", "make_injection"]
+__all__ = ["Injection", "INJECTIONS", "disc_blur", "motion_blur", "make_injection"]
 
 #: σ levels a field-varying blur is interpolated between (per σ_max)
 BLUR_LEVELS = 9
@@ -161,6 +163,36 @@ def _lateral_ca(red_px_at_corner: float, blue_px_at_corner: float):
     return _per_plane(fn)
 
 
+def disc_blur(image: np.ndarray, diameter_px: float) -> np.ndarray:
+    """``image`` blurred by a uniform disc of ``diameter_px`` (the blur
+    circle of light focused off the sensor, geometric optics): its spectrum
+    times 2 J₁(πDf)/(πDf), f the radial frequency, exactly (no kernel
+    sampling adds blur), the image padded by its edge values.
+
+    >>> img = np.zeros((32, 64)); img[:, 32:] = 1.0
+    >>> out = disc_blur(img, 3.0)
+    >>> round(float(out[16].sum()), 6), bool(0.1 < out[16, 31] < 0.5)
+    (32.0, True)
+    """
+    from calibration.loop.base import disc_otf
+
+    img = np.asarray(image, dtype=np.float64)
+    if diameter_px <= 0:
+        return img.copy()
+    m = int(np.ceil(diameter_px)) + 8
+    pad = np.pad(img, m, mode="edge")
+    fy = np.fft.fftfreq(pad.shape[0])[:, None]
+    fx = np.fft.rfftfreq(pad.shape[1])[None, :]
+    out = np.fft.irfft2(np.fft.rfft2(pad) * disc_otf(np.hypot(fx, fy), diameter_px), s=pad.shape)
+    return out[m:-m, m:-m]
+
+
+def _longitudinal_ca(red_disc_px: float, blue_disc_px: float):
+    def fn(p, ys, xs, c):
+        return disc_blur(p, {"R": red_disc_px, "B": blue_disc_px}.get(c, 0.0))
+    return _per_plane(fn)
+
+
 def motion_blur(image: np.ndarray, length_px: float, angle_deg: float) -> np.ndarray:
     """``image`` moved uniformly along a segment of ``length_px`` at
     ``angle_deg`` from the x axis (y down) during the exposure: its spectrum
@@ -215,6 +247,7 @@ INJECTIONS = {
     "sensor_tilt": (_tilt, "light", {"sigma_left_px": "plane px", "sigma_right_px": "plane px"}),
     "field_curvature": (_curvature, "light", {"sigma_corner_px": "plane px"}),
     "lateral_ca": (_lateral_ca, "light", {"red_px_at_corner": "sensor px", "blue_px_at_corner": "sensor px"}),
+    "longitudinal_ca": (_longitudinal_ca, "light", {"red_disc_px": "plane px", "blue_disc_px": "plane px"}),
     "pixel_crosstalk": (_crosstalk, "light", {"leak": "fraction to each neighbour"}),
     "veiling_glare": (_glare, "light", {"share": "fraction", "halo_sigma_px": "plane px"}),
     "sharpening": (_sharpening, "chain", {"gain": "-", "sigma_px": "plane px"}),

@@ -294,3 +294,26 @@ def test_antithetic_spread_is_the_spread_of_one_noisy_measurement():
     assert antithetic_spread(pairs) == pytest.approx(reference, rel=0.25)      # measured 0.93–1.16
     half_only = float(np.sqrt(np.mean((0.5 * (pairs[0::2] - pairs[1::2])) ** 2)))
     assert half_only < 0.85 * float(antithetic_spread(pairs))                 # measured 0.63–0.69
+
+
+def test_node_psfs_with_a_plane_per_colour_are_each_colour_in_its_own_plane(device):
+    """property: a defocus per node and colour (longitudinal colour) gives
+    each colour the PSFs the whole model has with that colour's plane for
+    every node (each wavelength traced to the planes of the colours it
+    counts in); one plane for all colours is the per-node defocus."""
+    import dataclasses
+
+    lens, pl, obs = device
+    rgb = dataclasses.replace(obs, channel=np.full(len(obs), "L"))
+    m = SfrModel(lens, rgb, ModelSettings(pupil_samples=32, psf_n=32))
+    assert m.channels == ("R", "G", "B")
+    k = len(m.regions)
+    dz = np.stack([np.full(k, 4e-3), np.zeros(k), np.linspace(-6e-3, 6e-3, k)], axis=1)
+    per_colour = m.node_psfs(pl, dz)
+    for c in range(3):
+        alone = m.node_psfs(pl, dz[:, c])
+        np.testing.assert_allclose(per_colour[:, c], alone[:, c], rtol=0, atol=1e-9 * alone.max())
+    same = np.linspace(-2e-3, 2e-3, k)
+    np.testing.assert_allclose(m.node_psfs(pl, np.repeat(same[:, None], 3, 1)), m.node_psfs(pl, same),
+                               rtol=0, atol=1e-9 * per_colour.max())
+    assert np.abs(per_colour[:, 0] - m.node_psfs(pl)[:, 0]).max() > 0.01 * per_colour.max()

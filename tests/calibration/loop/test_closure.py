@@ -57,12 +57,13 @@ LUMA = dict(zip("RGB", LUMINANCE_WEIGHTS))
 class _Device:
     """A PSF-map stand-in: the device's PSF at each region centre.
     ``ca``: lateral colour (red, blue px at the corner, radial, ∝ field
-    height) on the mixed ("L") edges."""
+    height) on the mixed ("L") edges; ``loca``: longitudinal colour, each
+    colour plane's own focus offset, mm (R, G or B edges)."""
 
-    def __init__(self, dz=lambda x, y: 0.0, sigma=lambda x, y: 0.6, grid=(5, 7), ca=(0.0, 0.0)):
+    def __init__(self, dz=lambda x, y: 0.0, sigma=lambda x, y: 0.6, grid=(5, 7), ca=(0.0, 0.0), loca=None):
         self.sensor, self.grid, self.pitch_um = SENSOR, grid, 0.5
         self.sites = {(r, k): (x - CX, y - CY) for r, k, x, y in edge_sites(SENSOR, grid)}
-        self.dz, self.sigma, self.ca = dz, sigma, ca
+        self.dz, self.sigma, self.ca, self.loca = dz, sigma, ca, loca or {}
 
     def psf(self, r, k, ch):
         x, y = self.sites[(r, k)]
@@ -71,7 +72,7 @@ class _Device:
             kr, kb = self.ca
             shifts = tuple((LUMA[c], kc * x / HALF_DIAG, kc * y / HALF_DIAG)
                            for c, kc in (("R", kr), ("G", 0.0), ("B", kb)))
-        return SimpleNamespace(data=_psf(self.dz(x, y), sigma=self.sigma(x, y), shifts=shifts))
+        return SimpleNamespace(data=_psf(self.dz(x, y) + self.loca.get(ch, 0.0), sigma=self.sigma(x, y), shifts=shifts))
 
 
 def _loop(device, ops=(), noise=0.003, effects=None, channels=("G",)):
@@ -150,6 +151,9 @@ ALONE = {
                    [("colour spread at the corner, px", lambda v: _colour_spread(v["red_px_at_corner"],
                                                                                   v["blue_px_at_corner"]),
                      _colour_spread(1.2, -0.8), 0.1)]),
+    "longitudinal_ca": ({"loca": {"R": 0.006, "B": -0.008}}, (), ("R", "G", "B"),
+                        [("|red dz| µm (the disc blur has no sign)", lambda v: abs(v["red_dz_um"]), 6.0, 1.0),
+                         ("|blue dz| µm", lambda v: abs(v["blue_dz_um"]), 8.0, 1.0)]),
     "pixel_crosstalk": ({}, (_crosstalk(0.08),), ("G",), [("leak", lambda v: v["leak"], 0.08, 0.02)]),
     "sharpening": ({}, (_sharpen(0.8, 1.2),), ("G",),
                    [("gain", lambda v: v["gain"], 0.8, 0.2), ("sigma px", lambda v: v["sigma_px"], 1.2, 0.3)]),

@@ -178,3 +178,18 @@ def test_motion_blur_is_the_box_along_its_direction(angle):
 
     want = sigma / w * (g((x + w / 2) / sigma) - g((x - w / 2) / sigma))
     assert np.abs(out - want)[8:-8].max() < 2e-4
+
+
+@pytest.mark.parametrize("f", [0.05, 0.125, 0.2])
+def test_longitudinal_colour_blurs_red_by_its_disc_and_leaves_green(f):
+    """A colour focused off the sensor: the R plane's sinusoid falls by the
+    disc's OTF 2 J₁(πDf)/(πDf) (scipy's Bessel J₁ as the oracle), the G
+    planes keep theirs."""
+    from scipy.special import j1
+
+    m = plane_sinusoid((240, 400), f)
+    d = 3.0
+    out = make_injection("longitudinal_ca", red_disc_px=d, blue_disc_px=0.0).apply(m, CFA.RGGB)
+    x = math.pi * d * f
+    assert amplitude(out, f) / amplitude(m, f) == pytest.approx(2 * j1(x) / x, abs=2e-3)
+    assert np.allclose(out[0::2, 1::2], m[0::2, 1::2]) and np.allclose(out[1::2, 1::2], m[1::2, 1::2])
