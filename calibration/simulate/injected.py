@@ -176,14 +176,21 @@ def disc_blur(image: np.ndarray, diameter_px: float) -> np.ndarray:
     """
     from calibration.loop.base import disc_otf
 
+    return _filtered(image, diameter_px, lambda fx, fy: disc_otf(np.hypot(fx, fy), diameter_px))
+
+
+def _filtered(image: np.ndarray, reach_px: float, transfer) -> np.ndarray:
+    """``image`` times ``transfer(fx, fy)`` (cycles/px) in its spectrum,
+    padded by its edge values beyond ``reach_px`` so that its borders do
+    not wrap; a copy where ``reach_px`` ≤ 0 (no blur)."""
     img = np.asarray(image, dtype=np.float64)
-    if diameter_px <= 0:
+    if reach_px <= 0:
         return img.copy()
-    m = int(np.ceil(diameter_px)) + 8
+    m = int(np.ceil(reach_px)) + 8
     pad = np.pad(img, m, mode="edge")
     fy = np.fft.fftfreq(pad.shape[0])[:, None]
     fx = np.fft.rfftfreq(pad.shape[1])[None, :]
-    out = np.fft.irfft2(np.fft.rfft2(pad) * disc_otf(np.hypot(fx, fy), diameter_px), s=pad.shape)
+    out = np.fft.irfft2(np.fft.rfft2(pad) * transfer(fx, fy), s=pad.shape)
     return out[m:-m, m:-m]
 
 
@@ -207,17 +214,8 @@ def motion_blur(image: np.ndarray, length_px: float, angle_deg: float) -> np.nda
     >>> round(float(out[16].sum()), 6), bool(out[16, 30] > 0.01)
     (32.0, True)
     """
-    img = np.asarray(image, dtype=np.float64)
-    if length_px <= 0:
-        return img.copy()
-    m = int(np.ceil(length_px)) + 8
-    pad = np.pad(img, m, mode="edge")
-    fy = np.fft.fftfreq(pad.shape[0])[:, None]
-    fx = np.fft.rfftfreq(pad.shape[1])[None, :]
     a = np.radians(angle_deg)
-    h = np.sinc(length_px * (fx * np.cos(a) + fy * np.sin(a)))
-    out = np.fft.irfft2(np.fft.rfft2(pad) * h, s=pad.shape)
-    return out[m:-m, m:-m]
+    return _filtered(image, length_px, lambda fx, fy: np.sinc(length_px * (fx * np.cos(a) + fy * np.sin(a))))
 
 
 def _motion(length_px: float, angle_deg: float):

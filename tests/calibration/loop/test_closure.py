@@ -18,61 +18,20 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from scipy.ndimage import convolve, gaussian_filter
 
 from isp.runtime.executor import pool_executor
 
 from calibration.loop.effects import list_effects
-from calibration.optics.lens import Sensor
 from calibration.loop.closure import close_loop, write_report
-from calibration.loop.base import ParametricBase, diffraction_mtf, disc_otf
-from calibration.fit.synthetic_devices import edge_sites, synthetic_observations
+from calibration.loop.base import ParametricBase
+from calibration.loop.stand_ins import (HALF_DIAG, SENSOR, StandInDevice, crosstalk, curvature, glare, motion, sharpen,
+                                        tilt_about_y)
+from calibration.fit.synthetic_devices import synthetic_observations
 from calibration.sfr.esfr import LUMINANCE_WEIGHTS
 
 pytestmark = pytest.mark.property
 
-SENSOR = Sensor(pixel_pitch_um=1.0, width_px=4000, height_px=3000)
-CX, CY = 1999.5, 1499.5
-
-
-def _psf(dz_mm, sigma=0.6, n_f=2.0, n=256, q=0.5, extra=1.0, shifts=((1.0, 0.0, 0.0),)):
-    """PSF masses (n, n) at q µm (= px/4): diffraction × Gaussian × defocus
-    disc; ``shifts``: (weight, dx, dy px) of colour channels that share the
-    PSF but lie apart (lateral colour), mixed into one (an "L" edge)."""
-    f = np.fft.fftfreq(n, d=q)
-    fx, fy = np.meshgrid(f, f)
-    fr = np.hypot(fx, fy)
-    otf = diffraction_mtf(fr / 1e-3, 550.0, n_f) * np.exp(-2 * np.pi ** 2 * sigma ** 2 * fr ** 2) * extra
-    if dz_mm:
-        otf = otf * disc_otf(fr, abs(dz_mm) / n_f / 1e-3)   # signed: a real, non-negative disc PSF
-    otf = otf * sum(w * np.exp(-2j * np.pi * (fx * dx + fy * dy)) for w, dx, dy in shifts)
-    p = np.maximum(np.fft.fftshift(np.real(np.fft.ifft2(otf))), 0)
-    return p / p.sum()
-
-
-HALF_DIAG = 2500.0
 LUMA = dict(zip("RGB", LUMINANCE_WEIGHTS))
-
-
-class _Device:
-    """A PSF-map stand-in: the device's PSF at each region centre.
-    ``ca``: lateral colour (red, blue px at the corner, radial, ∝ field
-    height) on the mixed ("L") edges; ``loca``: longitudinal colour, each
-    colour plane's own focus offset, mm (R, G or B edges)."""
-
-    def __init__(self, dz=lambda x, y: 0.0, sigma=lambda x, y: 0.6, grid=(5, 7), ca=(0.0, 0.0), loca=None):
-        self.sensor, self.grid, self.pitch_um = SENSOR, grid, 0.5
-        self.sites = {(r, k): (x - CX, y - CY) for r, k, x, y in edge_sites(SENSOR, grid)}
-        self.dz, self.sigma, self.ca, self.loca = dz, sigma, ca, loca or {}
-
-    def psf(self, r, k, ch):
-        x, y = self.sites[(r, k)]
-        shifts = ((1.0, 0.0, 0.0),)
-        if ch == "L":
-            kr, kb = self.ca
-            shifts = tuple((LUMA[c], kc * x / HALF_DIAG, kc * y / HALF_DIAG)
-                           for c, kc in (("R", kr), ("G", 0.0), ("B", kb)))
-        return SimpleNamespace(data=_psf(self.dz(x, y) + self.loca.get(ch, 0.0), sigma=self.sigma(x, y), shifts=shifts))
 
 
 def _loop(device, ops=(), noise=0.003, effects=None, channels=("G",)):
@@ -86,35 +45,6 @@ def _within_floor(rep, ratio=1.5):
 
 
 # -- what is injected -------------------------------------------------------------------------
-
-def _curvature(dz_corner_mm):
-    return lambda x, y: dz_corner_mm * (np.hypot(x, y) / HALF_DIAG) ** 2
-
-
-def _tilt_about_y(deg):
-    # the plane tilted about the y axis: defocus grows along x (SensorTilt's tilt_y_deg)
-    return lambda x, y: x * 1e-3 * np.tan(np.radians(deg))
-
-
-def _sharpen(gain, sigma_px):
-    return lambda img, x, y: img + gain * (img - gaussian_filter(img, sigma_px, mode="nearest"))
-
-
-def _crosstalk(c):
-    k = np.array([[0.0, c, 0.0], [c, 1.0 - 4.0 * c, c], [0.0, c, 0.0]])
-    return lambda img, x, y: convolve(img, k, mode="nearest")
-
-
-def _motion(length_px, angle_deg):
-    from calibration.simulate.injected import motion_blur
-
-    return lambda img, x, y: motion_blur(img, length_px, angle_deg)
-
-
-def _glare(share, sigma_px):
-    # a halo of `share` of the light; mode="nearest" continues the edge's plateaus beyond the ROI
-    return lambda img, x, y: (1.0 - share) * img + share * gaussian_filter(img, sigma_px, mode="nearest", truncate=6.0)
-
 
 def _colour_spread(red, blue):
     """Luminance-weighted RMS spread of the R, G, B planes (G at 0), px:
@@ -142,10 +72,10 @@ def _glare_shelf(share, sigma_px):
 ALONE = {
     "focus_shift": ({"dz": lambda x, y: 0.005}, (), ("G",),
                     [("|dz| µm (the disc blur has no sign)", lambda v: abs(v["dz_um"]), 5.0, 1.0)]),
-    "sensor_tilt": ({"dz": _tilt_about_y(0.4)}, (), ("G",),
+    "sensor_tilt": ({"dz": tilt_about_y(0.4)}, (), ("G",),
                     [("tilt about y, degree", lambda v: v["tilt_y_deg"], 0.4, 0.05),
                      ("tilt about x, degree", lambda v: v["tilt_x_deg"], 0.0, 0.05)]),
-    "field_curvature": ({"dz": _curvature(0.012)}, (), ("G",),
+    "field_curvature": ({"dz": curvature(0.012)}, (), ("G",),
                         [("dz at the corner, µm", lambda v: v["dz_corner_um"], 12.0, 1.5)]),
     "lateral_ca": ({"ca": (1.2, -0.8)}, (), ("L",),
                    [("colour spread at the corner, px", lambda v: _colour_spread(v["red_px_at_corner"],
@@ -154,15 +84,15 @@ ALONE = {
     "longitudinal_ca": ({"loca": {"R": 0.006, "B": -0.008}}, (), ("R", "G", "B"),
                         [("|red dz| µm (the disc blur has no sign)", lambda v: abs(v["red_dz_um"]), 6.0, 1.0),
                          ("|blue dz| µm", lambda v: abs(v["blue_dz_um"]), 8.0, 1.0)]),
-    "pixel_crosstalk": ({}, (_crosstalk(0.08),), ("G",), [("leak", lambda v: v["leak"], 0.08, 0.02)]),
-    "sharpening": ({}, (_sharpen(0.8, 1.2),), ("G",),
+    "pixel_crosstalk": ({}, (crosstalk(0.08),), ("G",), [("leak", lambda v: v["leak"], 0.08, 0.02)]),
+    "sharpening": ({}, (sharpen(0.8, 1.2),), ("G",),
                    [("gain", lambda v: v["gain"], 0.8, 0.2), ("sigma px", lambda v: v["sigma_px"], 1.2, 0.3)]),
     # horizontal motion: vertical edges blurred, horizontal ones not; θ and θ + 180° are one blur
-    "motion_blur": ({}, (_motion(2.5, 0.0),), ("G",),
+    "motion_blur": ({}, (motion(2.5, 0.0),), ("G",),
                     [("length px", lambda v: v["length_px"], 2.5, 0.3),
                      ("|angle| from the x axis, degree", lambda v: min(abs(v["angle_deg"]), 180 - abs(v["angle_deg"])),
                       0.0, 8.0)]),
-    "veiling_glare": ({}, (_glare(0.04, 12.0),), ("G",),
+    "veiling_glare": ({}, (glare(0.04, 12.0),), ("G",),
                       [("share", lambda v: v["share"], 0.04, 0.008),
                        ("shelf depth", lambda v: _glare_shelf(v["share"], v["halo_sigma_px"]),
                         _glare_shelf(0.04, 12.0), 0.004)]),
@@ -173,12 +103,12 @@ ALONE = {
 def _alone(name):
     """The loop on the device with effect ``name`` alone (one run per name and session)."""
     dev, ops, channels, _ = ALONE[name]
-    return _loop(_Device(**dev), ops=ops, channels=channels)
+    return _loop(StandInDevice(**dev), ops=ops, channels=channels)
 
 
 @functools.cache
 def _clean():
-    return _loop(_Device())
+    return _loop(StandInDevice())
 
 
 def test_clean_device_gets_no_spurious_effect():
@@ -196,7 +126,7 @@ def test_noise_floor_is_the_spread_between_two_captures():
     from calibration.loop.closure import MODEL_FLOOR
 
     rep, first = _clean()
-    second = synthetic_observations(_Device(), noise=0.003, rng=2, channels=("G",))
+    second = synthetic_observations(StandInDevice(), noise=0.003, rng=2, channels=("G",))
     repeat = float(np.sqrt(np.mean(((first.sfra - second.sfra) / np.sqrt(2)) ** 2)))
     assert np.sqrt(rep.noise_floor ** 2 - MODEL_FLOOR ** 2) == pytest.approx(repeat, rel=0.2)
 
@@ -224,7 +154,7 @@ def test_each_effect_alone_is_named_measured_and_explained(name):
 
 
 def test_sharpening_and_field_curvature_together():
-    rep, _ = _loop(_Device(dz=_curvature(0.012)), ops=[_sharpen(0.8, 1.2)])
+    rep, _ = _loop(StandInDevice(dz=curvature(0.012)), ops=[sharpen(0.8, 1.2)])
     assert sorted(rep.effects_added) == ["field_curvature", "sharpening"]
     v = rep.effect_values
     assert v["field_curvature"]["dz_corner_um"] == pytest.approx(12.0, abs=1.5)
@@ -234,7 +164,7 @@ def test_sharpening_and_field_curvature_together():
 
 
 def test_lateral_colour_and_sharpening_together():
-    rep, _ = _loop(_Device(ca=(1.2, -0.8)), ops=[_sharpen(0.8, 1.2)], channels=("L",))
+    rep, _ = _loop(StandInDevice(ca=(1.2, -0.8)), ops=[sharpen(0.8, 1.2)], channels=("L",))
     assert sorted(rep.effects_added) == ["lateral_ca", "sharpening"]
     v = rep.effect_values
     spread = _colour_spread(v["lateral_ca"]["red_px_at_corner"], v["lateral_ca"]["blue_px_at_corner"])
@@ -250,13 +180,13 @@ def test_effect_outside_the_registry_is_reported_unexplained():
     def sigma(x, y):
         return 1.6 if (x > 1000 and y < -700) else 0.6
 
-    rep, _ = _loop(_Device(sigma=sigma))
+    rep, _ = _loop(StandInDevice(sigma=sigma))
     assert rep.effects_added == []
     assert rep.unexplained and "unexplained residual" in rep.unexplained[0]
     assert rep.error_after["sfra_rms"] > 1.5 * rep.noise_floor
 
 
-class _ComaDevice(_Device):
+class _ComaDevice(StandInDevice):
     """A device whose PSF has a one-sided tail pointing away from the
     centre (0.3 of the light, 2 px × field height further out): coma, which
     the SFR cannot see but the LSF's asymmetry can."""
@@ -278,7 +208,7 @@ def test_symmetric_device_leaves_no_asymmetry():
     """Every synthetic device here has a symmetric LSF: the final model
     (the parametric base and any kept effect) explains the measured
     asymmetry within the noise."""
-    for device, ops in ((_Device(), ()), (_Device(dz=_curvature(0.012)), [_sharpen(0.8, 1.2)])):
+    for device, ops in ((StandInDevice(), ()), (StandInDevice(dz=curvature(0.012)), [sharpen(0.8, 1.2)])):
         rep, _ = _loop(device, ops=ops)
         assert rep.asymmetry is not None and rep.asymmetry["explained"], rep.asymmetry
         assert not any("asymmetry" in u for u in rep.unexplained)
