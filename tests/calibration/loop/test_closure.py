@@ -131,6 +131,20 @@ def test_noise_floor_is_the_spread_between_two_captures():
     assert np.sqrt(rep.noise_floor ** 2 - MODEL_FLOOR ** 2) == pytest.approx(repeat, rel=0.2)
 
 
+def test_a_small_lateral_colour_is_named_and_not_taken_for_field_curvature():
+    """Lateral colour of 0.6 px at the corner (half the test device's), on
+    "L" edges: its SFR loss grows with the square of the spread, flat where
+    the fit starts, and from there alone the loop had named field curvature
+    for it (a blur growing towards the corners too)."""
+    for seed in (1, 2):
+        obs = synthetic_observations(StandInDevice(ca=(0.6, -0.4)), noise=0.003, rng=seed, channels=("L",))
+        rep = close_loop(ParametricBase(obs, f_number=2.0), obs, executor=pool_executor(None))
+        assert rep.effects_added == ["lateral_ca"], (seed, rep.effects_added)
+        v = rep.effect_values["lateral_ca"]
+        assert _colour_spread(v["red_px_at_corner"], v["blue_px_at_corner"]) == pytest.approx(
+            _colour_spread(0.6, -0.4), abs=0.1)
+
+
 @pytest.mark.parametrize("name", sorted(list_effects()))
 def test_each_effect_alone_is_named_measured_and_explained(name):
     """Each registry effect injected alone: the loop names it (and nothing
