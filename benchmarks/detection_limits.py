@@ -11,8 +11,9 @@ in alone at magnitudes up a ladder (its own units; the defocus effects in
 the device's optics, the chain's in the ROIs' pixels, as the loop's tests
 do), each magnitude with two noise draws. A magnitude is *detected* where
 both draws end with that effect alone added; the limit is the smallest
-magnitude from which every larger one on the ladder is detected. What the
-loop named instead below the limit is kept.
+magnitude of the unbroken run of detections down from the highest one (a
+larger magnitude missed above it is noted: taken for another effect). What
+the loop named when it missed is kept.
 
 Three settings: noise σ 0.3 % of the range (SNR 200) on the 5 × 7 grid (70
 edges; 210 on R, G and B planes for longitudinal colour), the same at
@@ -81,9 +82,11 @@ def run_one(effect: str, m: float, noise: float, grid, seed: int, executor) -> d
 
 
 def ladder(effect: str, noise: float, grid, executor, log) -> dict:
-    """Every rung of ``effect``'s ladder, from the top down, stopping below
-    the first rung not detected once two in a row are not (the limit is
-    above them)."""
+    """Every rung of ``effect``'s ladder, from the top down, until two in a
+    row below the highest detection are missed (the limit is above them).
+    The limit is the lowest rung of the unbroken run of detections down
+    from the highest detected one; rungs above it that were missed are
+    listed (``missed_above``: a larger effect taken for another)."""
     unit, rungs, _ = LADDERS[effect]
     rows, misses = [], 0
     for m in sorted(rungs, reverse=True):
@@ -92,26 +95,32 @@ def ladder(effect: str, noise: float, grid, executor, log) -> dict:
         rows.append({"magnitude": m, "detected": ok, "named": [r["added"] for r in runs],
                      "after_over_floor": [r["after_over_floor"] for r in runs], "edges": runs[0]["edges"]})
         log(f"  {effect} {m:g}: {'detected' if ok else 'not'} ({'; '.join(', '.join(r['added']) or '-' for r in runs)})")
-        misses = 0 if ok else misses + 1
+        misses = 0 if ok else misses + (1 if any(r["detected"] for r in rows) else 0)
         if misses == 2:
             break
     rows.reverse()
-    limit = None
-    for r in reversed(rows):          # from the top: the last rung of the unbroken run of detections
-        if not r["detected"]:
+    limit, top = None, None
+    for r in reversed(rows):          # from the top: the run of detections below the highest one
+        if r["detected"]:
+            limit = r["magnitude"]
+            top = limit if top is None else top
+        elif top is not None:
             break
-        limit = r["magnitude"]
-    below = sorted({n for r in rows if not r["detected"] for named in r["named"] for n in named if n != effect})
-    return {"unit": unit, "limit": limit, "rungs": rows, "named_instead": below}
+    missed_above = [r["magnitude"] for r in rows if top is not None and r["magnitude"] > top]
+    named = sorted({n for r in rows if not r["detected"] for named in r["named"] for n in named if n != effect})
+    return {"unit": unit, "limit": limit, "missed_above": missed_above, "rungs": rows, "named_instead": named}
 
 
 def limit_text(res: dict) -> str:
     """A ladder's limit as the table gives it: the magnitude, "≤ m" where
-    the lowest rung tried was detected, "> m" where the top one was not."""
+    the lowest rung tried was detected, "> m" where none was, and the rungs
+    above it that were missed in brackets."""
     rungs = res["rungs"]
     if res["limit"] is None:
         return f"> {rungs[-1]['magnitude']:g}"
-    return f"{'≤ ' if rungs[0]['detected'] else ''}{res['limit']:g}"
+    text = f"{'≤ ' if rungs[0]['detected'] else ''}{res['limit']:g}"
+    missed = res.get("missed_above") or []
+    return text + (f" (missed at {', '.join(f'{m:g}' for m in missed)})" if missed else "")
 
 
 def main(argv=None) -> dict:
@@ -132,7 +141,7 @@ def main(argv=None) -> dict:
         log(f"{name}: noise {noise:g}, grid {grid}")
         out[name] = {e: ladder(e, noise, grid, ex, log) for e in args.effects}
     table = {e: {"unit": LADDERS[e][0], **{SETTING_TITLES[s]: limit_text(out[s][e]) for s in out},
-                 "named below the limit": ", ".join(sorted({n for s in out for n in out[s][e]["named_instead"]}))
+                 "named when missed": ", ".join(sorted({n for s in out for n in out[s][e]["named_instead"]}))
                  or "nothing"}
              for e in args.effects}
     for e, row in table.items():

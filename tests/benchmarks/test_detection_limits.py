@@ -19,12 +19,14 @@ def test_every_built_in_effect_has_an_ascending_ladder():
         assert set(channels) <= {"R", "G", "B", "L"}
 
 
-@pytest.mark.parametrize("detected, limit, tried", [
-    ({8.0, 6.0, 5.0, 4.0}, 4.0, [8.0, 6.0, 5.0, 4.0, 3.0, 2.0]),      # two misses below the limit: stop
-    ({8.0, 6.0, 4.0}, 6.0, [8.0, 6.0, 5.0, 4.0, 3.0, 2.0]),           # a miss breaks the run
-    (set(), None, [8.0, 6.0]),                                         # nothing: above the ladder
+@pytest.mark.parametrize("detected, limit, tried, above", [
+    ({8.0, 6.0, 5.0, 4.0}, 4.0, [8.0, 6.0, 5.0, 4.0, 3.0, 2.0], []),      # two misses below the limit: stop
+    ({8.0, 6.0, 4.0}, 6.0, [8.0, 6.0, 5.0, 4.0, 3.0, 2.0], []),           # a miss breaks the run
+    ({6.0}, 6.0, [8.0, 6.0, 5.0, 4.0], [8.0]),                             # the top missed, the next found
+    (set(), None, [8.0, 6.0, 5.0, 4.0, 3.0, 2.0, 1.0], []),               # nothing: every rung, above the ladder
 ])
-def test_the_limit_is_the_bottom_of_the_unbroken_run_from_the_top(monkeypatch, detected, limit, tried):
+def test_the_limit_is_the_bottom_of_the_run_down_from_the_highest_detection(monkeypatch, detected, limit, tried,
+                                                                            above):
     seen = []
 
     def fake(effect, m, noise, grid, seed, executor):
@@ -33,7 +35,7 @@ def test_the_limit_is_the_bottom_of_the_unbroken_run_from_the_top(monkeypatch, d
 
     monkeypatch.setattr(D, "run_one", fake)
     out = D.ladder("focus_shift", 0.003, (5, 7), None, lambda msg: None)
-    assert out["limit"] == limit
+    assert out["limit"] == limit and out["missed_above"] == above
     assert sorted(set(seen), reverse=True) == tried
     assert out["named_instead"] == ["sharpening"]
 
@@ -43,3 +45,5 @@ def test_a_limit_at_either_end_of_the_ladder_says_so():
     assert D.limit_text({"limit": 2.0, "rungs": [rung(1.0, False), rung(2.0, True), rung(3.0, True)]}) == "2"
     assert D.limit_text({"limit": 1.0, "rungs": [rung(1.0, True), rung(2.0, True)]}) == "≤ 1"
     assert D.limit_text({"limit": None, "rungs": [rung(2.0, False), rung(3.0, False)]}) == "> 3"
+    assert D.limit_text({"limit": 2.0, "missed_above": [3.0],
+                         "rungs": [rung(1.0, False), rung(2.0, True), rung(3.0, False)]}) == "2 (missed at 3)"
