@@ -196,8 +196,9 @@ class LateralCA(Effect):
     names, units = ("red_px_at_corner", "blue_px_at_corner"), ("px", "px")
     x0, lower, upper, scale = (0.0, 0.0), (-5.0, -5.0), (5.0, 5.0), (0.3, 0.3)
     # the SFR falls with the square of the spread: flat at x0, so the fit also starts from a
-    # spread (one sign each way; the overall sign is not seen). From x0 alone, a spread of
-    # 0.6–0.8 px at the corner was named field curvature (benchmarks/detection_limits.py)
+    # spread (one sign each way; the overall sign is not seen). From x0 alone the fit stays at
+    # zero, and a spread of 0.6–0.8 px at the corner is named field curvature instead
+    # (benchmarks/detection_limits.py)
     starts = ((0.5, 0.5), (0.5, -0.5))
 
     def shifts_px(self, x, geom):

@@ -134,8 +134,8 @@ def test_noise_floor_is_the_spread_between_two_captures():
 def test_a_small_lateral_colour_is_named_and_not_taken_for_field_curvature():
     """Lateral colour of 0.6 px at the corner (half the test device's), on
     "L" edges: its SFR loss grows with the square of the spread, flat where
-    the fit starts, and from there alone the loop had named field curvature
-    for it (a blur growing towards the corners too)."""
+    the fit starts, and from there alone the loop names field curvature for
+    it (a blur growing towards the corners too)."""
     for seed in (1, 2):
         obs = synthetic_observations(StandInDevice(ca=(0.6, -0.4)), noise=0.003, rng=seed, channels=("L",))
         rep = close_loop(ParametricBase(obs, f_number=2.0), obs, executor=pool_executor(None))
