@@ -125,7 +125,11 @@ def run_case(case: dict, log) -> dict:
             "error_after": rep.error_after["sfra_rms"], "noise_floor": rep.noise_floor,
             "after_over_floor": rep.error_after["sfra_rms"] / rep.noise_floor,
             "chi2_after": rep.error_after["chi2_per_obs"], "unexplained": rep.unexplained,
-            "wall_s": round(wall, 1), "seconds_by_step": {k: round(v, 1) for k, v in rep.steps_s.items()}}
+            "wall_s": round(wall, 1), "seconds_by_step": {k: round(v, 1) for k, v in rep.steps_s.items()},
+            # every candidate tried in every round, so that a missed effect's fit can be read
+            "trials": [{"effect": t["effect"], "round": t["round"], "gain": round(float(t["gain"]), 4),
+                        "values": {k: round(float(v), 4) for k, v in t["values"].items()},
+                        "consistent": bool(t["consistent"])} for t in rep.tried]}
 
 
 def summarise(cases: list[dict]) -> dict:
