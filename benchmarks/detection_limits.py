@@ -107,8 +107,8 @@ def ladder(effect: str, noise: float, grid, executor, log) -> dict:
         elif top is not None:
             break
     missed_above = [r["magnitude"] for r in rows if top is not None and r["magnitude"] > top]
-    named = sorted({n for r in rows if not r["detected"] for named in r["named"] for n in named if n != effect})
-    return {"unit": unit, "limit": limit, "missed_above": missed_above, "rungs": rows, "named_instead": named}
+    instead = sorted({n for r in rows if not r["detected"] for draw in r["named"] for n in draw if n != effect})
+    return {"unit": unit, "limit": limit, "missed_above": missed_above, "rungs": rows, "named_instead": instead}
 
 
 def limit_text(res: dict) -> str:

@@ -42,9 +42,10 @@ effects of the registry (:mod:`calibration.loop.effects`):
    refreshed every few steps as the fitter's; from a 1,200-edge e1
    capture, 81 parameters, from the nominal lens: 3 iterations to χ² 16.8
    per term in 53 s on two cores, where the serial fit with a full-model
-   Jacobian every step took 641 s for 3, to 16.5;
-   :data:`POOLED_ITER_FACTOR`). Repeat until the SFRA residual is within ``stop_ratio`` of the noise floor or nothing helps. Each effect
-   tried carries its confidence: ``z``, the fall of the held-out χ² (the
+   Jacobian every step took 641 s for 3, to 16.5; the iterations:
+   :data:`POOLED_ITER_FACTOR`). Repeat until the SFRA residual is within
+   ``stop_ratio`` of the noise floor or nothing helps. Each effect tried
+   carries its confidence: ``z``, the fall of the held-out χ² (the
    penalty included) in units of that χ²'s own noise, √(2n) for n held-out
    terms (z ≈ 0 for an effect that is not there, negative where it only
    costs its penalty), and how many folds it improved.

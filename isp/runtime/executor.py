@@ -228,7 +228,7 @@ class _Pool:
 
     def start(self) -> None:
         pool = self.pool()
-        for _ in range(getattr(self, "workers", None) or 1):   # a no-op each: the pool starts its workers
+        for _ in range(self.workers):   # a no-op each: the pool starts its workers
             pool.submit(int)
 
     def as_completed(self, fn, tasks):
