@@ -371,7 +371,8 @@ def command(name: str, argv: list[str]) -> str:
     return " ".join(["python", "-m", f"benchmarks.{name}", *map(shlex.quote, _argv_without_results(list(argv)))])
 
 
-def publish(name: str, results: dict | list, args=None, argv: list[str] | None = None) -> dict | list:
+def publish(name: str, results: dict | list, args=None, argv: list[str] | None = None,
+            script: str | None = None) -> dict | list:
     """Write the run's record to ``DIR/NAME.json`` atomically and print it as
     the last line of standard output.
 
@@ -387,6 +388,9 @@ def publish(name: str, results: dict | list, args=None, argv: list[str] | None =
     argv : list of str, optional
         The options as given (default ``sys.argv[1:]``), kept so that the
         page that shows the figures can say how to regenerate them.
+    script : str, optional
+        The script's module name where the record is named otherwise (a
+        labelled run of it: ``device_eval`` writing ``device_eval_packaged``).
 
     Returns
     -------
@@ -396,7 +400,8 @@ def publish(name: str, results: dict | list, args=None, argv: list[str] | None =
     from isp.io.files import write_bytes_atomic
 
     argv = _argv_without_results(list(sys.argv[1:] if argv is None else argv))
-    record = {"name": name, "argv": argv, "command": command(name, argv), "env": environment(), "results": results}
+    record = {"name": name, "argv": argv, "command": command(script or name, argv), "env": environment(),
+              "results": results}
     text = json.dumps(record, default=_jsonable)
     out = results_dir(args) / f"{name}.json"
     write_bytes_atomic(out, (json.dumps(record, indent=1, default=_jsonable) + "\n").encode())

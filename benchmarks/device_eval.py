@@ -326,6 +326,8 @@ def main(argv=None) -> dict:
                     help="also score blind, fitted and true on scikit-image's photographs (default light)")
     ap.add_argument("--fit-only", action="store_true", help="simulate and fit the modules, score nothing")
     ap.add_argument("--parts", default=str(PARTS), help=f"per-module records (default {PARTS.relative_to(_harness.ROOT)})")
+    ap.add_argument("--label", help="publish as device_eval_LABEL.json (another model's run beside the recorded one; "
+                                    "give it its own --parts)")
     args = ap.parse_args(argv)
 
     from restoration.evaluate.rings import eval_lenses
@@ -387,7 +389,8 @@ def main(argv=None) -> dict:
     if args.fit_only:
         return {}
     summary = summarise(records)
-    figure = Path(args.figure or _harness.ROOT / "docs" / "results" / f"device_eval_{args.lens}.png")
+    figure = Path(args.figure or _harness.ROOT / "docs" / "results"
+                  / f"device_eval_{args.lens}{'_' + args.label if args.label else ''}.png")
     if not args.no_plot:
         print(f"wrote {plot(records, figure, LENSES[args.lens])}")
     for light in LIGHTS:
@@ -395,9 +398,10 @@ def main(argv=None) -> dict:
             print(f"{light:>7} {arm:>10}: " + ", ".join(f"{r} {v['mean_gain_db'][r]:+.2f}" for r in RINGS)
                   + f" dB (min {v['min_gain_db']['0.9']:+.2f} at 0.9; {v['devices']} modules)")
     print("targets: " + ", ".join(f"{k} {'met' if v else 'NOT met'}" for k, v in summary["targets"].items()))
-    return _harness.publish("device_eval", {"lens": LENSES[args.lens], "modules": len(records), "summary": summary,
-                                            "per_module_0.9": {light: per_module(records, light) for light in LIGHTS},
-                                            "records": records}, args, argv)
+    return _harness.publish("device_eval" + (f"_{args.label}" if args.label else ""),
+                            {"lens": LENSES[args.lens], "modules": len(records), "summary": summary,
+                             "per_module_0.9": {light: per_module(records, light) for light in LIGHTS},
+                             "records": records}, args, argv, script="device_eval")
 
 
 if __name__ == "__main__":

@@ -310,16 +310,20 @@ def _loop(nominal, obs, fit, s: FleetSettings):
 def run_fleet(captures_dir, lens_file, basis_file, devices_dir, settings: FleetSettings | None = None, *,
               executor=None, log=print) -> dict:
     """Calibrate every capture of ``captures_dir`` into ``devices_dir``
-    (module docstring) and write the fleet's report. Returns the report
+    (module docstring) and write the fleet's report. ``basis_file``: the
+    design's basis, or ``"auto"`` for the one a lens profile ships for it
+    (:func:`calibration.fit.device.resolve_basis`). Returns the report
     (``fleet.json``'s content)."""
     from isp.runtime.executor import pool_executor
 
-    from calibration.fit.device import load_basis
+    from calibration.fit.device import resolve_basis
     from calibration.optics.io import read_lens
 
     s = settings or FleetSettings()
     nominal = read_lens(lens_file)
-    basis = load_basis(basis_file, nominal)
+    basis = resolve_basis(basis_file, nominal)
+    if basis is None:
+        raise InputError(lens_file, "no descriptor basis for this design: give --basis BASIS.npz (isp calib basis)")
     captures, not_taken = find_captures(captures_dir)
     if not captures:
         raise InputError(captures_dir, f"no chart captures ({', '.join(sorted(CAPTURE_SUFFIXES))})")

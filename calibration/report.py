@@ -63,13 +63,13 @@ def write_json(path, doc, *, indent: int = 2) -> Path:
     return write_bytes_atomic(Path(path), json.dumps(doc, indent=indent).encode())
 
 
-def write_npz(path, arrays: dict) -> Path:
-    """Write ``arrays`` (name → array) as an uncompressed ``.npz``,
-    atomically; returns the path."""
+def write_npz(path, arrays: dict, compressed: bool = False) -> Path:
+    """Write ``arrays`` (name → array) as an ``.npz`` (deflated with
+    ``compressed``), atomically; returns the path."""
     import numpy as np
 
     buf = io.BytesIO()
-    np.savez(buf, **arrays)
+    (np.savez_compressed if compressed else np.savez)(buf, **arrays)
     return write_bytes_atomic(Path(path), buf.getvalue())
 
 

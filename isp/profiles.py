@@ -34,10 +34,18 @@ A profile is a small TOML file (schema ``profile/v1``)::
     name = "e9"                       # default: the file's stem
     description = "the default phone lens, US-12210142-B2 embodiment 9"
     model = "e9_default.int8.onnx"    # the ONNX correction model, relative to this file
+    device_model = "e9_device.int8.onnx"  # optional: a model conditioned on a module's calibration
+    basis = "e9_basis.npz"            # optional: the descriptor basis its calibrations are written on
     # device = "module_0042.json"     # optional: one calibrated module's device/v1 file
 
     [match]
     LensModel = ["US-12210142-B2-e9", "US-12210142-B2-e9 (*)"]
+
+A profile with a ``device_model`` corrects a module whose calibration is
+known (``--device FILE``, the capture's own, or the profile's ``device``)
+with that model, and every other capture of the lens with ``model``, the
+blind one. Its ``basis`` is what ``isp calib fit`` and ``isp calib loop``
+write a module's ``device.json`` on (:func:`calibration.fit.device.find_basis`).
 
 ``[match]`` holds one or more identity keys. A key's value is a pattern or
 a list of patterns, any of which may match; every key given must match. A
@@ -87,7 +95,7 @@ from __future__ import annotations
 import fnmatch
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -111,7 +119,7 @@ ORIGINS = ("packaged", "plug-in", "code", "user")
 #: profiles a no-match reason lists by name and identity
 LISTED = 5
 _GLOB = set("*?[")
-_FILE_KEYS = {"schema", "name", "description", "model", "match", "demosaic", "device"}
+_FILE_KEYS = {"schema", "name", "description", "model", "match", "demosaic", "device", "device_model", "basis"}
 
 
 @dataclass(frozen=True)
@@ -141,6 +149,12 @@ class Profile:
         a model conditioned on the device: a profile that matches one module
         (its UniqueCameraModel or serial-bearing Model) carries its
         calibration; a capture's own (DNGPrivateData) and ``--device`` win.
+    device_model : path, optional
+        A model conditioned on a module's calibration, for the same lens:
+        the stage runs it instead of ``model`` where a calibration is known.
+    basis : path, optional
+        The descriptor basis (``isp calib basis``) the conditioned model's
+        calibrations are written on.
 
     Examples
     --------
@@ -160,6 +174,8 @@ class Profile:
     source: str = ""
     demosaic: str | None = None
     device: Path | None = None
+    device_model: Path | None = None
+    basis: Path | None = None
 
     def __post_init__(self):
         if not self.name or not isinstance(self.name, str):
@@ -182,8 +198,9 @@ class Profile:
         if not isinstance(self.model, (str, os.PathLike)) or not str(self.model):
             raise ConfigError(f"profile {self.name!r}: 'model' must be a path, got {self.model!r}")
         object.__setattr__(self, "model", Path(self.model))
-        if self.device is not None:
-            object.__setattr__(self, "device", Path(self.device))
+        for key in ("device", "device_model", "basis"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, Path(getattr(self, key)))
 
     def specificity(self, identity: Mapping[str, str]) -> tuple[int, int, int] | None:
         """How specifically the profile matches ``identity`` (key → value):
@@ -208,7 +225,8 @@ class Profile:
         """A JSON-ready dictionary (``isp profiles --json``)."""
         return {"name": self.name, "match": {k: list(v) for k, v in self.match.items()},
                 "model": str(self.model), "description": self.description, "source": self.source,
-                **({"device": str(self.device)} if self.device is not None else {})}
+                **{k: str(getattr(self, k)) for k in ("device", "device_model", "basis")
+                   if getattr(self, k) is not None}}
 
 
 def _is_glob(pattern: str) -> bool:
@@ -274,23 +292,32 @@ def read_profile(path: str | os.PathLike) -> Profile:
         model_path = path.parent / model_path
     if not model_path.is_file():
         raise InputError(path, f"model file {str(model_path)!r} not found")
-    device = doc.get("device")
-    if device is not None:
-        if not isinstance(device, str) or not device:
-            raise InputError(path, f"'device' must be a file name, got {device!r}")
-        device = Path(device).expanduser()
-        device = device if device.is_absolute() else path.parent / device
-        if not device.is_file():
-            raise InputError(path, f"device calibration file {str(device)!r} not found")
+    files = {key: _profile_file(path, doc, key, what) for key, what in (
+        ("device", "device calibration file"), ("device_model", "device model file"), ("basis", "basis file"))}
     try:
         demosaic = doc.get("demosaic")
         if demosaic is not None and (not isinstance(demosaic, str) or not demosaic):
             raise InputError(path, f"'demosaic' must be a method name, got {demosaic!r}")
         return Profile(name=str(doc.get("name") or path.stem), match=doc["match"], model=model_path,
                        description=str(doc.get("description", "")), source=str(path), demosaic=demosaic,
-                       device=device)
+                       **files)
     except ConfigError as e:
         raise InputError(path, str(e)) from None
+
+
+def _profile_file(path: Path, doc: dict, key: str, what: str) -> Path | None:
+    """The profile's optional file ``key``, relative to the profile; one
+    line naming the profile where it is not a name or not there."""
+    name = doc.get(key)
+    if name is None:
+        return None
+    if not isinstance(name, str) or not name:
+        raise InputError(path, f"'{key}' must be a file name, got {name!r}")
+    found = Path(name).expanduser()
+    found = found if found.is_absolute() else path.parent / found
+    if not found.is_file():
+        raise InputError(path, f"{what} {str(found)!r} not found")
+    return found
 
 
 def _check_entry(name: str, obj: Any) -> Profile:
@@ -303,8 +330,7 @@ def _check_entry(name: str, obj: Any) -> Profile:
         obj = read_profile(obj)
     if not isinstance(obj, Profile):
         raise TypeError(f"{type(obj).__name__}, not an isp.profiles.Profile or a profile file")
-    return obj if obj.name == name else Profile(name, obj.match, obj.model, obj.description, obj.source,
-                                                obj.demosaic, obj.device)
+    return obj if obj.name == name else replace(obj, name=name)
 
 
 #: every profile by name (packaged and plug-ins through entry points; user and code ones added)

@@ -45,7 +45,11 @@ each pixel (or block centre) of the full frame, fills the K channels after
 the field position. The file must be of the model's lens design and
 descriptor basis (one line naming both otherwise). Without one the
 descriptor is zero, the mean device of the design, and the stage's note
-says so; a blind model ignores a device file, and says that too.
+says so; a blind model ignores a device file, and says that too. With the
+model chosen by the capture's lens profile (``"auto"``), a profile that
+has a ``device_model`` runs it where the module's calibration is known
+(``--device``, the capture's own, the profile's) and its blind ``model``
+everywhere else (:mod:`isp.profiles`).
 
 Field-of-view encoding ``"xy"`` appends two channels holding each pixel's
 normalised position on the *full* active area, in [-1, 1] (x right, y
@@ -594,7 +598,8 @@ class Correction(StageBase):
         -------
         stage : Correction
             This stage with a fixed model: the matching profile's model
-            (``"auto"``; the identity where none matches), else itself.
+            (``"auto"``; its ``device_model`` where the module's calibration
+            is known; the identity where none matches), else itself.
         reason : str
             One line: the profile and what it matched on, or why no profile
             matched ("" for a forced model or none).
@@ -604,17 +609,19 @@ class Correction(StageBase):
         from isp.profiles import match_profile
 
         found = match_profile(meta)
-        path = found.profile.model if found.profile is not None else None
+        prof = found.profile
         # the stage's own device (--device), then the capture's own (DNGPrivateData), then the profile's
         carried = bool(getattr(meta, "device_calibration", ""))
-        device = self.device if self.device is not None or found.profile is None or carried \
-            else found.profile.device
+        device = self.device if self.device is not None or prof is None or carried else prof.device
+        known = carried or device is not None
+        # a module whose calibration is known gets the profile's conditioned model, where it has one
+        path = None if prof is None else prof.device_model if known and prof.device_model else prof.model
         stage = self._by_model.get((path, device))
         if stage is None:
             try:
                 stage = dataclasses.replace(self, model=path or "none", device=device)
             except (ValueError, IspError) as e:   # the profile's files went away after it was read
-                raise ConfigError(f"lens profile {found.profile.name!r}: {e}") from None
+                raise ConfigError(f"lens profile {prof.name!r}: {e}") from None
             self._by_model[(path, device)] = stage
         return stage, found.reason()
 

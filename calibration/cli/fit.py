@@ -13,10 +13,12 @@ temporary folder and renamed, so a failed fit leaves nothing):
 * ``fit.json``: parameters with 1σ uncertainty, errors before/after, merit
   per iteration, lens evaluations, time, restarts, the coarse stage;
 * ``merit.png``, ``sfra_maps.png``, ``parameters.png``;
-* with ``--basis``: ``device.json``, the device's calibration (``device/v1``,
+* ``device.json``, the device's calibration (``device/v1``,
   :mod:`calibration.fit.device`): the proxy's descriptor on the design's
   basis, the fit's errors and the measurement's SHA-256, what one shared
-  correction model reads.
+  correction model reads; on ``--basis FILE``, else on the basis a lens
+  profile ships for the design (the packaged e9's); none for a design
+  without one, or with ``--basis none``.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ EPILOG = """examples:
 
 def run(args: argparse.Namespace) -> int:
     """Fit the proxy camera and write its folder (built aside and renamed into place)."""
-    from calibration.fit.device import load_basis
+    from calibration.fit.device import resolve_basis
     from calibration.fit.measurements import load_measured, match_sensor
     from calibration.optics.io import read_lens
     from calibration.report import check_output_folder, staged_folder
@@ -77,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     check_output_folder(out)
     nominal = read_lens(args.lens)              # a bad lens file fails before any measurement
-    basis = load_basis(args.basis, nominal) if args.basis else None
+    basis = resolve_basis(args.basis, nominal)
     obs, notes = load_measured(args.measured, channel=args.channel, encoding=args.encoding,
                                pixel_um=args.pixel_um, bootstrap=args.bootstrap,
                                executor=create_executor("serial", progress=True))
@@ -179,9 +181,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "e9 module, 2 cores; benchmarks/device_workflow.py)")
     p.add_argument("--workers", type=int, default=None, help="processes for the Jacobian (default 2)")
     add_executor_argument(p)
-    p.add_argument("--basis", metavar="BASIS.npz",
-                   help="the design's descriptor basis (`isp calib basis`): also write device.json, the "
-                        "device's calibration for the shared correction model")
+    p.add_argument("--basis", metavar="BASIS.npz", default="auto",
+                   help="the design's descriptor basis (`isp calib basis`) to write device.json on, the device's "
+                        "calibration for the shared correction model; 'auto' (default): the basis a lens profile "
+                        "ships for this design (the packaged e9's), none for other designs; 'none': no device.json")
     p.add_argument("--components", type=int, default=DEFAULT_COMPONENTS,
                    help=f"descriptor components in device.json (default {DEFAULT_COMPONENTS}, at most the basis's)")
     p.add_argument("--fast-jacobian", action=argparse.BooleanOptionalAction, default=True,

@@ -41,8 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("captures", metavar="CAPTURES_DIR", help="folder of chart captures (DNG, TIFF, PNG, SFR JSON)")
     p.add_argument("--lens", required=True, help="the design's lens file (lens/v1 .json, Zemax .zmx, ...)")
-    p.add_argument("--basis", required=True, metavar="BASIS.npz",
-                   help="the design's descriptor basis (isp calib basis)")
+    p.add_argument("--basis", default="auto", metavar="BASIS.npz",
+                   help="the design's descriptor basis (isp calib basis); 'auto' (default): the one a lens profile "
+                        "ships for this design (the packaged e9's)")
     p.add_argument("-o", "--output", required=True, metavar="DEVICES_DIR", help="folder of device files and the report")
     p.add_argument("--n-params", type=int, default=N_PARAMS, help=f"perturbations fitted (default {N_PARAMS})")
     p.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"fit iterations at most (default {MAX_ITER})")

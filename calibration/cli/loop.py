@@ -128,13 +128,14 @@ def run(args: argparse.Namespace) -> int:
     if args.lens != "parametric":
         print("loop: tracing the lens and screening its perturbations (a few minutes on 2 cores)", flush=True)
     basis = None
-    if args.basis:
-        if args.lens == "parametric":
+    if args.lens == "parametric":
+        if args.basis.lower() not in ("auto", "none"):
             raise ConfigError("--basis: a device calibration needs a lens file, not --lens parametric")
-        from calibration.fit.device import load_basis
+    else:
+        from calibration.fit.device import resolve_basis
         from calibration.optics.io import read_lens
 
-        basis = load_basis(args.basis, read_lens(args.lens))
+        basis = resolve_basis(args.basis, read_lens(args.lens))
     base = make_base(args.lens, obs, f_number=args.f_number, n_params=args.n_params, pixel_um=args.pixel_um)
     obs = base.obs
     folds = max(2, min(args.folds, regions))
@@ -220,8 +221,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "toleranced kind and focus, which a device with every tolerance drawn needs to reach the "
                         "noise floor: docs/results/loop.md)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fold split and noise renders")
-    p.add_argument("--basis", metavar="BASIS.npz",
-                   help="the design's descriptor basis (`isp calib basis`): also write device.json, the "
-                        "device's calibration (the final lens's descriptor and the kept effects)")
+    p.add_argument("--basis", metavar="BASIS.npz", default="auto",
+                   help="the design's descriptor basis (`isp calib basis`) to write device.json on, the device's "
+                        "calibration (the final lens's descriptor and the kept effects); 'auto' (default): the "
+                        "basis a lens profile ships for this design (the packaged e9's), none for other designs; "
+                        "'none': no device.json")
     p.add_argument("--components", type=int, default=DEFAULT_COMPONENTS,
                    help=f"descriptor components in device.json (default {DEFAULT_COMPONENTS}, at most the basis's)")

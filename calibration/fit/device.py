@@ -69,10 +69,17 @@ from isp.io.device import FORMAT, MAX_BYTES, DeviceCalibration
 
 __all__ = ["BASIS_FORMAT", "DEFAULT_COMPONENTS", "DEFAULT_GRID", "DescriptorBasis", "DeviceCalibration",
            "FORMAT", "MAX_BYTES", "basis_from_psfs", "check_calibration", "describe", "descriptor_map_settings", "design_key",
-           "device_calibration", "learn_basis", "load_basis", "measurement_source", "pixel_psfs", "psf_stack"]
+           "device_calibration", "find_basis", "learn_basis", "load_basis", "measurement_source", "pixel_psfs",
+           "psf_stack", "resolve_basis"]
 
 #: schema of the basis file (numpy ``.npz``)
 BASIS_FORMAT = "device-basis/v1"
+#: how a basis file stores its components and mean PSFs (compressed): half precision keeps a
+#: component's unit-norm entries (about 0.02 each) to 1e-3 of themselves, and the e9 basis the
+#: packaged conditioned model reads (5 × 7 regions, 16 components, 3 × 32² px PSFs) to 3.7 MB
+#: where single precision took 7.7 MB; a descriptor moves by at most 1e-3 of a spread (RMS 2e-4)
+COMPONENT_DTYPE = np.float16
+MEAN_DTYPE = np.float32
 #: field regions of the descriptor (rows, cols): the fit's chart grid on a 4:3 sensor
 DEFAULT_GRID = (5, 7)
 #: components kept in a device file
@@ -157,7 +164,8 @@ class DescriptorBasis:
     mean : (rows, cols, channels, m, m) float64
         Each region's mean pixel PSF over the draws.
     components : (rows, cols, K, channels·m·m) float64
-        Each region's directions, orthonormal (stored as float32).
+        Each region's directions, orthonormal (stored in half precision,
+        :data:`COMPONENT_DTYPE`; the mean in single).
     scales : (rows, cols, K) float64
         Spread (standard deviation) of each coefficient over the draws.
     explained : (K,) float64
@@ -237,9 +245,10 @@ class DescriptorBasis:
         meta = {"format": BASIS_FORMAT, "lens": self.lens, "design": self.design, "grid": list(self.grid),
                 "channels": list(self.channels), "draws": self.draws, "sensor": self._sensor_dict(),
                 "meta": self.meta}
-        return write_npz(path, {"mean": self.mean, "components": self.components.astype(np.float32),
-                                          "scales": self.scales, "explained": self.explained,
-                                          "info": np.array(json.dumps(meta))})
+        return write_npz(path, {"mean": self.mean.astype(MEAN_DTYPE),
+                                "components": self.components.astype(COMPONENT_DTYPE),
+                                "scales": self.scales, "explained": self.explained,
+                                "info": np.array(json.dumps(meta))}, compressed=True)
 
     @classmethod
     def load(cls, path) -> DescriptorBasis:
@@ -254,7 +263,8 @@ class DescriptorBasis:
                     raise InputError(p, f"not a {BASIS_FORMAT} file (format {info.get('format')!r})")
                 sensor = Sensor(**info["sensor"]) if info.get("sensor") else None
                 return cls(info["lens"], info["design"], tuple(info["grid"]), tuple(info["channels"]),
-                           z["mean"], z["components"].astype(np.float64), z["scales"], z["explained"],
+                           z["mean"].astype(np.float64), z["components"].astype(np.float64), z["scales"],
+                           z["explained"],
                            int(info["draws"]), sensor, info.get("meta", {}))
         except FileNotFoundError:
             raise InputError(p, "no such basis file") from None
@@ -272,6 +282,45 @@ def load_basis(path, lens=None) -> DescriptorBasis:
         name = nominal(lens).nominal.name or "this lens"
         raise InputError(path, f"a basis of lens {basis.lens!r}, not of {name!r} (another design)")
     return basis
+
+
+def resolve_basis(value, lens) -> DescriptorBasis | None:
+    """The basis a fit of ``lens`` writes its ``device.json`` on: ``value``
+    a basis file (checked to be of the lens's design, :func:`load_basis`),
+    ``"none"`` for none, or ``"auto"`` (or None) for the basis a registered
+    lens profile ships for the lens's design (:func:`find_basis`), none
+    where no profile does."""
+    key = "auto" if value is None else str(value)
+    if key.lower() == "none":
+        return None
+    if key.lower() == "auto":
+        found = find_basis(lens)
+        return None if found is None else load_basis(found, lens)
+    return load_basis(value, lens)
+
+
+def find_basis(lens) -> Path | None:
+    """The basis file of ``lens``'s design that a registered lens profile
+    names (:mod:`isp.profiles`, a profile's ``basis``), or None: the packaged
+    e9 profile ships the basis its conditioned model was trained on, so a
+    fit of an e9 module writes the calibration that model reads."""
+    from isp.profiles import list_profiles
+
+    want = design_key(lens)
+    for prof in list_profiles().values():
+        if prof.basis is not None and _basis_design(prof.basis) == want:
+            return prof.basis
+    return None
+
+
+def _basis_design(path) -> str | None:
+    """The design key a basis file names, read from its header alone; None
+    for a file that is not a basis."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return json.loads(str(z["info"])).get("design")
+    except (OSError, ValueError, KeyError):
+        return None
 
 
 def learn_basis(lens, draws: int = 150, *, seed: int = 0, grid: tuple[int, int] = DEFAULT_GRID,
@@ -344,7 +393,8 @@ def basis_from_psfs(stack: np.ndarray, *, lens: str, design: str, grid, channels
             # orthogonal Procrustes: the rotation of the region's span closest to the pooled directions
             u, _, wt = np.linalg.svd(pooled @ v.T)
             comps[r, c] = (u @ wt) @ v
-    comps = comps.astype(np.float32).astype(np.float64)     # as the file stores them: the same basis, the same key
+    comps = comps.astype(COMPONENT_DTYPE).astype(np.float64)     # as the file stores them: the same basis, the same key
+    mean = mean.astype(MEAN_DTYPE).astype(np.float64)
     coef = np.einsum("nrcd,rckd->nrck", dev, comps)
     var = coef.var(axis=0)                                         # (rows, cols, k)
     total = dev.var(axis=0).sum()

@@ -52,6 +52,10 @@ def run(args: argparse.Namespace) -> int:
     for name, p in profiles.items():
         print(f"{name:<15s} {profile_origin(name):<9s} {p.describe_match()}")
         print(f"{'':<15s} model {p.model}")
+        for what, path in (("with a module's calibration", p.device_model), ("descriptor basis", p.basis),
+                           ("module calibration", p.device)):
+            if path is not None:
+                print(f"{'':<15s} {what} {path}")
         if p.description:
             print(f"{'':<15s} {p.description}")
     if not profiles:

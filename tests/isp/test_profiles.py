@@ -157,6 +157,9 @@ def test_user_profile_is_read_relative_to_its_file_and_listed(user_folder):
     ('model = "m.onnx"\n', "a profile needs match"),
     ('model = "absent.onnx"\n[match]\nMake = "x"\n', "absent.onnx' not found"),
     ('model = "m.onnx"\n[match]\nLens = "x"\n', "unknown identity key 'Lens'"),
+    ('model = "m.onnx"\ndevice_model = "absent.onnx"\n[match]\nMake = "x"\n', "device model file"),
+    ('model = "m.onnx"\nbasis = "absent.npz"\n[match]\nMake = "x"\n', "basis file"),
+    ('model = "m.onnx"\nbasis = 3\n[match]\nMake = "x"\n', "'basis' must be a file name"),
 ])
 def test_a_broken_user_profile_is_reported_in_one_line_and_the_others_stay(user_folder, text, reason):
     (user_folder / "m.onnx").write_bytes(b"x")

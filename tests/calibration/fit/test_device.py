@@ -78,11 +78,12 @@ def test_the_basis_finds_the_span_and_its_spreads(known_stack):
     stack, directions, spread = known_stack
     b = basis_from_psfs(stack, lens="x", design="d", grid=(2, 3), channels=("R", "G", "B"), components=5)
     # three directions hold all the variance; in every region the first three components span them
-    assert b.explained[2] == pytest.approx(1.0, abs=1e-9)
+    # (to the half precision the file stores components in)
+    assert b.explained[2] == pytest.approx(1.0, abs=1e-4)
     for r in range(2):
         for c in range(3):
             proj = b.components[r, c, :3] @ directions.T
-            assert np.allclose(np.linalg.svd(proj, compute_uv=False), 1.0, atol=1e-9)
+            assert np.allclose(np.linalg.svd(proj, compute_uv=False), 1.0, atol=1e-3)
     # aligned: a component is the same direction, with the same sign, in every region (what makes
     # interpolating the descriptor between regions meaningful); a region's own PCA fixes no sign
     first = b.components[0, 0, :3]
@@ -94,8 +95,8 @@ def test_the_basis_finds_the_span_and_its_spreads(known_stack):
                                                                            rel=0.12)
     d = np.stack([b.project(s, 3) for s in stack])
     assert d.std(axis=0) == pytest.approx(1.0, rel=1e-9)
-    # in the span, reconstruction is exact
-    assert np.allclose(b.reconstruct(b.project(stack[7], 3)), stack[7], atol=1e-9)
+    # in the span, reconstruction is exact to the components' half precision
+    assert np.abs(b.reconstruct(b.project(stack[7], 3)) - stack[7]).max() < 2e-3 * np.abs(stack[7] - b.mean).max()
 
 
 def test_basis_and_device_files_round_trip(tmp_path, known_stack):

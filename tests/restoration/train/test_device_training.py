@@ -285,6 +285,48 @@ def test_a_profile_carries_a_modules_calibration(device_model, tmp_path):
         reload_profiles()
 
 
+def test_a_profile_runs_its_conditioned_model_where_a_calibration_is_known(device_model, exported_blind,
+                                                                         tmp_path):
+    """A profile with a blind ``model`` and a ``device_model``: a matching
+    capture without a calibration gets the blind model; one with
+    ``--device`` or its own calibration gets the conditioned model, which
+    reads it."""
+    import os
+
+    from isp import Domain
+    from isp.profiles import ENV_VAR, reload_profiles
+    from modules.correction import Correction
+
+    tmp, _ = device_model
+    folder = tmp_path / "profiles"
+    folder.mkdir()
+    (folder / "lens.toml").write_text(f'schema = "profile/v1"\nmodel = "{exported_blind}"\n'
+                                      f'device_model = "{tmp / "device.onnx"}"\n[match]\nLensModel = "test-lens"\n')
+    old = os.environ.get(ENV_VAR)
+    os.environ[ENV_VAR] = str(folder)
+    reload_profiles()
+    try:
+        rgb = np.random.default_rng(9).random((64, 96, 3))
+        blind = Correction(tile_size=0).process(make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
+        assert "b.onnx" in blind.history[-1].note and "device" not in blind.history[-1].note
+        cal = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1])
+        given = Correction(tile_size=0, device=cal.save(tmp_path / "dev.json")).process(
+            make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
+        assert "device.onnx" in given.history[-1].note and "device dev.json" in given.history[-1].note
+        direct = Correction(model=tmp / "device.onnx", device=tmp_path / "dev.json", tile_size=0).process(
+            make_frame(rgb, Domain.CAMERA_RGB))
+        assert np.array_equal(given.data, direct.data) and np.abs(given.data - blind.data).max() > 1e-6
+        carried = make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens", device_calibration=cal.to_text())
+        own = Correction(tile_size=0).process(carried)
+        assert "device.onnx" in own.history[-1].note and np.abs(own.data - given.data).max() < 1e-6
+    finally:
+        if old is None:
+            os.environ.pop(ENV_VAR, None)
+        else:
+            os.environ[ENV_VAR] = old
+        reload_profiles()
+
+
 def test_field_driven_attention_exports_and_tiles_as_the_whole_frame(tmp_path):
     """``device_attention`` (attention from field and descriptor alone,
     metadata ``attention = "field"``): the stage runs it, and its tiles equal
