@@ -94,7 +94,12 @@ class Context:
 
     def record(self, name: str) -> dict | None:
         if name not in self.cache:
-            if not (self.scripts / f"{name}.py").is_file():
+            script = name
+            if not (self.scripts / f"{script}.py").is_file():
+                # a labelled run of a script (``device_eval --label packaged`` → ``device_eval_packaged``)
+                script = next((name[:i] for i in range(len(name) - 1, 0, -1)
+                               if name[i] == "_" and (self.scripts / f"{name[:i]}.py").is_file()), "")
+            if not script:
                 raise TemplateError(f"no benchmark {name!r} (benchmarks/{name}.py does not exist)")
             self.cache[name] = _harness.read(name, self.results)
         return self.cache[name]

@@ -47,6 +47,13 @@ def test_fit_writes_a_proxy_lens_that_beats_the_nominal(capsys, tmp_path, device
     assert code == 0, printed.err
     for f in ("proxy.json", "fit.json", "merit.png", "sfra_maps.png", "parameters.png"):
         assert (out / f).is_file(), f
+    # an e9 module's calibration, on the basis the packaged e9 profile ships (--basis auto)
+    from calibration.fit.device import DescriptorBasis
+    from isp.io.device import DeviceCalibration
+    from isp.profiles import get_profile
+
+    cal = DeviceCalibration.load(out / "device.json")
+    assert cal.basis == DescriptorBasis.load(get_profile("e9").basis).key and cal.grid == (5, 7)
     fit = json.loads((out / "fit.json").read_text())
     assert fit["errors"]["after"]["sfra_rms"] < 0.5 * fit["errors"]["before"]["sfra_rms"]
     # the median |residual| (σ) falls with χ², above the floor's 0.67 here (two parameters), and is printed

@@ -218,3 +218,20 @@ def test_a_simulated_capture_carries_the_calibration_it_is_given(capsys, tmp_pat
     code = main(["calib", "simulate", str(e9_zmx), "-o", str(tmp_path / "d.dng"), "--device", str(bad)])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "bad.json" in err and "\n" not in err and not (tmp_path / "d.dng").exists()
+
+
+def test_the_basis_a_fit_writes_on_is_the_profile_s_for_its_design(e9_lens):
+    """``--basis auto``: the basis a registered profile ships for the lens's
+    design (the packaged e9's), none for another design; ``none``: none."""
+    from calibration.fit.device import find_basis, resolve_basis
+    from calibration.optics.io import read_lens
+    from isp.profiles import get_profile
+    from tests.helpers import data_file
+
+    assert find_basis(e9_lens) == get_profile("e9").basis
+    assert resolve_basis("auto", e9_lens).design == design_key(e9_lens)
+    assert resolve_basis("none", e9_lens) is None
+    e2 = read_lens(data_file("lenses", "phone", "US-12210142-B2-e2.zmx"))
+    assert find_basis(e2) is None and resolve_basis(None, e2) is None
+    with pytest.raises(InputError, match="another design"):
+        resolve_basis(get_profile("e9").basis, e2)
