@@ -440,6 +440,16 @@ class ProxyFitSettings:
         (:class:`calibration.fit.dls.DLSSettings`'s ``target_chi2``).
         ``inf``: on the gain left alone, as the fine stage of a
         coarse-to-fine fit does.
+    stage_params : int, optional
+        A coarse stage given more parameters than this fits first the
+        ``stage_params`` most sensitive of its assembly perturbations (those
+        of :func:`default_names`: decenters, tilts, gaps and focus; screened
+        on the sub-grid, restarts included), then all of them from there
+        (no restarts). None: all at once. Why: from the nominal lens, all 92
+        of e9's perturbations at once settle where their directions drift
+        together, not where the device is; the assembly's errors set the
+        basin, the surfaces' and glasses' refine within it
+        (:data:`calibration.loop.base.LOOP_STAGE_PARAMS`).
 
     Examples
     --------
@@ -466,6 +476,7 @@ class ProxyFitSettings:
     coarse: tuple[int, int] | None = COARSE_GRID
     fine_iter: int | None = None
     floor_chi2: float = 1.0
+    stage_params: int | None = None
 
     def __post_init__(self):
         from calibration.fit.forward_model import ModelSettings
@@ -504,6 +515,7 @@ class ProxyFitSettings:
         integer("max_iter", 1)
         integer("fine_iter", 0, optional=True)
         integer("n_params", 1, optional=True)
+        integer("stage_params", 1, optional=True)
         integer("refresh", 1)
         integer("restarts", 0)
         integer("seed", 0)
@@ -571,8 +583,10 @@ def fit_proxy(nominal: Lens, obs: Observations, settings: ProxyFitSettings | Non
             ex.close()
 
 
-def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor) -> ProxyFit:
-    """:func:`fit_proxy` on all of ``obs`` (no coarse stage)."""
+def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor, screen: bool = False) -> ProxyFit:
+    """:func:`fit_proxy` on all of ``obs`` (no coarse stage); ``screen``:
+    the given ``names`` are screened to ``cfg.n_params`` as the default
+    ones are."""
     from calibration.fit.forward_model import ModelSettings, SfrModel
 
     method, max_iter, bound_factor, n_params = cfg.method, cfg.max_iter, cfg.bound_factor, cfg.n_params
@@ -583,7 +597,7 @@ def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor) -> ProxyF
     model = SfrModel(nominal, obs, settings)
     residuals = resolve_residuals(cfg.residuals, obs)
     bias = residual_bias(model, nominal, residuals, ex)
-    screen = names is None and n_params is not None
+    screen = (screen or names is None) and n_params is not None
     names = list(names) if names is not None else default_names(nominal)
     cheap_model = None   # in this process, where there is no pool
     pool = None
@@ -747,7 +761,19 @@ def _coarse_to_fine(nominal, obs, mask, names, cfg: ProxyFitSettings, ex: Execut
     import dataclasses
 
     t0 = time.perf_counter()
-    first = _fit(nominal, obs.subset(mask), cfg, names, None, ex)
+    sub = obs.subset(mask)
+    if cfg.stage_params is not None and names is not None and len(names) > cfg.stage_params:
+        # the most sensitive assembly parameters find the basin (screening and restarts among them), then all
+        assembly = [k for k in default_names(nominal) if k in names]
+        lead = _fit(nominal, sub, dataclasses.replace(cfg, n_params=cfg.stage_params),
+                    assembly if len(assembly) > cfg.stage_params else names, None, ex, screen=True)
+        got = dict(zip(lead.space.names, lead.u))
+        first = _fit(nominal, sub, dataclasses.replace(cfg, restarts=0), names,
+                     np.array([got.get(k, 0.0) for k in names]), ex)
+        first = dataclasses.replace(first, evaluations=lead.evaluations + first.evaluations,
+                                    seconds=time.perf_counter() - t0, restarts=lead.restarts)
+    else:
+        first = _fit(nominal, sub, cfg, names, None, ex)
     # the sub-grid chose the basin; on all observations the fit only has to move within it, by
     # about the coarse fit's uncertainty: it stops once the linear model leaves less than one
     # unit of χ² to gain, whatever χ² per residual the model's own error leaves (on e9 device 1 at

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from isp.errors import ConfigError
 from isp.runtime.executor import create_executor
 
 from calibration.fit.dls import DLSSettings, DlsResult, damped_least_squares
@@ -160,3 +161,22 @@ def test_coarse_to_fine_recovers_the_device_as_the_full_fit_does(grid_device):
     assert len(quick.observations) == 12 and quick.coarse["refined"] is False
     assert quick.evaluations == quick.coarse["evaluations"] < staged.evaluations
     assert np.abs(quick.u - U_TRUE).max() < 0.25
+
+
+def test_a_staged_coarse_fit_leads_with_a_few_parameters_and_recovers_the_device(grid_device):
+    """``stage_params``: the coarse stage fits its most sensitive
+    parameter(s) first, then all of them from there; the device is
+    recovered as by the fit of all at once, the lead stage's evaluations
+    counted."""
+    from calibration.fit.proxy import ProxyFitSettings, fit_proxy
+
+    lens, obs = grid_device
+    kw = dict(residuals="sfra", max_iter=6, restarts=0, coarse=(2, 3))
+    serial = create_executor("serial")
+    plain = fit_proxy(lens, obs, ProxyFitSettings(**kw), names=NAMES, executor=serial)
+    staged = fit_proxy(lens, obs, ProxyFitSettings(stage_params=1, **kw), names=NAMES, executor=serial)
+    assert list(staged.space.names) == NAMES
+    assert np.abs(staged.u - U_TRUE).max() < 0.1
+    assert staged.coarse["evaluations"] > plain.coarse["evaluations"]
+    with pytest.raises(ConfigError, match="stage_params"):
+        ProxyFitSettings(stage_params=0)
