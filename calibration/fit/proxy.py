@@ -441,14 +441,15 @@ class ProxyFitSettings:
         ``inf``: on the gain left alone, as the fine stage of a
         coarse-to-fine fit does.
     stage_params : int, optional
-        A coarse stage given more parameters than this fits first the
+        A coarse stage given more parameters than this also fits first the
         ``stage_params`` most sensitive of its assembly perturbations (those
         of :func:`default_names`: decenters, tilts, gaps and focus; screened
         on the sub-grid, restarts included), then all of them from there
-        (no restarts). None: all at once. Why: from the nominal lens, all 92
-        of e9's perturbations at once settle where their directions drift
-        together, not where the device is; the assembly's errors set the
-        basin, the surfaces' and glasses' refine within it
+        (no restarts), and keeps the better of that and the fit of all at
+        once (recorded among ``restarts``). None: all at once only. Why:
+        from the nominal lens, all of a lens's perturbations at once can
+        settle where their directions drift together, far from the device,
+        and the staged fit can too, on other devices
         (:data:`calibration.loop.base.LOOP_STAGE_PARAMS`).
 
     Examples
@@ -762,18 +763,21 @@ def _coarse_to_fine(nominal, obs, mask, names, cfg: ProxyFitSettings, ex: Execut
 
     t0 = time.perf_counter()
     sub = obs.subset(mask)
+    first = _fit(nominal, sub, cfg, names, None, ex)
     if cfg.stage_params is not None and names is not None and len(names) > cfg.stage_params:
-        # the most sensitive assembly parameters find the basin (screening and restarts among them), then all
+        # also: the most sensitive assembly parameters find a basin (screening and restarts among
+        # them), then all of them from there; the better of the two coarse fits is kept
         assembly = [k for k in default_names(nominal) if k in names]
         lead = _fit(nominal, sub, dataclasses.replace(cfg, n_params=cfg.stage_params),
                     assembly if len(assembly) > cfg.stage_params else names, None, ex, screen=True)
         got = dict(zip(lead.space.names, lead.u))
-        first = _fit(nominal, sub, dataclasses.replace(cfg, restarts=0), names,
-                     np.array([got.get(k, 0.0) for k in names]), ex)
-        first = dataclasses.replace(first, evaluations=lead.evaluations + first.evaluations,
-                                    seconds=time.perf_counter() - t0, restarts=lead.restarts)
-    else:
-        first = _fit(nominal, sub, cfg, names, None, ex)
+        staged = _fit(nominal, sub, dataclasses.replace(cfg, restarts=0), names,
+                      np.array([got.get(k, 0.0) for k in names]), ex)
+        kept = staged.result.merit < first.result.merit
+        tried = first.restarts + [{"start": f"{len(lead.space.names)} first", "probe_merit": round(lead.result.merit, 3),
+                                   "final_merit": round(staged.result.merit, 3), "kept": bool(kept)}]
+        first = dataclasses.replace(staged if kept else first, seconds=time.perf_counter() - t0, restarts=tried,
+                                    evaluations=first.evaluations + lead.evaluations + staged.evaluations)
     # the sub-grid chose the basin; on all observations the fit only has to move within it, by
     # about the coarse fit's uncertainty: it stops once the linear model leaves less than one
     # unit of χ² to gain, whatever χ² per residual the model's own error leaves (on e9 device 1 at

@@ -128,12 +128,17 @@ def test_the_committed_pages_are_rendered_from_their_templates_and_results():
 
 def test_every_committed_result_was_written_by_the_harness():
     """benchmarks/results holds records of :func:`benchmarks._harness.publish`,
-    each named after its script."""
+    each named after its script, or after its script and the ``--label`` of
+    its run."""
     for path in sorted(_harness.RESULTS_DIR.glob("*.json")):
         rec = json.loads(path.read_text())
-        assert rec["name"] == path.stem and (report.SCRIPTS / f"{path.stem}.py").is_file(), path
-        assert {"argv", "command", "env", "results"} <= set(rec), path
-        assert rec["command"].startswith(f"python -m benchmarks.{path.stem}"), path
+        assert {"name", "argv", "command", "env", "results"} <= set(rec), path
+        assert rec["command"].startswith("python -m benchmarks."), path
+        script = rec["command"].split()[2].removeprefix("benchmarks.")
+        assert rec["name"] == path.stem and (report.SCRIPTS / f"{script}.py").is_file(), path
+        if path.stem != script:
+            label = rec["argv"][rec["argv"].index("--label") + 1]
+            assert path.stem == f"{script}_{label}", path
 
 
 @pytest.mark.parametrize("module", [report, _harness])

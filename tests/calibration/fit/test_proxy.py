@@ -164,10 +164,10 @@ def test_coarse_to_fine_recovers_the_device_as_the_full_fit_does(grid_device):
 
 
 def test_a_staged_coarse_fit_leads_with_a_few_parameters_and_recovers_the_device(grid_device):
-    """``stage_params``: the coarse stage fits its most sensitive
-    parameter(s) first, then all of them from there; the device is
-    recovered as by the fit of all at once, the lead stage's evaluations
-    counted."""
+    """``stage_params``: the coarse stage also fits its most sensitive
+    parameter(s) first, then all of them from there, and keeps the better
+    coarse fit; the device is recovered as by the fit of all at once, both
+    stages' evaluations counted."""
     from calibration.fit.proxy import ProxyFitSettings, fit_proxy
 
     lens, obs = grid_device
@@ -178,5 +178,8 @@ def test_a_staged_coarse_fit_leads_with_a_few_parameters_and_recovers_the_device
     assert list(staged.space.names) == NAMES
     assert np.abs(staged.u - U_TRUE).max() < 0.1
     assert staged.coarse["evaluations"] > plain.coarse["evaluations"]
+    # the staged start is recorded beside the restarts, and the better coarse fit kept
+    (rec,) = [r for r in staged.restarts if r["start"] == "1 first"]
+    assert rec["kept"] == (rec["final_merit"] < plain.coarse["merit"])
     with pytest.raises(ConfigError, match="stage_params"):
         ProxyFitSettings(stage_params=0)
