@@ -37,12 +37,12 @@ from isp.runtime.executor import add_executor_argument
 BOOTSTRAP = 0
 
 EPILOG = """examples:
-  isp calib fit --lens e9.zmx --measured capture.dng -o e9_proxy/
+  isp calib fit --lens e9.zmx --measured capture.dng -o dev3/   # + device.json on the packaged e9 basis
   isp calib fit --lens e9.zmx --measured chart_sfr.json --method scipy --max-iter 20
   isp calib fit --lens e9.zmx --measured obs.json --residuals bands --no-fast-jacobian
   isp calib fit --lens e9.zmx --measured capture.dng --bootstrap 20 -o e9_proxy/   # each edge its own σ
-  isp calib fit --lens e9.zmx --measured capture.dng --basis e9_basis.npz -o dev3/   # + device.json
-  isp calib fit --lens e9.zmx --measured capture.dng --basis e9_basis.npz --fine-iter 0 -o dev3/   # the line's quick fit
+  isp calib fit --lens e9.zmx --measured capture.dng --fine-iter 0 -o dev3/   # the line's quick fit
+  isp calib fit --lens phone.zmx --measured capture.dng --basis phone_basis.npz -o dev3/   # another design's basis
 """
 
 

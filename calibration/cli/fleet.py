@@ -10,9 +10,9 @@ from calibration.cli.arguments import coarse_grid
 from isp.runtime.executor import add_executor_argument
 
 EPILOG = """examples:
-  isp calib fleet captures/ --lens e9.zmx --basis e9_basis.npz -o devices/
-  isp calib fleet captures/ --lens e9.zmx --basis e9_basis.npz -o devices/ --executor ray://head:10001
-  ISP_EXECUTOR=ray isp calib fleet captures/ --lens e9.zmx --basis e9_basis.npz -o devices/ --effects none
+  isp calib fleet captures/ --lens e9.zmx -o devices/
+  isp calib fleet captures/ --lens e9.zmx -o devices/ --executor ray://head:10001
+  ISP_EXECUTOR=ray isp calib fleet captures/ --lens e9.zmx -o devices/ --effects none
 
 what it writes (DEVICES_DIR):
   <capture>.device.json   each module's calibration (isp process --device FILE), written atomically
