@@ -29,6 +29,8 @@ Plain functions that test modules import (``data_file``,
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -84,3 +86,23 @@ def make_observations():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture
+def user_folder(tmp_path):
+    """An empty user profile folder as ``$ISP_PROFILES``, the registry
+    re-read (so a profile of the machine's user cannot change what a test
+    sees); afterwards the environment and the registry as they were."""
+    from isp.profiles import ENV_VAR, reload_profiles
+
+    folder = tmp_path / "profiles"
+    folder.mkdir()
+    old = os.environ.get(ENV_VAR)
+    os.environ[ENV_VAR] = str(folder)
+    reload_profiles()
+    yield folder
+    if old is None:
+        os.environ.pop(ENV_VAR, None)
+    else:
+        os.environ[ENV_VAR] = old
+    reload_profiles()

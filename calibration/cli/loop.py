@@ -127,12 +127,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.measured}: {len(obs)} observations in {regions} field region(s)")
     if args.lens != "parametric":
         print("loop: tracing the lens and screening its perturbations (a few minutes on 2 cores)", flush=True)
+    from calibration.fit.device import BASIS_WORDS, resolve_basis
+
     basis = None
     if args.lens == "parametric":
-        if args.basis.lower() not in ("auto", "none"):
+        if args.basis.lower() not in BASIS_WORDS:
             raise ConfigError("--basis: a device calibration needs a lens file, not --lens parametric")
     else:
-        from calibration.fit.device import resolve_basis
         from calibration.optics.io import read_lens
 
         basis = resolve_basis(args.basis, read_lens(args.lens))

@@ -67,7 +67,7 @@ import numpy as np
 from isp.errors import InputError
 from isp.io.device import FORMAT, MAX_BYTES, DeviceCalibration
 
-__all__ = ["BASIS_FORMAT", "DEFAULT_COMPONENTS", "DEFAULT_GRID", "DescriptorBasis", "DeviceCalibration",
+__all__ = ["BASIS_FORMAT", "BASIS_WORDS", "DEFAULT_COMPONENTS", "DEFAULT_GRID", "DescriptorBasis", "DeviceCalibration",
            "FORMAT", "MAX_BYTES", "basis_from_psfs", "check_calibration", "describe", "descriptor_map_settings", "design_key",
            "device_calibration", "find_basis", "learn_basis", "load_basis", "measurement_source", "pixel_psfs",
            "psf_stack", "resolve_basis"]
@@ -284,16 +284,20 @@ def load_basis(path, lens=None) -> DescriptorBasis:
     return basis
 
 
+#: ``--basis`` words that name no file: the profile's basis for the design, or none
+BASIS_WORDS = ("auto", "none")
+
+
 def resolve_basis(value, lens) -> DescriptorBasis | None:
     """The basis a fit of ``lens`` writes its ``device.json`` on: ``value``
     a basis file (checked to be of the lens's design, :func:`load_basis`),
     ``"none"`` for none, or ``"auto"`` (or None) for the basis a registered
     lens profile ships for the lens's design (:func:`find_basis`), none
     where no profile does."""
-    key = "auto" if value is None else str(value)
-    if key.lower() == "none":
+    key = "auto" if value is None else str(value).lower()
+    if key == "none":
         return None
-    if key.lower() == "auto":
+    if key == "auto":
         found = find_basis(lens)
         return None if found is None else load_basis(found, lens)
     return load_basis(value, lens)

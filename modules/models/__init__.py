@@ -14,6 +14,3 @@ from pathlib import Path
 
 #: the default phone lens's profile (US-12210142-B2 embodiment 9)
 E9_DEFAULT = Path(__file__).with_name("e9_default.toml")
-#: its model conditioned on a module's calibration, and the descriptor basis that calibration is on
-E9_DEVICE = Path(__file__).with_name("e9_device.int8.onnx")
-E9_BASIS = Path(__file__).with_name("e9_basis.npz")

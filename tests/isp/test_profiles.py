@@ -4,7 +4,6 @@ broken profiles reported without stopping the others (kind: property)."""
 
 from __future__ import annotations
 
-import os
 from importlib import metadata
 from pathlib import Path
 
@@ -13,7 +12,6 @@ import pytest
 from isp.errors import ConfigError, InputError
 from isp.meta import CameraMeta
 from isp.profiles import (
-    ENV_VAR,
     Profile,
     broken_profiles,
     describe_identity,
@@ -31,23 +29,6 @@ pytestmark = pytest.mark.property
 
 #: what a plug-in's entry point names in the plug-in test (a profile file's path)
 PLUGIN_PROFILE = None
-
-
-@pytest.fixture
-def user_folder(tmp_path):
-    """An empty user profile folder as ``$ISP_PROFILES``, the registry
-    re-read; afterwards the environment and the registry as they were."""
-    folder = tmp_path / "profiles"
-    folder.mkdir()
-    old = os.environ.get(ENV_VAR)
-    os.environ[ENV_VAR] = str(folder)
-    reload_profiles()
-    yield folder
-    if old is None:
-        os.environ.pop(ENV_VAR, None)
-    else:
-        os.environ[ENV_VAR] = old
-    reload_profiles()
 
 
 def write_profile(folder: Path, stem: str, match: str, *, model: str = "m.onnx", extra: str = "") -> Path:

@@ -7,36 +7,18 @@ user profile reported without stopping a render (kind: property)."""
 from __future__ import annotations
 
 import json
-import os
 import re
 
 import numpy as np
 import pytest
 
-from isp.profiles import ENV_VAR, reload_profiles
+from isp.profiles import reload_profiles
 
 pytestmark = pytest.mark.property
 
 #: the real files of other lenses (../shared/data/raw): no profile matches them
 OTHER_LENSES = {"gopro_HERO6_GOPR0024.dng": "GoPro HERO6 Black", "gopro_FUSION_GPFR7066.dng": "GoPro FUSION",
                 "tinydng_colorchart.dng": "Canon EOS Kiss X4"}
-
-
-@pytest.fixture
-def user_folder(tmp_path):
-    """An empty user profile folder as ``$ISP_PROFILES`` (so a profile of the
-    machine's user cannot change what these tests see); restored after."""
-    folder = tmp_path / "profiles"
-    folder.mkdir()
-    old = os.environ.get(ENV_VAR)
-    os.environ[ENV_VAR] = str(folder)
-    reload_profiles()
-    yield folder
-    if old is None:
-        os.environ.pop(ENV_VAR, None)
-    else:
-        os.environ[ENV_VAR] = old
-    reload_profiles()
 
 
 def correction_note(stdout: str) -> str:

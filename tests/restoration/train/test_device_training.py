@@ -15,9 +15,7 @@ a set without descriptors.
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 
 import numpy as np
 import pytest
@@ -252,49 +250,28 @@ def test_a_conditioned_model_quantises_every_conv_and_reads_its_device_in_int8(d
     assert np.abs(f32 - i8).mean() < 0.02
 
 
-@contextlib.contextmanager
-def user_profiles(folder):
-    """The lens profiles of ``folder`` (``ISP_PROFILES``) for the block; the previous ones after."""
-    from isp.profiles import ENV_VAR, reload_profiles
-
-    old = os.environ.get(ENV_VAR)
-    os.environ[ENV_VAR] = str(folder)
-    reload_profiles()
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop(ENV_VAR, None)
-        else:
-            os.environ[ENV_VAR] = old
-        reload_profiles()
-
-
-def test_a_profile_carries_a_modules_calibration(device_model, tmp_path):
+def test_a_profile_carries_a_modules_calibration(device_model, tmp_path, user_folder):
     """A profile with ``device = FILE`` gives the matching frames that
     calibration; a capture's own calibration and --device win over it."""
     from isp import Domain
     from modules.correction import Correction
 
     tmp, _ = device_model
-    folder = tmp_path / "profiles"
-    folder.mkdir()
-    DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1]).save(folder / "module7.json")
-    (folder / "m7.toml").write_text(f'schema = "profile/v1"\nmodel = "{tmp / "device.onnx"}"\n'
-                                    f'device = "module7.json"\n[match]\nLensModel = "test-lens"\n')
-    with user_profiles(folder):
-        rgb = np.random.default_rng(8).random((64, 96, 3))
-        out = Correction(tile_size=0).process(make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
-        assert "device module7.json" in out.history[-1].note
-        own = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0])
-        carried = make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens", device_calibration=own.to_text())
-        assert "DNGPrivateData" in Correction(tile_size=0).process(carried).history[-1].note
-        given = own.save(tmp_path / "given.json")
-        assert "device given.json" in Correction(tile_size=0, device=given).process(carried).history[-1].note
+    DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1]).save(user_folder / "module7.json")
+    (user_folder / "m7.toml").write_text(f'schema = "profile/v1"\nmodel = "{tmp / "device.onnx"}"\n'
+                                         f'device = "module7.json"\n[match]\nLensModel = "test-lens"\n')
+    rgb = np.random.default_rng(8).random((64, 96, 3))
+    out = Correction(tile_size=0).process(make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
+    assert "device module7.json" in out.history[-1].note
+    own = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0])
+    carried = make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens", device_calibration=own.to_text())
+    assert "DNGPrivateData" in Correction(tile_size=0).process(carried).history[-1].note
+    given = own.save(tmp_path / "given.json")
+    assert "device given.json" in Correction(tile_size=0, device=given).process(carried).history[-1].note
 
 
 def test_a_profile_runs_its_conditioned_model_where_a_calibration_is_known(device_model, exported_blind,
-                                                                         tmp_path):
+                                                                         tmp_path, user_folder):
     """A profile with a blind ``model`` and a ``device_model``: a matching
     capture without a calibration gets the blind model; one with
     ``--device`` or its own calibration gets the conditioned model, which
@@ -303,24 +280,21 @@ def test_a_profile_runs_its_conditioned_model_where_a_calibration_is_known(devic
     from modules.correction import Correction
 
     tmp, _ = device_model
-    folder = tmp_path / "profiles"
-    folder.mkdir()
-    (folder / "lens.toml").write_text(f'schema = "profile/v1"\nmodel = "{exported_blind}"\n'
-                                      f'device_model = "{tmp / "device.onnx"}"\n[match]\nLensModel = "test-lens"\n')
-    with user_profiles(folder):
-        rgb = np.random.default_rng(9).random((64, 96, 3))
-        blind = Correction(tile_size=0).process(make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
-        assert "b.onnx" in blind.history[-1].note and "device" not in blind.history[-1].note
-        cal = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1])
-        given = Correction(tile_size=0, device=cal.save(tmp_path / "dev.json")).process(
-            make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
-        assert "device.onnx" in given.history[-1].note and "device dev.json" in given.history[-1].note
-        direct = Correction(model=tmp / "device.onnx", device=tmp_path / "dev.json", tile_size=0).process(
-            make_frame(rgb, Domain.CAMERA_RGB))
-        assert np.array_equal(given.data, direct.data) and np.abs(given.data - blind.data).max() > 1e-6
-        carried = make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens", device_calibration=cal.to_text())
-        own = Correction(tile_size=0).process(carried)
-        assert "device.onnx" in own.history[-1].note and np.abs(own.data - given.data).max() < 1e-6
+    (user_folder / "lens.toml").write_text(f'schema = "profile/v1"\nmodel = "{exported_blind}"\n'
+                                           f'device_model = "{tmp / "device.onnx"}"\n[match]\nLensModel = "test-lens"\n')
+    rgb = np.random.default_rng(9).random((64, 96, 3))
+    blind = Correction(tile_size=0).process(make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
+    assert "b.onnx" in blind.history[-1].note and "device" not in blind.history[-1].note
+    cal = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1])
+    given = Correction(tile_size=0, device=cal.save(tmp_path / "dev.json")).process(
+        make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens"))
+    assert "device.onnx" in given.history[-1].note and "device dev.json" in given.history[-1].note
+    direct = Correction(model=tmp / "device.onnx", device=tmp_path / "dev.json", tile_size=0).process(
+        make_frame(rgb, Domain.CAMERA_RGB))
+    assert np.array_equal(given.data, direct.data) and np.abs(given.data - blind.data).max() > 1e-6
+    carried = make_frame(rgb, Domain.CAMERA_RGB, lens="test-lens", device_calibration=cal.to_text())
+    own = Correction(tile_size=0).process(carried)
+    assert "device.onnx" in own.history[-1].note and np.abs(own.data - given.data).max() < 1e-6
 
 
 def test_field_driven_attention_exports_and_tiles_as_the_whole_frame(tmp_path):
