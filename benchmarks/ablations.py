@@ -62,6 +62,49 @@ linear_srgb_hp      linear_highpass placed between the colour matrix and
                     matrix and exposure give, without the gamma's)
 ==================  ==========================================================
 
+The conditioned design (the packaged ``e9_device`` network: the module's
+16-number descriptor per field region as input channels) has entries of its
+own, each against ``device``, trained from ``configs/e9_device.toml`` (pairs
+from 48 lenses, each carrying its descriptor):
+
+=====================  =======================================================
+entry                  what changes against "device"
+=====================  =======================================================
+device                 the packaged conditioned network (widths 16, 32, dense
+                       DOConv kernels, √x, linear high-pass, 16 descriptor
+                       channels), in the pipeline
+device_static          dense static 3×3 convs, widths 16, 56 (9.14 against
+                       9.16 kMAC/px): is the dynamic convolution worth its
+                       name once the device is known?
+device_equal_dilation  four kernels, all dilation 1
+device_no_field        no field-position channels (the descriptor map still
+                       varies over the field, region by region)
+device_attention       the DOConv attention driven by field position and
+                       descriptor alone, no image content (the issue's form
+                       (b): a fixed map per device, foldable for INT8)
+device_raw             trained raw → raw (loss in camera RGB)
+device_srgb            at the end of the pipeline, sRGB → sRGB (linear input,
+                       the gamma-encoded image is its own √x)
+=====================  =======================================================
+
+They are trained here with ``--train-only`` and scored by
+:mod:`benchmarks.device_eval` on the same unseen modules as the packaged
+model, each entry reading the module's true descriptor (``--descriptor
+true``: a fitted file is worth the same within a few hundredths of a dB,
+``docs/results/device.md``, and skipping the fits saves their time)::
+
+    python -m benchmarks.ablations --config configs/e9_device.toml --steps 2000 --train-only \
+        --out out/abl_device --only device device_static device_equal_dilation device_no_field \
+        device_attention device_raw device_srgb
+    python -m benchmarks.device_eval --model out/abl_device/device/model.pt \
+        --basis modules/models/e9_basis.npz --devices 6 --descriptor true --lights default \
+        --label ablations --parts benchmarks/results/device_eval_ablations_parts \
+        --work out/device_eval_ablations --extra static=out/abl_device/device_static/model.pt \
+        equal_dilation=out/abl_device/device_equal_dilation/model.pt \
+        no_field=out/abl_device/device_no_field/model.pt \
+        attention=out/abl_device/device_attention/model.pt raw=out/abl_device/device_raw/model.pt \
+        srgb=out/abl_device/device_srgb/model.pt
+
 Run (2.3–7 minutes of training per entry at 1,500 steps, 14–16 for the
 per-pixel spatial attention, two at a time on the two cores; ten entries
 and their evaluation take about 34 minutes on an idle 2-core AMD EPYC)::
@@ -120,6 +163,11 @@ STATIC_LARGE = {"widths": (90, 180), "depths": (1, 6, 1)}
 DENSE = {"widths": (16, 48), "depths": (0, 3, 0), "group_width": 0}
 #: the static network of DENSE's MACs: dense 3×3 convs on 84 channels (18.8 kMAC/px)
 STATIC_DENSE = {"widths": (16, 84), "depths": (0, 3, 0), "group_width": 0}
+#: the packaged conditioned network's arguments besides its encoding and high-pass
+#: (``configs/e9_device.toml``): the "device" entries depart from it in one respect each
+DEVICE = {"widths": (16, 32), "depths": (0, 3, 0), "group_width": 0, "window": 1, "device": 16}
+#: the static network of DEVICE's MACs: dense static 3×3 convs, widths 16, 56 (9.14 against 9.16 kMAC/px)
+STATIC_DEVICE = {**DEVICE, "widths": (16, 56)}
 #: entry → ("variant[:encoding[:highpass[:highpass_domain]]]", placement[, other network arguments])
 ENTRIES = {
     "doconv": ("doconv", "pipeline"),
@@ -146,6 +194,13 @@ ENTRIES = {
     "wide_attention": ("doconv:sqrt:9:linear", "pipeline", {"window": 31}),
     "global_attention": ("doconv:sqrt:9:linear", "pipeline", {"pool": "global"}),
     "pixel_attention": ("doconv:sqrt:9:linear", "pipeline", {**DENSE, "window": 1}),
+    "device": ("device:sqrt:9:linear", "pipeline", DEVICE),
+    "device_static": ("static:sqrt:9:linear", "pipeline", STATIC_DEVICE),
+    "device_equal_dilation": ("device:sqrt:9:linear", "pipeline", {**DEVICE, "dilations": (1, 1, 1, 1)}),
+    "device_no_field": ("device:sqrt:9:linear", "pipeline", {**DEVICE, "field": False}),
+    "device_attention": ("device_attention:sqrt:9:linear", "pipeline", DEVICE),
+    "device_raw": ("device:sqrt:9:linear", "raw", DEVICE),
+    "device_srgb": ("device::9", "srgb", DEVICE),
 }
 RINGS = ("0.1", "0.5", "0.9")
 #: steps of the step-time probe of ``--minutes``

@@ -245,12 +245,15 @@ class DOConvUNet(nn.Module):
 
     device : int
         Device-descriptor channels ``K`` after the field position (0: a
-        blind network; needs ``field``).
+        blind network). The input keeps the field channels ``(x, y)``
+        before them whatever ``field`` says; with ``field=False`` the
+        network reads the descriptor alone (the no-field ablation of the
+        conditioned design).
 
     Attributes
     ----------
     in_channels : int
-        5 + K with field encoding, else 3.
+        5 + K with field encoding or descriptor channels, else 3.
     fov_encoding : {"xy", "none"}
         For the ONNX metadata read by the correction stage.
     input_multiple : int
@@ -265,8 +268,8 @@ class DOConvUNet(nn.Module):
                  kernel_size: int = 3, scale: int = 2, encoding: str = "linear", highpass: int = 0,
                  highpass_domain: str = "encoded", group_width: int = 1, device: int = 0):
         super().__init__()
-        if device < 0 or (device and not field):
-            raise ConfigError(f"device must be 0, or K > 0 descriptor channels with field encoding; got {device}")
+        if device < 0:
+            raise ConfigError(f"device must be 0, or K > 0 descriptor channels; got {device}")
         choose(encoding, ENCODINGS, "encoding")
         choose(highpass_domain, HIGHPASS_DOMAINS, "highpass_domain")
         choose(conv, CONV_KINDS, "conv")
@@ -288,9 +291,11 @@ class DOConvUNet(nn.Module):
         self.scale = scale
         self.input_multiple = 2 * scale
         self.device = int(device)
-        self.in_channels = 5 + self.device if field else 3
-        self.fov_encoding = "xy" if field else "none"
-        nf = FIELD_FEATURES + self.device if field else 0
+        #: the input carries the field (x, y): for the field features, or as the place the descriptor follows
+        self.positional = field or self.device > 0
+        self.in_channels = 5 + self.device if self.positional else 3
+        self.fov_encoding = "xy" if self.positional else "none"
+        nf = (FIELD_FEATURES if field else 0) + self.device
         c1, c2 = widths
         block = {"expansion": expansion, "conv": conv, "kernel_size": kernel_size,
                  "dilations": tuple(dilations), "spatial": spatial, "pool": pool, "window": window,
@@ -321,7 +326,7 @@ class DOConvUNet(nn.Module):
         if not (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export()):
             self._check(x)
         s = self.scale
-        return self.run(x[:, :3], x[:, 3:] if self.field else None, self.stem, self.head[0], s,
+        return self.run(x[:, :3], x[:, 3:] if self.positional else None, self.stem, self.head[0], s,
                         highpass=self.highpass, pack=lambda u: 2 * F.pixel_unshuffle(u, s),
                         unpack=self.head[1])
 
@@ -341,8 +346,8 @@ class DOConvUNet(nn.Module):
         u0 = torch.sqrt(F.relu(rgb) + SQRT_OFFSET) if self.encoding == "sqrt" else rgb
         f1 = f2 = None
         h = stem(u0)
-        if self.field:
-            f1, f2 = field_features(field, factor), field_features(field, 2 * factor)
+        if self.positional:
+            f1, f2 = self.features(field, factor), self.features(field, 2 * factor)
             h = h + self.stem_field(f1)
         for b in self.enc:
             h = b(h, f1)
@@ -359,9 +364,18 @@ class DOConvUNet(nn.Module):
         u = u0 + unpack(r if highpass is None else highpass(r))
         return u * u - SQRT_OFFSET if self.encoding == "sqrt" else u
 
+    def features(self, field: Tensor, factor: int) -> Tensor:
+        """What the attention and the stem read at ``1/factor`` resolution:
+        :func:`field_features`, or without ``field`` the descriptor
+        channels' block means alone."""
+        if self.field:
+            return field_features(field, factor)
+        d = field[:, 2:]
+        return F.avg_pool2d(d, factor) if factor > 1 else d
+
     def _check(self, x: Tensor) -> None:
         if x.ndim != 4 or x.shape[1] != self.in_channels:
-            what = "RGB + field (x, y)" if self.field else "RGB"
+            what = "RGB + field (x, y)" if self.positional else "RGB"
             what += f" + {self.device} descriptor channels" if self.device else ""
             raise ConfigError(f"expected input (N, {self.in_channels}, H, W) ({what}); got {tuple(x.shape)}")
         m = self.input_multiple
@@ -533,7 +547,7 @@ class SpaceToDepthForm(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         k = 3 * self.packing ** 2
         m = self.model
-        return m.run(x[:, :k], x[:, k:] if m.field else None, self.stem, self.head, 1,
+        return m.run(x[:, :k], x[:, k:] if m.positional else None, self.stem, self.head, 1,
                      highpass=self.highpass, pack=lambda u: F.conv2d(u, self.twice),
                      unpack=lambda y: y[:, :self.channels])
 
@@ -541,20 +555,21 @@ class SpaceToDepthForm(nn.Module):
 def pad_to_multiple(x: Tensor, multiple: int = 4, n_field: int = 2) -> tuple[Tensor, tuple[int, int]]:
     """Pad (N, C, H, W) at the bottom and right to multiples of ``multiple``.
 
-    Image channels (the first ``C - n_field``) are padded by replicating the
-    edge; the last ``n_field`` channels are field coordinates and are
-    extrapolated linearly (their step is read from the last two rows /
-    columns), so the padding has the positions it would have on a larger
-    frame. Returns the padded tensor and the original ``(H, W)``.
+    The channels are a model's input: RGB, then ``n_field`` field
+    coordinates (0 or 2), then any descriptor channels. The field
+    coordinates are extrapolated linearly (their step is read from the
+    last two rows / columns), so the padding has the positions it would
+    have on a larger frame; every other channel is padded by replicating
+    the edge. Returns the padded tensor and the original ``(H, W)``.
     """
     h, w = x.shape[-2:]
     ph, pw = (-h) % multiple, (-w) % multiple
     if not (ph or pw):
         return x, (h, w)
-    img = F.pad(x[:, :x.shape[1] - n_field], (0, pw, 0, ph), mode="replicate")
+    padded = F.pad(x, (0, pw, 0, ph), mode="replicate")
     if not n_field:
-        return img, (h, w)
-    fld = x[:, x.shape[1] - n_field:]
+        return padded, (h, w)
+    fld = x[:, 3:3 + n_field]
     for dim, p in ((3, pw), (2, ph)):
         if p:
             n = fld.shape[dim]
@@ -564,12 +579,12 @@ def pad_to_multiple(x: Tensor, multiple: int = 4, n_field: int = 2) -> tuple[Ten
             shape = [1, 1, 1, 1]
             shape[dim] = p
             fld = torch.cat([fld, last + step * k.view(shape)], dim=dim)
-    return torch.cat([img, fld], dim=1), (h, w)
+    return torch.cat([padded[:, :3], fld, padded[:, 3 + n_field:]], dim=1), (h, w)
 
 
 def forward_padded(model: DOConvUNet, x: Tensor) -> Tensor:
     """``model(x)`` for any ``H, W``: pad (:func:`pad_to_multiple`), run, crop."""
-    xp, (h, w) = pad_to_multiple(x, model.input_multiple, 2 if model.field else 0)
+    xp, (h, w) = pad_to_multiple(x, model.input_multiple, 2 if model.positional else 0)
     return model(xp)[..., :h, :w]
 
 

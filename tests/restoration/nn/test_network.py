@@ -136,6 +136,41 @@ def test_padding_helper():
     assert forward_padded(model, x).shape == (1, 3, 30, 45)
 
 
+def test_padding_extrapolates_the_field_and_replicates_the_descriptor():
+    """A conditioned network's input (RGB, x, y, K descriptor channels):
+    the field after the RGB is extrapolated, the descriptor is not."""
+    d = torch.rand(1, 4, 30, 45)
+    x = torch.cat([torch.rand(1, 3, 30, 45), _field(1, 30, 45), d], dim=1)
+    xp, _ = pad_to_multiple(x, 4)
+    want_x = (torch.arange(48) + 0.5) / 45 * 2 - 1
+    assert torch.allclose(xp[0, 3], want_x.expand(32, 48), atol=1e-5)
+    assert torch.equal(xp[0, 5:, :30, 45:], d[0, :, :, 44:45].expand(4, 30, 3))
+    assert torch.equal(xp[0, 5:, 30:, :45], d[0, :, 29:30, :].expand(4, 2, 45))
+
+
+def test_a_conditioned_network_without_field_reads_the_descriptor_alone():
+    """``field=False`` with descriptor channels (the conditioned design's
+    no-field ablation): the input keeps its layout, the output ignores
+    the field channels and follows the descriptor."""
+    torch.manual_seed(1)
+    model = build_model("device", widths=(8, 16), depths=(0, 1, 0), field=False, device=4).eval()
+    assert model.in_channels == 9 and model.fov_encoding == "xy"
+    for layer in model.modules():
+        if isinstance(layer, DOConv2d):
+            _randomise_attention(layer)
+    with torch.no_grad():
+        model.head[0].weight.mul_(10)
+    x = torch.cat([torch.rand(1, 3, 32, 32), _field(1, 32, 32), torch.rand(1, 4, 32, 32)], dim=1)
+    moved = x.clone()
+    moved[:, 3:5] = torch.rand(1, 2, 32, 32)
+    other = x.clone()
+    other[:, 5:] = torch.rand(1, 4, 32, 32)
+    with torch.no_grad():
+        y, y_moved, y_other = model(x), model(moved), model(other)
+    assert torch.equal(y, y_moved)
+    assert torch.abs(y - y_other).max() > 1e-3
+
+
 def test_tiles_match_the_full_frame():
     """Property: with local attention a tile gives the full frame's output
     wherever the tile extends at least the receptive radius beyond (tile
