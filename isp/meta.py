@@ -69,6 +69,9 @@ class CameraMeta:
     make: str = ""
     model: str = ""
     unique_camera_model: str = ""
+    #: the camera's own serial number (DNG CameraSerialNumber, else EXIF BodySerialNumber): on a
+    #: production line, the module's identity; "" where the file names none
+    serial: str = ""
     software: str = ""
 
     # geometry

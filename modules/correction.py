@@ -45,7 +45,12 @@ each pixel (or block centre) of the full frame, fills the K channels after
 the field position. The file must be of the model's lens design and
 descriptor basis (one line naming both otherwise). Without one the
 descriptor is zero, the mean device of the design, and the stage's note
-says so; a blind model ignores a device file, and says that too. With the
+says so; a blind model ignores a device file, and says that too. Where the
+file names its module's serial number (from its chart capture) and the
+capture names its own (CameraSerialNumber), another module's file is refused
+in one line: given the wrong module's calibration the model corrects worse
+than no correction at all (``docs/results/device.md``, "A wrong
+calibration"). With the
 model chosen by the capture's lens profile (``"auto"``), a profile that
 has a ``device_model`` runs it where the module's calibration is known
 (``--device``, the capture's own, the profile's) and its blind ``model``
@@ -772,7 +777,9 @@ class Correction(StageBase):
         history: ``(DeviceCalibration or None, str)``. The stage's
         ``device``, else the one the frame's DNG carries
         (``meta.device_calibration``); ConfigError (one line) for one of
-        another design or basis, or too short."""
+        another design or basis, or too short; InputError (one line) for
+        another module's, where both the calibration and the capture name
+        their module's serial number."""
         from isp.io.device import DeviceCalibration
 
         carried = getattr(meta, "device_calibration", "") if self.device is None else ""
@@ -790,4 +797,6 @@ class Correction(StageBase):
         if not info.device:
             return None, f"; {name} ignored: the model is not conditioned on a device"
         cal.check_model(info.meta, info.device, name, f"model {info.name}")
+        if meta is not None:
+            cal.check_module(getattr(meta, "serial", ""), name, meta.path or "the capture")
         return cal, f"; device {name}"

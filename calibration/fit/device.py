@@ -435,12 +435,17 @@ def check_calibration(cal: DeviceCalibration, basis: DescriptorBasis) -> None:
 
 
 def measurement_source(path) -> dict:
-    """A device file's ``source`` for a measurement: its file name, and its
-    SHA-256 where it is a file."""
+    """A device file's ``source`` for a measurement: its file name, its
+    SHA-256 where it is a file, and the module's serial number where the
+    capture names one (a DNG's CameraSerialNumber: the correction stage
+    refuses the file for a capture of another module)."""
     from isp.io.files import file_sha256
+    from isp.io.read import camera_serial
 
     p = Path(path)
-    return {"measured": p.name, **({"sha256": file_sha256(p)} if p.is_file() else {})}
+    serial = camera_serial(p)
+    return {"measured": p.name, **({"sha256": file_sha256(p)} if p.is_file() else {}),
+            **({"serial": serial} if serial else {})}
 
 
 def device_calibration(proxy, basis: DescriptorBasis, k: int = DEFAULT_COMPONENTS, *, fit: dict | None = None,

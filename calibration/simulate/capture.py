@@ -637,6 +637,24 @@ def lens_model(lens) -> str:
     return name or "simulated lens"
 
 
+def module_serial(lens) -> str:
+    """The CameraSerialNumber a simulated capture of ``lens`` carries: its
+    module's identity, ``"SIM-"`` and 12 hex digits of the SHA-256 of its
+    design's name and its perturbation, so every capture of one drawn module
+    names the same module and two modules differ (the correction stage
+    refuses another module's calibration, :mod:`modules.correction`).
+    """
+    import hashlib
+    import json
+
+    from calibration.optics.perturb import nominal
+
+    pl = nominal(lens)
+    doc = {"lens": lens_model(pl.lens),
+           "perturbation": {k: round(float(v), 12) for k, v in sorted(pl.perturbation.as_dict().items()) if v}}
+    return "SIM-" + hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
+
+
 def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_time_s: float = 1 / 100,
                  iso: float = 100.0):
     """The CameraMeta a simulated capture is written with.
@@ -646,20 +664,20 @@ def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_tim
     D65 neutral is ``CAMERA_MIX·(1, 1, 1)``, normalised to green). Identity:
     UniqueCameraModel "phone-isp simulated phone", LensModel
     :func:`lens_model` (+ " (perturbed)" for a perturbed lens), which the
-    lens profiles match. Optics: F-number and paraxial EFL when given.
+    lens profiles match, and CameraSerialNumber :func:`module_serial`. Optics: F-number and paraxial EFL when given.
     """
     from calibration.simulate.scene import CAMERA_MIX, XYZ_TO_SRGB
     from isp.meta import CameraMeta
 
     neutral = CAMERA_MIX @ np.ones(3)
     neutral = neutral / neutral[1]
-    name, fno, efl = "", None, None
+    name, fno, efl, serial = "", None, None, ""
     if lens is not None:
         from calibration.optics import paraxial
         from calibration.optics.perturb import nominal
 
         pl = nominal(lens)
-        name = lens_model(pl.lens)
+        name, serial = lens_model(pl.lens), module_serial(pl)
         if not pl.perturbation.is_zero:
             name += " (perturbed)"
         try:
@@ -669,7 +687,7 @@ def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_tim
         if fo is not None and math.isfinite(fo.efl):
             fno, efl = float(fo.f_number), float(abs(fo.efl))
     return CameraMeta(
-        make="phone-isp", model="simulated phone", unique_camera_model="phone-isp simulated phone",
+        make="phone-isp", model="simulated phone", unique_camera_model="phone-isp simulated phone", serial=serial,
         cfa=sensor.cfa, black_level=np.full((1, 1, 1), sensor.black_level), white_level=(sensor.white_level,),
         color_matrix_1=CAMERA_MIX @ XYZ_TO_SRGB, calibration_illuminant_1=21, as_shot_neutral=tuple(neutral),
         baseline_exposure=0.0, noise_profile=(tuple(sensor.noise_profile),),

@@ -24,7 +24,8 @@ key             value
 ``descriptor``  ``rows × cols × K`` numbers, 4 significant digits
 ``effects``     the loop's kept effects, ``{"name", "params"}`` each (may be empty)
 ``fit``         the fit's errors (SFRA RMS before and after, χ² per observation)
-``source``      the measurement (file name, SHA-256) and the fitted perturbation
+``source``      the measurement (file name, SHA-256, and ``serial``: the module's serial
+                number where the chart capture names one) and the fitted perturbation
 ==============  ==============================================================
 
 This module reads and writes the file and interpolates the descriptor over
@@ -174,6 +175,21 @@ class DeviceCalibration:
             raise ValueError(f"descriptor must be a finite (rows, cols, k) array, got shape {d.shape}")
         object.__setattr__(self, "descriptor", d)
         object.__setattr__(self, "effects", tuple(self.effects))
+
+    @property
+    def serial(self) -> str:
+        """The module's serial number, from its chart capture ("" where the
+        capture named none)."""
+        return str(self.source.get("serial", "") or "")
+
+    def check_module(self, serial: str, name: str, where) -> None:
+        """InputError (one line, naming ``where``: the capture) where this
+        calibration, read from ``name``, is another module's than the
+        capture's of serial number ``serial``; nothing where either names
+        no serial."""
+        if self.serial and serial and self.serial != serial:
+            raise InputError(where, f"{name} is the calibration of module {self.serial}, this capture is module "
+                                    f"{serial}'s (CameraSerialNumber): give its own calibration, or --device none")
 
     @property
     def grid(self) -> tuple[int, int]:

@@ -40,6 +40,7 @@ TAG = {
     "ColorMatrix3": 52531, "ForwardMatrix3": 52532, "IlluminantData1": 52533,
     "IlluminantData2": 52534, "IlluminantData3": 52535,
     "DNGVersion": 50706, "UniqueCameraModel": 50708, "LensModel": 42036, "DNGPrivateData": 50740,
+    "CameraSerialNumber": 50735,
     "Orientation": 274, "Make": 271, "Model": 272, "Software": 305,
     "ExposureTime": 33434, "FNumber": 33437, "ISOSpeedRatings": 34855,
     "FocalLength": 37386, "DateTimeOriginal": 36867,

@@ -65,7 +65,7 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
         LinearRaw).
     meta : CameraMeta
         Fields written when set: make, model, unique_camera_model,
-        orientation, black_level (R, C, S pattern), white_level,
+        serial (CameraSerialNumber), orientation, black_level (R, C, S pattern), white_level,
         linearization_table, active_area, default_crop, colour matrices and
         illuminants, analog_balance, as_shot_neutral / as_shot_white_xy,
         baseline_exposure, noise_profile, opcodes (lists 1–3), the EXIF
@@ -119,6 +119,8 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
         add("Make", "s", 0, meta.make)
     if meta.model:
         add("Model", "s", 0, meta.model)
+    if meta.serial:
+        add("CameraSerialNumber", "s", 0, meta.serial)
     add("Orientation", "H", 1, int(meta.orientation))
     if not linear:
         add("CFARepeatPatternDim", "H", 2, (2, 2))

@@ -257,6 +257,26 @@ class _DngTags:
     shape: tuple[int, int]
 
 
+def _serial(r, tags: _DngTags) -> str:
+    """DNG CameraSerialNumber (50735), else EXIF BodySerialNumber (42033); "" where neither."""
+    return r.text("CameraSerialNumber") or str(_plain(tags.exif.get("BodySerialNumber", "")) or "").strip()
+
+
+def camera_serial(path) -> str:
+    """The serial number a DNG names (:attr:`isp.meta.CameraMeta.serial`),
+    read from its tags alone; "" for another file (a TIFF, a measurement's
+    JSON) or a DNG without one. A corrupt DNG raises InputError.
+
+    >>> camera_serial("measurements.json")
+    ''
+    """
+    p = Path(path)
+    if p.suffix.lower() != ".dng" or not p.is_file():
+        return ""
+    tags = _read_dng_tags(p)
+    return "" if tags is None else _serial(TagReader(tags.raw, tags.ifd0), tags)
+
+
 def _device_calibration(r) -> str:
     """The ``device/v1`` text this project's writer stores in DNGPrivateData
     (:mod:`isp.io.device`); "" for another maker's private data or none."""
@@ -626,7 +646,7 @@ def _meta_from_dng(path, raw, r: TagReader, tags: _DngTags, cfa, active, crop, o
 
     meta = CameraMeta(
         path=str(path), make=r.text("Make"), model=r.text("Model"),
-        unique_camera_model=r.text("UniqueCameraModel"), software=r.text("Software"),
+        unique_camera_model=r.text("UniqueCameraModel"), software=r.text("Software"), serial=_serial(r, tags),
         cfa=cfa, raw_size=tags.shape, active_area=active,
         default_crop=crop, origin=origin, orientation=orient, bits_per_sample=tags.bits,
         black_level=black, black_level_delta_h=dh, black_level_delta_v=dv, white_level=white,

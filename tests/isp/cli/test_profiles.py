@@ -93,6 +93,13 @@ def test_a_simulated_e9_capture_is_corrected(cli, tmp_path, user_folder, e9_lens
     perturbed = capture_meta(sm, lens=apply(e9_lens, {"s2.thickness": 0.002}))
     assert perturbed.lens == "US-12210142-B2-e9 (perturbed)"
     assert match_profile(perturbed).profile.name == "e9"
+    # each simulated module names itself (CameraSerialNumber): one module, one serial; two, two
+    from isp.io.read import read_raw
+
+    assert read_raw(dng).meta.serial == meta.serial and meta.serial.startswith("SIM-")
+    again = capture_meta(sm, lens=apply(e9_lens, {"s2.thickness": 0.002}))
+    other = capture_meta(sm, lens=apply(e9_lens, {"s2.thickness": 0.003}))
+    assert again.serial == perturbed.serial and len({meta.serial, perturbed.serial, other.serial}) == 3
 
 
 @pytest.mark.parametrize("name", list(OTHER_LENSES))

@@ -82,3 +82,25 @@ def test_another_makers_private_data_is_not_a_calibration(raw_file):
 
     # the GoPro FUSION carries GoPro's own DNGPrivateData
     assert read_raw(raw_file("gopro_FUSION_GPFR7066.dng")).meta.device_calibration == ""
+
+
+def test_a_capture_names_its_module_by_its_serial_number(raw_file, tmp_path):
+    """CameraSerialNumber (DNG 50735) is read from a real camera's DNG, and
+    written and read back; a calibration's measurement records it."""
+    from isp import CFA, CameraMeta
+    from isp.io.dng_write import write_dng
+    from isp.io.read import camera_serial, read_raw
+    from calibration.fit.device import measurement_source
+
+    gopro = raw_file("gopro_HERO6_GOPR0024.dng")
+    assert read_raw(gopro).meta.serial == "C32213DVT14025" == camera_serial(gopro)
+    meta = CameraMeta(cfa=CFA.RGGB, white_level=(1023.0,), color_matrix_1=np.eye(3), calibration_illuminant_1=21,
+                      as_shot_neutral=(0.5, 1.0, 0.6), serial="MOD-0042")
+    path = write_dng(tmp_path / "chart.dng", np.full((96, 128), 300, np.uint16), meta)
+    assert read_raw(path).meta.serial == "MOD-0042"
+    src = measurement_source(path)
+    assert src["serial"] == "MOD-0042" and src["measured"] == "chart.dng"
+    assert DeviceCalibration("lens", "d", "b", np.zeros((1, 1, 1)), source=src).serial == "MOD-0042"
+    assert "serial" not in measurement_source(tmp_path / "measurements.json")
+    assert read_raw(write_dng(tmp_path / "none.dng", np.full((96, 128), 300, np.uint16),
+                              meta.replace(serial=""))).meta.serial == ""

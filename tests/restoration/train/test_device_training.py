@@ -230,6 +230,40 @@ def test_a_frame_carrying_its_calibration_is_corrected_with_it(device_model, tmp
     assert "device other.json" in wins.history[-1].note and np.abs(wins.data - own.data).max() > 1e-6
 
 
+def test_another_modules_calibration_is_refused_where_both_name_their_module(device_model, tmp_path):
+    """Given the wrong module's file the model corrects worse than not at all
+    (docs/results/device.md): where the file names its module's serial (from
+    its chart capture) and the capture names its own, another module's file
+    is refused in one line naming the capture; the same module's, or a file
+    or capture naming none, is used."""
+    from isp import Domain
+    from isp.errors import InputError
+    from modules.correction import Correction
+
+    tmp, _ = device_model
+    model = tmp / "device.onnx"
+    rgb = np.random.default_rng(7).random((96, 128, 3))
+
+    def cal(serial):
+        src = {"measured": "chart.dng", **({"serial": serial} if serial else {})}
+        return DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[1], source=src).save(
+            tmp_path / f"dev_{serial or 'none'}.json")
+
+    def run(serial, device):
+        return Correction(model=model, tile_size=0, device=device).process(
+            make_frame(rgb, Domain.CAMERA_RGB, serial=serial, path="module.dng"))
+
+    with pytest.raises(InputError) as e:
+        run("SN-2", cal("SN-1"))
+    msg = str(e.value)
+    assert msg.startswith("module.dng: dev_SN-1.json is the calibration of module SN-1") and "SN-2" in msg
+    assert "\n" not in msg
+    same = run("SN-1", cal("SN-1"))
+    assert "device dev_SN-1.json" in same.history[-1].note
+    assert np.abs(run("", cal("SN-1")).data - same.data).max() < 1e-6         # the capture names no module
+    assert np.abs(run("SN-2", cal("")).data - same.data).max() < 1e-6         # the file names none
+
+
 def test_a_conditioned_model_quantises_every_conv_and_reads_its_device_in_int8(device_model, tmp_path):
     """Static INT8 of the conditioned export (calibration crops carrying
     descriptor channels): every conv quantised; the INT8 model reads the
