@@ -87,19 +87,19 @@ device_srgb            at the end of the pipeline, sRGB → sRGB (linear input,
                        the gamma-encoded image is its own √x)
 =====================  =======================================================
 
-They are trained here with ``--train-only`` and scored by
-:mod:`benchmarks.device_eval` on the same unseen modules as the packaged
-model, each entry reading the module's true descriptor (``--descriptor
-true``: a fitted file is worth the same within a few hundredths of a dB,
-``docs/results/device.md``, and skipping the fits saves their time)::
+They are trained here with ``--train-only`` and scored as a line runs the
+model, by :mod:`benchmarks.device_eval` on the unseen modules of the
+packaged model's evaluation, each entry reading the module's quick-fit
+``device.json`` (the fits are the packaged model's where its work folder
+is kept)::
 
     python -m benchmarks.ablations --config configs/e9_device.toml --steps 2000 --train-only \
         --out out/abl_device --only device device_static device_equal_dilation device_no_field \
         device_attention device_raw device_srgb
     python -m benchmarks.device_eval --model out/abl_device/device/model.pt \
-        --basis modules/models/e9_basis.npz --devices 6 --descriptor true --lights default \
+        --basis modules/models/e9_basis.npz --devices 6 --fit-args '--fine-iter 0' --lights default \
         --label ablations --parts benchmarks/results/device_eval_ablations_parts \
-        --work out/device_eval_ablations --extra static=out/abl_device/device_static/model.pt \
+        --work out/device_eval_packaged --extra static=out/abl_device/device_static/model.pt \
         equal_dilation=out/abl_device/device_equal_dilation/model.pt \
         no_field=out/abl_device/device_no_field/model.pt \
         attention=out/abl_device/device_attention/model.pt raw=out/abl_device/device_raw/model.pt \

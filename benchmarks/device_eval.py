@@ -27,10 +27,8 @@ draws), the line's steps are run and scored:
    photographs, which the project never trained or tuned on (``skimage``,
    the default light);
 7. with ``--extra NAME=MODEL``, other conditioned models (a variant, a longer
-   training) with each module's fitted file, as arm ``NAME``; with
-   ``--descriptor true`` they read the module's true descriptor instead and
-   no capture is simulated or fitted (the conditioned design's ablations,
-   :mod:`benchmarks.ablations`).
+   training) with each module's fitted file, as arm ``NAME`` (the
+   conditioned design's ablations, :mod:`benchmarks.ablations`).
 
 Each module's record is kept in ``benchmarks/results/device_eval_parts/``
 (a finished step is not run again), and the summary, per field ring and
@@ -92,10 +90,8 @@ def skimage_folder(into: Path) -> Path:
     return into
 
 
-def prepare(rec: dict, work: Path, lens_path: Path, pl, basis_path: Path, size: str, fit_args: list,
-            fit: bool = True) -> dict:
-    """Steps 1 and 2 for one module (skipped where ``rec`` has them; step 2
-    not at all without ``fit``)."""
+def prepare(rec: dict, work: Path, lens_path: Path, pl, basis_path: Path, size: str, fit_args: list) -> dict:
+    """Steps 1 and 2 for one module (skipped where ``rec`` has them)."""
     from calibration.fit.device import device_calibration, load_basis
     from calibration.fit.proxy import save_proxy
     from isp.cli.main import main as isp
@@ -106,8 +102,6 @@ def prepare(rec: dict, work: Path, lens_path: Path, pl, basis_path: Path, size: 
         save_proxy(true_lens, pl.nominal, pl.perturbation)
         device_calibration(pl, load_basis(basis_path, pl), source={"measured": "the module's true lens"}).save(true_dev)
     cap = work / "capture.dng"
-    if not fit:
-        return {"true_lens": true_lens, "true": true_dev}
     if "fit" not in rec and not (work / "fit" / "device.json").is_file():
         t0 = time.perf_counter()
         if not cap.is_file() and isp(["calib", "simulate", str(true_lens), "-o", str(cap), "--size", size]) != 0:
@@ -332,9 +326,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--skimage", action="store_true",
                     help="also score blind, fitted and true on scikit-image's photographs (default light)")
     ap.add_argument("--fit-only", action="store_true", help="simulate and fit the modules, score nothing")
-    ap.add_argument("--descriptor", choices=("fitted", "true"), default="fitted",
-                    help="the file --extra models read: each module's fitted device.json (default), or its true "
-                         "lens's descriptor (no capture simulated or fitted; no fitted, quick or wrong arms)")
     ap.add_argument("--parts", default=str(PARTS), help=f"per-module records (default {PARTS.relative_to(_harness.ROOT)})")
     ap.add_argument("--label", help="publish as device_eval_LABEL.json (another model's run beside the recorded one; "
                                     "give it its own --parts)")
@@ -358,8 +349,7 @@ def main(argv=None) -> dict:
             rec = json.loads(part.read_text()) if part.is_file() else {"lens": LENSES[args.lens], "device": d}
             if args.redo:
                 rec.pop("scores", None)
-            fitted = args.descriptor == "fitted"
-            files = prepare(rec, work[d], lens_path, pl, Path(args.basis), args.size, args.fit_args.split(), fitted)
+            files = prepare(rec, work[d], lens_path, pl, Path(args.basis), args.size, args.fit_args.split())
             _harness.write_record(part, rec)
             if args.quick:
                 files["quick"] = work[d] / "fit_quick" / "device.json"
@@ -369,8 +359,8 @@ def main(argv=None) -> dict:
             if args.fit_only:
                 continue
             scores = rec.setdefault("scores", {})
-            arms = {"blind": (args.blind, None), "true": (args.model, files["true"]),
-                    **({"fitted": (args.model, files["fitted"])} if fitted else {})}
+            arms = {"blind": (args.blind, None), "fitted": (args.model, files["fitted"]),
+                    "true": (args.model, files["true"])}
             if args.per_device_model:
                 own = Path(args.per_device_model) / f"{args.lens}_{args.seed}_{d}" / "model.pt"
                 if own.is_file():
@@ -378,8 +368,8 @@ def main(argv=None) -> dict:
             if args.quick:
                 arms["quick"] = (args.model, files["quick"])
             other = work[(d + 1) % len(lenses)] / "fit" / "device.json"
-            for name, model in extra.items():    # other models, each with the module's file (and a wrong one)
-                arms[name] = (model, files[args.descriptor])
+            for name, model in extra.items():    # other models, each with the fitted file (and a wrong one)
+                arms[name] = (model, files["fitted"])
                 if args.wrong and other.is_file():
                     arms[f"{name}_other"] = (model, other)
             if args.wrong:
@@ -400,8 +390,8 @@ def main(argv=None) -> dict:
     if args.fit_only:
         return {}
     summary = summarise(records)
-    figure = Path(args.figure or _harness.ROOT / "docs" / "results"
-                  / f"device_eval_{args.lens}{'_' + args.label if args.label else ''}.png")
+    suffix = f"_{args.label}" if args.label and args.label != args.lens else ""
+    figure = Path(args.figure or _harness.ROOT / "docs" / "results" / f"device_eval_{args.lens}{suffix}.png")
     if not args.no_plot:
         print(f"wrote {plot(records, figure, LENSES[args.lens])}")
     for light in LIGHTS:

@@ -62,24 +62,31 @@ def main(argv=None) -> dict:
                     help="tile sizes for --speed (default 1024 1536 2048)")
     ap.add_argument("--runs", type=int, default=3, help="warm runs per model and tile for --speed (default 3)")
     ap.add_argument("--no-workflow", action="store_true", help="--speed alone")
+    ap.add_argument("--fp32", help="--model's FP32 twin for --speed (default: its name without .int8; another "
+                                   "export of the same network where the model ships without one)")
+    ap.add_argument("--label", help="publish as device_workflow_LABEL.json (another model's run beside the "
+                                    "recorded one)")
     args = ap.parse_args(argv)
     res = {"lens": LENSES[args.lens], "target_s": TARGET_S}
     if args.speed:
-        res["speed"] = speed({"model": args.model, **dict(a.split("=", 1) for a in args.also)}, args)
+        res["speed"] = speed({"model": args.model, **dict(a.split("=", 1) for a in args.also)}, args,
+                             {"model": args.fp32} if args.fp32 else {})
     if not args.no_workflow:
         res.update(workflow(args))
-    return _harness.publish("device_workflow", res, args, argv)
+    return _harness.publish("device_workflow" + (f"_{args.label}" if args.label else ""), res, args, argv,
+                            script="device_workflow")
 
 
-def speed(models: dict, args) -> dict:
-    """``benchmarks/correction.py`` on each INT8 file and its FP32 export."""
+def speed(models: dict, args, twins: dict | None = None) -> dict:
+    """``benchmarks/correction.py`` on each INT8 file and its FP32 export
+    (``twins[name]`` where given)."""
     import tempfile
 
     from benchmarks import correction
 
     out = {}
     for name, int8 in models.items():
-        fp32 = Path(str(int8).replace(".int8.onnx", ".onnx"))
+        fp32 = Path((twins or {}).get(name) or str(int8).replace(".int8.onnx", ".onnx"))
         if not fp32.is_file() or fp32 == Path(int8):
             raise SystemExit(f"device_workflow: {fp32}: the FP32 export of {int8} is missing")
         with tempfile.TemporaryDirectory() as tmp:
