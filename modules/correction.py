@@ -48,10 +48,10 @@ descriptor is zero, the mean device of the design, and the stage's note
 says so; a blind model ignores a device file, and says that too. Where the
 file names its module's serial number (from its chart capture) and the
 capture names its own (CameraSerialNumber), another module's file is refused
-in one line: given the wrong module's calibration the model corrects worse
-than no correction at all (``docs/results/device.md``, "A wrong
-calibration"). With the
-model chosen by the capture's lens profile (``"auto"``), a profile that
+in one line: given the wrong module's calibration the model corrects some
+modules worse than no correction at all (``docs/results/device.md``, "A
+wrong calibration"). With the model chosen by the capture's lens profile
+(``"auto"``), a profile that
 has a ``device_model`` runs it where the module's calibration is known
 (``--device``, the capture's own, the profile's) and its blind ``model``
 everywhere else (:mod:`isp.profiles`).

@@ -664,7 +664,8 @@ def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_tim
     D65 neutral is ``CAMERA_MIX·(1, 1, 1)``, normalised to green). Identity:
     UniqueCameraModel "phone-isp simulated phone", LensModel
     :func:`lens_model` (+ " (perturbed)" for a perturbed lens), which the
-    lens profiles match, and CameraSerialNumber :func:`module_serial`. Optics: F-number and paraxial EFL when given.
+    lens profiles match, and CameraSerialNumber :func:`module_serial`.
+    Optics: F-number and paraxial EFL when given.
     """
     from calibration.simulate.scene import CAMERA_MIX, XYZ_TO_SRGB
     from isp.meta import CameraMeta

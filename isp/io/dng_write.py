@@ -65,8 +65,8 @@ def write_dng(path: str | os.PathLike, data: np.ndarray, meta: CameraMeta, *,
         LinearRaw).
     meta : CameraMeta
         Fields written when set: make, model, unique_camera_model,
-        serial (CameraSerialNumber), orientation, black_level (R, C, S pattern), white_level,
-        linearization_table, active_area, default_crop, colour matrices and
+        serial (CameraSerialNumber), orientation, black_level (R, C, S
+        pattern), white_level, linearization_table, active_area, default_crop, colour matrices and
         illuminants, analog_balance, as_shot_neutral / as_shot_white_xy,
         baseline_exposure, noise_profile, opcodes (lists 1–3), the EXIF
         values exposure_time_s, f_number, iso, focal_length_mm, datetime,
