@@ -452,7 +452,11 @@ def test_a_device_network_reads_its_descriptor_and_field_attention_ignores_conte
         assert torch.equal(a1, a2) == fixed, pool
 
 
-def test_a_device_network_needs_the_field():
-    with pytest.raises(ConfigError, match="field encoding"):
-        build_model("device", field=False)
+def test_a_device_network_keeps_the_field_channels_in_its_input():
+    """With or without field features, the descriptor follows the field (x, y)
+    in the input, the layout the correction stage feeds; K ≥ 0."""
+    with pytest.raises(ConfigError, match="descriptor channels"):
+        build_model("device", device=-1)
+    no_field = build_model("device", field=False)
+    assert no_field.in_channels == 5 + 16 and no_field.fov_encoding == "xy"
     assert build_model("device").in_channels == 5 + 16 and build_model("device_attention").config["pool"] == "field"
