@@ -372,7 +372,7 @@ def command(name: str, argv: list[str]) -> str:
 
 
 def publish(name: str, results: dict | list, args=None, argv: list[str] | None = None,
-            script: str | None = None) -> dict | list:
+            label: str | None = None) -> dict | list:
     """Write the run's record to ``DIR/NAME.json`` atomically and print it as
     the last line of standard output.
 
@@ -388,9 +388,10 @@ def publish(name: str, results: dict | list, args=None, argv: list[str] | None =
     argv : list of str, optional
         The options as given (default ``sys.argv[1:]``), kept so that the
         page that shows the figures can say how to regenerate them.
-    script : str, optional
-        The script's module name where the record is named otherwise (a
-        labelled run of it: ``device_eval`` writing ``device_eval_packaged``).
+    label : str, optional
+        A labelled run of the script, recorded beside the unlabelled one as
+        ``NAME_LABEL.json`` (``device_eval --label packaged`` writes
+        ``device_eval_packaged``; :mod:`benchmarks.report` finds its script).
 
     Returns
     -------
@@ -400,7 +401,8 @@ def publish(name: str, results: dict | list, args=None, argv: list[str] | None =
     from isp.io.files import write_bytes_atomic
 
     argv = _argv_without_results(list(sys.argv[1:] if argv is None else argv))
-    record = {"name": name, "argv": argv, "command": command(script or name, argv), "env": environment(),
+    script, name = name, f"{name}_{label}" if label else name
+    record = {"name": name, "argv": argv, "command": command(script, argv), "env": environment(),
               "results": results}
     text = json.dumps(record, default=_jsonable)
     out = results_dir(args) / f"{name}.json"

@@ -399,10 +399,10 @@ def main(argv=None) -> dict:
             print(f"{light:>7} {arm:>10}: " + ", ".join(f"{r} {v['mean_gain_db'][r]:+.2f}" for r in RINGS)
                   + f" dB (min {v['min_gain_db']['0.9']:+.2f} at 0.9; {v['devices']} modules)")
     print("targets: " + ", ".join(f"{k} {'met' if v else 'NOT met'}" for k, v in summary["targets"].items()))
-    return _harness.publish("device_eval" + (f"_{args.label}" if args.label else ""),
+    return _harness.publish("device_eval",
                             {"lens": LENSES[args.lens], "modules": len(records), "summary": summary,
                              "per_module_0.9": {light: per_module(records, light) for light in LIGHTS},
-                             "records": records}, args, argv, script="device_eval")
+                             "records": records}, args, argv, label=args.label)
 
 
 if __name__ == "__main__":

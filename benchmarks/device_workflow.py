@@ -73,8 +73,7 @@ def main(argv=None) -> dict:
                              {"model": args.fp32} if args.fp32 else {})
     if not args.no_workflow:
         res.update(workflow(args))
-    return _harness.publish("device_workflow" + (f"_{args.label}" if args.label else ""), res, args, argv,
-                            script="device_workflow")
+    return _harness.publish("device_workflow", res, args, argv, label=args.label)
 
 
 def speed(models: dict, args, twins: dict | None = None) -> dict:

@@ -59,6 +59,14 @@ def test_publish_writes_the_record_atomically_and_prints_it_last(tmp_path, capsy
     assert not list(tmp_path.glob(".*tmp"))
 
 
+def test_a_labelled_run_is_recorded_beside_the_script_s_own(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv(_harness.RESULTS_ENV, str(tmp_path))
+    _harness.publish("device_eval", {"x": 1}, argv=["--label", "e2"], label="e2")
+    rec = json.loads((tmp_path / "device_eval_e2.json").read_text())
+    assert rec["name"] == "device_eval_e2" and rec["command"] == "python -m benchmarks.device_eval --label e2"
+    assert not (tmp_path / "device_eval.json").exists()
+
+
 def test_the_results_option_names_the_folder(tmp_path):
     ap = _harness.parser(__doc__)
     args = ap.parse_args(["--results", str(tmp_path / "r")])
