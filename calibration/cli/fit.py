@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
                                                    jacobian_model=FAST_JACOBIAN if args.fast_jacobian else None,
                                                    refresh=args.refresh, restarts=args.restarts,
                                                    coarse=coarse,
-                                                   fine_iter=args.fine_iter),
+                                                   fine_iter=args.fine_iter, widen=args.window_um is None),
                     executor=pool_executor(args.workers, progress=True, executor=args.executor))
     with staged_folder(out) as tmp:
         fit.save(tmp)
@@ -115,6 +115,10 @@ def run(args: argparse.Namespace) -> int:
           f"χ²/obs {e['before']['chi2_per_obs']:.1f} → {e['after']['chi2_per_obs']:.2f}, median |residual| "
           f"{e['before']['median_abs_z']:.2f} → {e['after']['median_abs_z']:.2f} σ (0.67 at the noise floor); "
           f"{fit.evaluations} lens evaluations, {fit.seconds:.0f} s")
+    for w in fit.settings.get("widened", []):
+        print(f"note: the lens fitted with a {w['window_um']:g} µm PSF window threw "
+              f"{1 - w['window_energy_min']:.0%} of some region's light outside it: fitted again with a wider one "
+              f"({fit.settings.get('window_um'):g} µm at the end; --window-um sets it)")
     if fit.window_energy < WINDOW_ENERGY_WARN:
         print(f"note: the fitted lens throws {1 - fit.window_energy:.0%} of some region's light outside the model's "
               f"{fit.settings.get('window_um')} µm PSF window; its SFR there is too high at low frequencies "
@@ -193,8 +197,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "merit in 109 s against 181 s with the full model's Jacobian, and in 152 s with the "
                         "32 µm window)")
     p.add_argument("--window-um", type=float, metavar="UM",
-                   help="the forward model's PSF window, µm (default 32; wider for blurry devices, whose "
-                        "corner light a narrow window drops: the fit says when)")
+                   help="the forward model's PSF window, µm (default: 32, and the fit is redone 1.5× wider "
+                        "where the fitted lens throws over a tenth of some region's light outside it, as "
+                        "blurry modules' corners do, again while widening recovers that light; given: that "
+                        "window, no refit)")
     p.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
     p.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")
     p.add_argument("--pixel-um", type=float, metavar="UM", help="pixel pitch, µm (default: the capture's)")

@@ -79,6 +79,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--demosaic", default="malvar2004", help="the pipeline's demosaic method (default malvar2004)")
     g.add_argument("--tone", choices=("none", "reinhard", "aces"), default="none",
                    help="the pipeline's luminance tone curve (default none)")
+    g.add_argument("--positions", choices=("frame", "radius"), default="frame",
+                   help="where crops lie: 'frame' (default) uniformly over the frame, each field ring in "
+                        "proportion to its area; 'radius' at a field radius uniform from the centre to the "
+                        "corner, as many pairs in the corners as in the centre")
     g = p.add_argument_group("PSF maps")
     g.add_argument("--psf-n", type=int, default=PSF_DEFAULTS["n"],
                    help="PSF window in samples of half a pixel (default a 32 µm window, 64 samples on 1 µm "
@@ -120,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
     cameras = args.camera or [str(DATA / c) for c in DEFAULT_CAMERAS]
     executor = pool_executor(args.workers, progress=not args.quiet, executor=args.executor)
     settings = SynthSettings(size=args.size, exposure_ev=args.exposure, cct_k=args.cct, noise_scale=args.noise_scale,
-                             noise=not args.no_noise, blend=args.blend, demosaic=args.demosaic, tone=args.tone)
+                             noise=not args.no_noise, blend=args.blend, demosaic=args.demosaic, tone=args.tone,
+                             positions=args.positions)
     p = plan(args.lens, samples=args.samples, latent_dir=args.latent, cameras=cameras, seed=args.seed,
              settings=settings, tolerance_scale=args.tolerance_scale,
              psf_options={"n": args.psf_n, "grid": args.psf_grid},

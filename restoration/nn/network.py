@@ -48,7 +48,12 @@ default 0, 4, 0; resolutions relative to the input)::
   each pixel and given as ``K`` more input channels after the field
   position. They join ``φ``, so they enter the stem and every DOConv's
   attention; with ``pool="field"`` the attention is driven by position and
-  descriptor alone, a fixed map for one device.
+  descriptor alone, a fixed map for one device. With ``film`` they also
+  scale and shift, per channel and pixel, the stem's output and every
+  block's spatial-conv output (FiLM [3]_; 1×1 convs of the features,
+  starting at the identity): the descriptor then reaches the filters that
+  do the deconvolution, not only their bias and their kernels' mix. For
+  one device the scales and shifts are fixed maps.
 * **Residual output**: the network predicts a correction added to the
   input RGB; the head starts small, so an untrained network is close to the
   identity.
@@ -90,6 +95,8 @@ References
    "A ConvNet for the 2020s", CVPR 2022.
 .. [2] B. Lim, S. Son, H. Kim, S. Nah, K. M. Lee, "Enhanced Deep Residual
    Networks for Single Image Super-Resolution", CVPRW 2017.
+.. [3] E. Perez, F. Strub, H. de Vries, V. Dumoulin, A. Courville, "FiLM:
+   Visual Reasoning with a General Conditioning Layer", AAAI 2018.
 """
 
 from __future__ import annotations
@@ -137,6 +144,13 @@ def field_features(field: Tensor, factor: int) -> Tensor:
     return torch.cat([f[:, :2], r2, f[:, 2:]], dim=1)
 
 
+def _zero_conv(cin: int, cout: int) -> nn.Conv2d:
+    """A 1×1 conv, no bias, starting at 0 (a modulation that starts as the identity)."""
+    conv = nn.Conv2d(cin, cout, 1, bias=False)
+    nn.init.zeros_(conv.weight)
+    return conv
+
+
 class ConvNeXtBlock(nn.Module):
     """``x + pw₂(ReLU(pw₁(conv(x))))``, ``conv`` a DOConv or a static conv,
     depthwise or grouped; (N, C, H, W) → (N, C, H, W).
@@ -158,7 +172,7 @@ class ConvNeXtBlock(nn.Module):
 
     def __init__(self, channels: int, *, expansion: int, conv: str, kernel_size: int,
                  dilations: tuple[int, ...], spatial: str, pool: str, window: int, field_channels: int,
-                 group_width: int = 1):
+                 group_width: int = 1, film: bool = False):
         super().__init__()
         group_width = group_width or channels
         if group_width < 1 or channels % group_width:
@@ -176,9 +190,14 @@ class ConvNeXtBlock(nn.Module):
         with torch.no_grad():
             self.pw2.weight.mul_(0.1)
             self.pw2.bias.zero_()
+        # FiLM: the spatial conv's output scaled and shifted per channel by the field features
+        self.film = _zero_conv(field_channels, 2 * channels) if film and field_channels else None
 
     def forward(self, x: Tensor, field: Tensor | None = None) -> Tensor:
         h = self.conv(x, field) if self.dynamic else self.conv(x)
+        if self.film is not None:
+            g, b = self.film(field).chunk(2, dim=1)
+            h = h * (1 + g) + b
         return x + self.pw2(F.relu(self.pw1(h)))
 
 
@@ -266,7 +285,8 @@ class DOConvUNet(nn.Module):
                  expansion: int = 2, conv: str = "doconv", dilations: tuple[int, ...] = (1, 2, 3, 4),
                  spatial: str = "none", pool: str = "local", window: int = 7, field: bool = True,
                  kernel_size: int = 3, scale: int = 2, encoding: str = "linear", highpass: int = 0,
-                 highpass_domain: str = "encoded", group_width: int = 1, device: int = 0):
+                 highpass_domain: str = "encoded", group_width: int = 1, device: int = 0,
+                 film: bool = False):
         super().__init__()
         if device < 0:
             raise ConfigError(f"device must be 0, or K > 0 descriptor channels; got {device}")
@@ -283,7 +303,7 @@ class DOConvUNet(nn.Module):
                        "conv": conv, "dilations": tuple(dilations), "spatial": spatial, "pool": pool,
                        "window": window, "field": field, "kernel_size": kernel_size, "scale": scale,
                        "encoding": encoding, "highpass": highpass, "highpass_domain": highpass_domain,
-                       "group_width": group_width, "device": device}
+                       "group_width": group_width, "device": device, "film": film}
         self.encoding = encoding
         # the linear residual differs from the encoded one only when there is an encoding
         self.linear_residual = bool(highpass) and highpass_domain == "linear" and encoding == "sqrt"
@@ -299,7 +319,7 @@ class DOConvUNet(nn.Module):
         c1, c2 = widths
         block = {"expansion": expansion, "conv": conv, "kernel_size": kernel_size,
                  "dilations": tuple(dilations), "spatial": spatial, "pool": pool, "window": window,
-                 "field_channels": nf, "group_width": group_width}
+                 "field_channels": nf, "group_width": group_width, "film": film}
         # space-to-depth and a 3×3 conv in one: a (3·scale)² conv of stride
         # `scale` is the same function (PixelUnshuffle + 3×3 conv, padding 1)
         # without the 6-D transpose ONNX Runtime spent 8 % of an INT8 run on
@@ -307,6 +327,7 @@ class DOConvUNet(nn.Module):
         # φ is smooth (linear and quadratic in the position): a 1×1 conv of it
         # spans what a 3×3 one would, at a ninth of the cost
         self.stem_field = nn.Conv2d(nf, c1, 1, bias=False) if nf else None
+        self.stem_film = _zero_conv(nf, c1) if film and nf else None
         self.enc = nn.ModuleList(ConvNeXtBlock(c1, **block) for _ in range(depths[0]))
         self.down = nn.Conv2d(c1, c2, 2, stride=2)
         self.mid = nn.ModuleList(ConvNeXtBlock(c2, **block) for _ in range(depths[1]))
@@ -348,6 +369,8 @@ class DOConvUNet(nn.Module):
         h = stem(u0)
         if self.positional:
             f1, f2 = self.features(field, factor), self.features(field, 2 * factor)
+            if self.stem_film is not None:
+                h = h * (1 + self.stem_film(f1))
             h = h + self.stem_field(f1)
         for b in self.enc:
             h = b(h, f1)
@@ -689,6 +712,13 @@ def device_attention(**kw) -> DOConvUNet:
     """As ``device``, its DOConv attention driven by field position and
     descriptor alone (no image content): for one device a fixed map."""
     return DOConvUNet(**{**DEFAULT, "device": 16, "pool": "field", **kw})
+
+
+@register_model
+def device_film(**kw) -> DOConvUNet:
+    """As ``device``, the field and descriptor also scaling and shifting the
+    stem's and every block's spatial-conv channels (FiLM; module docstring)."""
+    return DOConvUNet(**{**DEFAULT, "device": 16, "film": True, **kw})
 
 
 @register_model

@@ -67,6 +67,7 @@ class SynthConfig:
     blend: str = "bilinear"
     demosaic: str = "malvar2004"
     tone: str = "none"
+    positions: str = "frame"        # where crops lie: "frame" (uniform) or "radius" (uniform in the field radius)
     psf_n: int = 0                  # PSF window, half-pixel samples; 0: 32 µm (64 on 1 µm pixels)
     psf_grid: list = field(default_factory=lambda: list(PSF_DEFAULTS["grid"]))
     shard_size: int = 100
@@ -209,6 +210,7 @@ class TrainConfig:
             for k in ("exposure_ev", "cct_k", "noise_scale", "psf_grid"):
                 if len(getattr(s, k)) != 2:
                     raise ConfigError(f"synth.{k} must be two numbers; got {getattr(s, k)!r}")
+            _choice(s.positions, ("frame", "radius"), "synth.positions")
         _choice(self.model.placement, tuple(PLACEMENTS), "model.placement")
         _choice(o.loss, LOSSES, "optim.loss")
         _choice(o.schedule, SCHEDULES, "optim.schedule")

@@ -62,6 +62,8 @@ key                            default              meaning
 ``synth.blend``                ``"bilinear"``       PSF interpolation between regions
 ``synth.demosaic``             ``"malvar2004"``     the pipeline's demosaic
 ``synth.tone``                 ``"none"``           the luminance stage's tone curve
+``synth.positions``            ``"frame"``          where crops lie: uniform over the frame, or
+                                                    ``"radius"``, uniform in the field radius
 ``synth.psf_n``                0                    PSF window, half-pixel samples; 0: 32 µm
                                                     (64 on 1 µm pixels)
 ``synth.psf_grid``             [15, 20]             PSF-map regions (rows, cols)
@@ -178,7 +180,7 @@ def synth_argv(config: TrainConfig) -> list[str]:
             "--latent", str(resolve_path(s.latent)),
             "--exposure", ",".join(map(str, s.exposure_ev)), "--cct", ",".join(map(str, s.cct_k)),
             "--noise-scale", ",".join(map(str, s.noise_scale)), "--blend", s.blend, "--demosaic", s.demosaic,
-            "--tone", s.tone, "--psf-grid", ",".join(map(str, s.psf_grid))]
+            "--tone", s.tone, "--positions", s.positions, "--psf-grid", ",".join(map(str, s.psf_grid))]
     if s.psf_n:
         argv += ["--psf-n", str(s.psf_n)]
     for c in s.cameras:
@@ -213,6 +215,7 @@ def _synth_mismatch(manifest: dict, config: TrainConfig) -> list[str]:
             "lens": (Path(str(lens.get("path"))).name, resolve_path(s.lens).name),
             "tone": (st.get("tone"), s.tone), "demosaic": (st.get("demosaic"), s.demosaic),
             "blend": (st.get("blend"), s.blend), "noise": (st.get("noise"), s.noise),
+            "positions": (st.get("positions", "frame"), s.positions),
             "exposure_ev": (list(st.get("exposure_ev", [])), list(map(float, s.exposure_ev))),
             "cct_k": (list(st.get("cct_k", [])), list(map(float, s.cct_k))),
             "noise_scale": (list(st.get("noise_scale", [])), list(map(float, s.noise_scale))),
@@ -254,7 +257,8 @@ def synthesise(config: TrainConfig, *, executor=None, log=print) -> dict:
     cameras = [str(resolve_path(c)) for c in s.cameras] or [str(DATA / c) for c in DEFAULT_CAMERAS]
     settings = SynthSettings(size=s.size, exposure_ev=tuple(map(float, s.exposure_ev)),
                              cct_k=tuple(map(float, s.cct_k)), noise_scale=tuple(map(float, s.noise_scale)),
-                             noise=s.noise, blend=s.blend, demosaic=s.demosaic, tone=s.tone)
+                             noise=s.noise, blend=s.blend, demosaic=s.demosaic, tone=s.tone,
+                             positions=s.positions)
     ex = synth_executor(config) if executor is None else executor
     p = plan(str(lens), samples=s.samples, latent_dir=str(resolve_path(s.latent)), cameras=cameras, seed=s.seed,
              settings=settings, tolerance_scale=float(s.tolerance_scale),

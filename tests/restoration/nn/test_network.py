@@ -254,7 +254,8 @@ def test_sqrt_encoding_is_the_identity_without_a_correction():
                                 {"encoding": "sqrt", "highpass": 9, "highpass_domain": "linear"},
                                 {"encoding": "sqrt", "scale": 4, "highpass": 3, "highpass_domain": "linear"},
                                 {"group_width": 16}, {"conv": "static", "group_width": 4},
-                                {"device": 4}, {"device": 3, "pool": "field", "scale": 4, "depths": (1, 1, 1)}])
+                                {"device": 4}, {"device": 3, "pool": "field", "scale": 4, "depths": (1, 1, 1)},
+                                {"device": 4, "film": True}])
 def test_space_to_depth_form_is_the_same_function(kw):
     """The export's packed form (stem and head reindexed) equals the model on
     the packed input, to float rounding; built here with plain reshapes."""
@@ -264,6 +265,9 @@ def test_space_to_depth_form_is_the_same_function(kw):
     model = build_model("doconv", widths=(8, 16), **{"depths": (0, 1, 0), **kw}).eval()
     with torch.no_grad():
         model.head[0].weight.mul_(10)
+        for name, p in model.named_parameters():
+            if "film" in name:      # the modulation away from its identity start
+                p.normal_(0.0, 0.3)
     s = model.scale
     x = torch.rand(2, model.in_channels, 8 * s, 12 * s)
     x[:, 3:] = x[:, 3:] * 2 - 1

@@ -100,3 +100,35 @@ def test_plan_pixel_um_samples_the_lens_sensor_at_that_pitch(tmp_path, cameras, 
     # not 64 samples whatever the pixel, which at 2.8 µm had been 90 µm, past the pupil's replica period
     coarse = plan(str(lens), pixel_um=2.8, psf_options={**psf, "pupil_samples": 48}, **kw).maps[0]
     assert coarse.n == 32 and coarse.n * coarse.pitch_um >= 32.0
+
+
+def test_radius_positions_give_the_outer_ring_its_width_share_not_its_area_share():
+    """``positions="radius"``: a crop's centre radius is uniform up to the
+    corner crop's (share of centres in [0.8, 0.9) of the half-diagonal:
+    0.1 / r_max), every crop inside the frame; ``"frame"``: uniform over the
+    frame, where the share of a ring is its area's (a Monte Carlo of the
+    uniform frame, independent of the sampler, as the reference)."""
+    from isp.errors import ConfigError
+    from restoration.synth.pairs import SynthSettings, crop_origin
+
+    full, n = (4211, 5614), 256
+    hd = np.hypot(full[0] / 2, full[1] / 2)
+    r_max = np.hypot(full[0] - n, full[1] - n) / 2 / hd
+
+    def radii(positions, k=4000):
+        rng = np.random.default_rng(1)
+        o = np.array([crop_origin(full, n, rng, positions) for _ in range(k)])
+        assert o.min() >= 0 and (o[:, 0] <= full[0] - n).all() and (o[:, 1] <= full[1] - n).all()
+        return np.hypot(o[:, 0] + n / 2 - full[0] / 2, o[:, 1] + n / 2 - full[1] / 2) / hd
+
+    r = radii("radius")
+    assert np.mean((r >= 0.8) & (r < 0.9)) == pytest.approx(0.1 / r_max, abs=0.015)
+    assert np.mean(r < 0.2) == pytest.approx(0.2 / r_max, abs=0.02)
+    assert r.max() <= r_max + 1e-3
+    u = np.random.default_rng(2).uniform(size=(200_000, 2)) * (np.array(full) - n) + n / 2
+    area = np.hypot(u[:, 0] - full[0] / 2, u[:, 1] - full[1] / 2) / hd
+    f = radii("frame")
+    assert np.mean(f >= 0.8) == pytest.approx(np.mean(area >= 0.8), abs=0.015)
+    assert np.mean(r >= 0.8) > 2 * np.mean(f >= 0.8)
+    with pytest.raises(ConfigError, match="positions"):
+        SynthSettings(positions="corners")

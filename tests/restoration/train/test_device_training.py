@@ -362,3 +362,50 @@ def test_field_driven_attention_exports_and_tiles_as_the_whole_frame(tmp_path):
     tiled = Correction(model=tmp_path / "att.onnx", device=dev, tile_size=tile).process(frame)
     assert np.abs(whole.data - tiled.data).max() < 1e-5
     assert np.abs(whole.data - frame.data).max() > 1e-4          # the network did something
+
+
+def test_film_modulation_exports_quantises_every_conv_and_tiles_as_the_whole_frame(tmp_path):
+    """``device_film`` (the descriptor scaling and shifting the stem's and the
+    blocks' channels): it starts as the ``device`` network of the same weights
+    (the modulation at the identity); with the modulation trained away from
+    it, the descriptor changes the output through it alone, the export runs
+    in the stage with tiles equal to the whole frame, and static INT8
+    quantises every conv and stays near the float model."""
+    from export.onnx_export import export_onnx
+    from export.quantize import quantize_int8
+    from isp import Domain
+    from modules.correction import Correction
+    from restoration.nn.checkpoint import save_checkpoint
+    from restoration.nn.network import build_model
+    from tests.helpers import EXPORT_META, onnx_calibration_reader
+
+    kw = {**TINY, "device": K}
+    torch.manual_seed(0)
+    film, plain = build_model("device_film", **kw).eval(), build_model("device", **kw).eval()
+    missing = film.load_state_dict(plain.state_dict(), strict=False).missing_keys
+    assert missing and all("film" in k for k in missing)
+    x = torch.rand(1, 5 + K, 32, 48)
+    with torch.no_grad():
+        assert torch.equal(film(x), plain(x))
+        for name, p in film.named_parameters():
+            if "film" in name:
+                p.normal_(0.0, 0.3)
+        # the stem's bias and the attention read the descriptor too: take them out, FiLM still moves the output
+        film.stem_field.weight[:, 3:] = 0.0
+        other = torch.cat([x[:, :5], -x[:, 5:]], 1)
+        assert (film(x) - film(other)).abs().max() > 1e-3
+    meta = {**{k: v for k, v in EXPORT_META.items() if k != "attention"},
+            "device_components": K, "device_design": DESIGN, "device_basis": BASIS}
+    ckpt = save_checkpoint(tmp_path / "m.pt", film, variant="device_film", model_kwargs=kw, step=1, metadata=meta)
+    report = export_onnx(ckpt, tmp_path / "film.onnx", tile_size=0, measure_overlap=False)
+    q8 = tmp_path / "film.int8.onnx"
+    r = quantize_int8(tmp_path / "film.onnx", q8, onnx_calibration_reader(device=K))
+    assert r["int8_quantized_conv"] == r["fp32_conv"] and r["int8_float_conv"] == 0
+    tile = 2 * int(report["metadata"]["receptive_radius"]) + 32
+    frame = make_frame(np.random.default_rng(6).random((96, 3 * tile, 3)), Domain.CAMERA_RGB)
+    dev = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0]).save(tmp_path / "dev.json")
+    whole = Correction(model=tmp_path / "film.onnx", device=dev, tile_size=0).process(frame)
+    tiled = Correction(model=tmp_path / "film.onnx", device=dev, tile_size=tile).process(frame)
+    assert np.abs(whole.data - tiled.data).max() < 1e-5
+    i8 = Correction(model=q8, device=dev, tile_size=0).process(frame)
+    assert np.abs(i8.data - whole.data).mean() < 0.02
