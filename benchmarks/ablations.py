@@ -62,15 +62,16 @@ linear_srgb_hp      linear_highpass placed between the colour matrix and
                     matrix and exposure give, without the gamma's)
 ==================  ==========================================================
 
-The conditioned design (the packaged ``e9_device`` network: the module's
-16-number descriptor per field region as input channels) has entries of its
-own, each against ``device``, trained from ``configs/e9_device.toml`` (pairs
-from 48 lenses, each carrying its descriptor):
+The conditioned design (the ``e9_device`` network: the module's 16-number
+descriptor per field region as input channels) has entries of its own, each
+against ``device``, trained from ``configs/e9_device.toml`` (pairs from 48
+lenses, each carrying its descriptor; the recorded run's config was the short
+recipe, crops uniform over the frame and the rate halved every 6 epochs):
 
 =====================  =======================================================
 entry                  what changes against "device"
 =====================  =======================================================
-device                 the packaged conditioned network (widths 16, 32, dense
+device                 the conditioned network (widths 16, 32, dense
                        DOConv kernels, √x, linear high-pass, 16 descriptor
                        channels), in the pipeline
 device_static          dense static 3×3 convs, widths 16, 56 (9.14 against

@@ -231,7 +231,7 @@ def calibrate_device(task: tuple[str, str]) -> dict:
     obs, _ = load_measured(capture, channel=s.channel, encoding=s.encoding, pixel_um=s.pixel_um, executor=serial)
     nominal, obs = match_sensor(job.lens, obs, pixel_um=s.pixel_um)
     fit = fit_proxy(nominal, obs, ProxyFitSettings(max_iter=s.max_iter, n_params=s.n_params, restarts=s.restarts,
-                                                   coarse=s.coarse, fine_iter=s.fine_iter, seed=s.seed, widen=True),
+                                                   coarse=s.coarse, fine_iter=s.fine_iter, seed=s.seed),
                     executor=serial)
     e = fit.errors()
     names, u = list(fit.space.names), np.asarray(fit.u, float)

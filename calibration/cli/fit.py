@@ -69,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--bootstrap {args.bootstrap}: 0 or more")
     if args.components < 1:
         raise ConfigError(f"--components {args.components}: at least 1")
+    if args.widen and args.window_um is not None and args.window_um >= 128.0:
+        raise ConfigError(f"--widen starts from --window-um {args.window_um:g}: below the widest it tries, 128 µm")
     if args.window_um is not None and not 8.0 <= args.window_um <= 256.0:
         raise ConfigError(f"--window-um {args.window_um:g}: between 8 and 256 µm")
     if args.fine_iter is not None and args.fine_iter < 0:
@@ -94,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
                                                    jacobian_model=FAST_JACOBIAN if args.fast_jacobian else None,
                                                    refresh=args.refresh, restarts=args.restarts,
                                                    coarse=coarse,
-                                                   fine_iter=args.fine_iter, widen=args.window_um is None),
+                                                   fine_iter=args.fine_iter, widen=args.widen),
                     executor=pool_executor(args.workers, progress=True, executor=args.executor))
     with staged_folder(out) as tmp:
         fit.save(tmp)
@@ -119,10 +121,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the lens fitted with a {w['window_um']:g} µm PSF window threw "
               f"{1 - w['window_energy_min']:.0%} of some region's light outside it: fitted again with a wider one "
               f"({fit.settings.get('window_um'):g} µm at the end; --window-um sets it)")
-    if fit.window_energy < WINDOW_ENERGY_WARN:
+    if fit.window_energy < WINDOW_ENERGY_WARN and fit.settings.get("widened"):
+        print(f"note: the fitted lens still throws {1 - fit.window_energy:.0%} of some region's light outside the "
+              f"{fit.settings.get('window_um'):g} µm PSF window; widening further recovered too little of it to "
+              "pay for another fit (benchmarks/psf_window.py)")
+    elif fit.window_energy < WINDOW_ENERGY_WARN:
         print(f"note: the fitted lens throws {1 - fit.window_energy:.0%} of some region's light outside the model's "
               f"{fit.settings.get('window_um')} µm PSF window; its SFR there is too high at low frequencies "
-              "(a wider window: --window-um, benchmarks/psf_window.py)")
+              "(a wider window: --widen or --window-um, benchmarks/psf_window.py)")
     if basis is not None:
         print(f"device calibration: {cal.grid[0]} × {cal.grid[1]} regions × {cal.descriptor.shape[2]} components "
               f"on basis {basis.key[:12]} (max |d| {abs(cal.descriptor).max():.2f} spreads)")
@@ -197,10 +203,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "merit in 109 s against 181 s with the full model's Jacobian, and in 152 s with the "
                         "32 µm window)")
     p.add_argument("--window-um", type=float, metavar="UM",
-                   help="the forward model's PSF window, µm (default: 32, and the fit is redone 1.5× wider "
-                        "where the fitted lens throws over a tenth of some region's light outside it, as "
-                        "blurry modules' corners do, again while widening recovers that light; given: that "
-                        "window, no refit)")
+                   help="the forward model's PSF window, µm (default 32; wider for blurry devices, whose "
+                        "corner light a narrow window drops: the fit says when)")
+    p.add_argument("--widen", action=argparse.BooleanOptionalAction, default=False,
+                   help="where the fitted lens throws over a tenth of some region's light outside the PSF "
+                        "window, fit again 1.5× wider, and again while widening recovers that light (each "
+                        "refit costs a fit; default off: on e9's modules, which lose 8–23 %% at 32 µm, it "
+                        "would double the quick fit's time for a gain not measured)")
     p.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
     p.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")
     p.add_argument("--pixel-um", type=float, metavar="UM", help="pixel pitch, µm (default: the capture's)")

@@ -134,9 +134,9 @@ class SynthSettings:
     positions : {"frame", "radius"}
         Where a crop lies on the frame (:func:`crop_origin`): "frame"
         (default), uniformly over the frame, so that each field ring gets
-        pairs in proportion to its area (on e9's sensor 7 % of the centres
+        pairs in proportion to its area (on e9's sensor 6–7 % of the centres
         lie in an evaluation's outer ring, ``r ≥ 0.8`` of the
-        half-diagonal, 0.5 % beyond 0.9); "radius", its centre at a radius
+        half-diagonal, under 1 % beyond 0.9); "radius", its centre at a radius
         uniform up to the corner crop's, so that a ring's share is its
         width (the outer ring, where the lenses of a design differ most,
         about 16 %; 5 % beyond 0.9).

@@ -130,5 +130,8 @@ def test_radius_positions_give_the_outer_ring_its_width_share_not_its_area_share
     f = radii("frame")
     assert np.mean(f >= 0.8) == pytest.approx(np.mean(area >= 0.8), abs=0.015)
     assert np.mean(r >= 0.8) > 2 * np.mean(f >= 0.8)
+    # the shares the docs quote for e9's sensor: outer ring 6–7 % against 16 %, beyond 0.9 under 1 % against 5 %
+    assert 0.055 < np.mean(f >= 0.8) < 0.075 and np.mean(f >= 0.9) < 0.01
+    assert 0.14 < np.mean(r >= 0.8) < 0.175 and 0.045 < np.mean(r >= 0.9) < 0.065
     with pytest.raises(ConfigError, match="positions"):
         SynthSettings(positions="corners")

@@ -336,8 +336,6 @@ def test_field_driven_attention_exports_and_tiles_as_the_whole_frame(tmp_path):
     metadata ``attention = "field"``): the stage runs it, and its tiles equal
     the whole frame, as the stage's ``local`` models' do."""
     from export.onnx_export import export_onnx
-    from isp import Domain
-    from modules.correction import Correction
     from restoration.nn.checkpoint import save_checkpoint
     from restoration.nn.network import build_model
     from tests.helpers import EXPORT_META
@@ -355,13 +353,24 @@ def test_field_driven_attention_exports_and_tiles_as_the_whole_frame(tmp_path):
     from restoration.nn.doconv import POOL_MODES
 
     assert set(POOL_MODES) <= set(ATTENTION_MODES)
+    frame, dev, whole, tiled = _whole_and_tiled(tmp_path / "att.onnx", report, tmp_path)
+    assert np.abs(whole.data - tiled.data).max() < 1e-5
+    assert np.abs(whole.data - frame.data).max() > 1e-4          # the network did something
+
+
+def _whole_and_tiled(model, report, tmp_path):
+    """A frame three tiles wide (each tile twice the export's receptive
+    radius and more), a device file, and the stage's output on the frame
+    whole and tiled."""
+    from isp import Domain
+    from modules.correction import Correction
+
     tile = 2 * int(report["metadata"]["receptive_radius"]) + 32
     frame = make_frame(np.random.default_rng(6).random((96, 3 * tile, 3)), Domain.CAMERA_RGB)
     dev = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0]).save(tmp_path / "dev.json")
-    whole = Correction(model=tmp_path / "att.onnx", device=dev, tile_size=0).process(frame)
-    tiled = Correction(model=tmp_path / "att.onnx", device=dev, tile_size=tile).process(frame)
-    assert np.abs(whole.data - tiled.data).max() < 1e-5
-    assert np.abs(whole.data - frame.data).max() > 1e-4          # the network did something
+    whole = Correction(model=model, device=dev, tile_size=0).process(frame)
+    tiled = Correction(model=model, device=dev, tile_size=tile).process(frame)
+    return frame, dev, whole, tiled
 
 
 def test_film_modulation_exports_quantises_every_conv_and_tiles_as_the_whole_frame(tmp_path):
@@ -373,7 +382,6 @@ def test_film_modulation_exports_quantises_every_conv_and_tiles_as_the_whole_fra
     quantises every conv and stays near the float model."""
     from export.onnx_export import export_onnx
     from export.quantize import quantize_int8
-    from isp import Domain
     from modules.correction import Correction
     from restoration.nn.checkpoint import save_checkpoint
     from restoration.nn.network import build_model
@@ -401,11 +409,7 @@ def test_film_modulation_exports_quantises_every_conv_and_tiles_as_the_whole_fra
     q8 = tmp_path / "film.int8.onnx"
     r = quantize_int8(tmp_path / "film.onnx", q8, onnx_calibration_reader(device=K))
     assert r["int8_quantized_conv"] == r["fp32_conv"] and r["int8_float_conv"] == 0
-    tile = 2 * int(report["metadata"]["receptive_radius"]) + 32
-    frame = make_frame(np.random.default_rng(6).random((96, 3 * tile, 3)), Domain.CAMERA_RGB)
-    dev = DeviceCalibration("test-lens", DESIGN, BASIS, DESCRIPTORS[0]).save(tmp_path / "dev.json")
-    whole = Correction(model=tmp_path / "film.onnx", device=dev, tile_size=0).process(frame)
-    tiled = Correction(model=tmp_path / "film.onnx", device=dev, tile_size=tile).process(frame)
+    frame, dev, whole, tiled = _whole_and_tiled(tmp_path / "film.onnx", report, tmp_path)
     assert np.abs(whole.data - tiled.data).max() < 1e-5
     i8 = Correction(model=q8, device=dev, tile_size=0).process(frame)
     assert np.abs(i8.data - whole.data).mean() < 0.02
