@@ -599,8 +599,9 @@ def fit_proxy(nominal: Lens, obs: Observations, settings: ProxyFitSettings | Non
     model, tried, seconds = cfg.model or ModelSettings(), [], fit.seconds
     while fit.window_energy < WINDOW_ENERGY_WARN and model.window_um < MAX_WINDOW_UM:
         missing = 1.0 - fit.window_energy
-        if tried and (1.0 - tried[-1]["window_energy_min"]) - missing < WIDEN_RECOVERS * (1.0 - tried[-1]["window_energy_min"]):
-            break           # the light is lost for another reason than the window's size: a wider one costs time only
+        missed_before = 1.0 - tried[-1]["window_energy_min"] if tried else None
+        if missed_before is not None and missed_before - missing < WIDEN_RECOVERS * missed_before:
+            break           # the last widening recovered too little: another would cost a whole fit for less
         tried.append({"window_um": model.window_um, "window_energy_min": round(fit.window_energy, 4),
                       "seconds": round(fit.seconds, 2)})
         model = model.with_window(min(MAX_WINDOW_UM, WIDEN_FACTOR * model.window_um))
