@@ -70,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
     if args.components < 1:
         raise ConfigError(f"--components {args.components}: at least 1")
     if args.widen and args.window_um is not None and args.window_um >= 128.0:
-        raise ConfigError(f"--widen starts from --window-um {args.window_um:g}: below the widest it tries, 128 µm")
+        raise ConfigError(f"--widen with --window-um {args.window_um:g}: the window to start from must be below "
+                          "128 µm, the widest --widen tries")
     if args.window_um is not None and not 8.0 <= args.window_um <= 256.0:
         raise ConfigError(f"--window-um {args.window_um:g}: between 8 and 256 µm")
     if args.fine_iter is not None and args.fine_iter < 0:

@@ -184,3 +184,8 @@ def test_a_wider_window_grows_the_pupil_grid_with_it(capsys, tmp_path, device_ob
                  "--window-um", "4"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "--window-um" in err and "\n" not in err and not (tmp_path / "p2").exists()
+    # --widen from a window at or past the widest it tries: nothing to widen, one line
+    code = main(["calib", "fit", "--lens", lens, "--measured", str(obs_path), "-o", str(tmp_path / "p3"),
+                 "--widen", "--window-um", "200"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--widen" in err and "128" in err and "\n" not in err and not (tmp_path / "p3").exists()
