@@ -16,6 +16,7 @@ from isp.runtime.executor import add_executor_argument
 
 from restoration.synth.defaults import DATA, DEFAULT_CAMERAS
 from restoration.synth.optics import PSF_DEFAULTS
+from restoration.synth.pairs import POSITIONS
 
 EPILOG = f"""\
 examples:
@@ -79,7 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--demosaic", default="malvar2004", help="the pipeline's demosaic method (default malvar2004)")
     g.add_argument("--tone", choices=("none", "reinhard", "aces"), default="none",
                    help="the pipeline's luminance tone curve (default none)")
-    g.add_argument("--positions", choices=("frame", "radius"), default="frame",
+    g.add_argument("--positions", choices=POSITIONS, default="frame",
                    help="where crops lie: 'frame' (default) uniformly over the frame, each field ring in "
                         "proportion to its area; 'radius' at a field radius uniform from the centre to the "
                         "corner, as many pairs in the corners as in the centre")

@@ -316,6 +316,9 @@ class DOConvUNet(nn.Module):
         self.in_channels = 5 + self.device if self.positional else 3
         self.fov_encoding = "xy" if self.positional else "none"
         nf = (FIELD_FEATURES if field else 0) + self.device
+        if film and not nf:
+            raise ConfigError("film modulates channels by the field features or the descriptor: it needs field=True "
+                              "or device > 0")
         c1, c2 = widths
         block = {"expansion": expansion, "conv": conv, "kernel_size": kernel_size,
                  "dilations": tuple(dilations), "spatial": spatial, "pool": pool, "window": window,

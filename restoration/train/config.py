@@ -210,7 +210,9 @@ class TrainConfig:
             for k in ("exposure_ev", "cct_k", "noise_scale", "psf_grid"):
                 if len(getattr(s, k)) != 2:
                     raise ConfigError(f"synth.{k} must be two numbers; got {getattr(s, k)!r}")
-            _choice(s.positions, ("frame", "radius"), "synth.positions")
+            from restoration.synth.pairs import POSITIONS
+
+            _choice(s.positions, POSITIONS, "synth.positions")
         _choice(self.model.placement, tuple(PLACEMENTS), "model.placement")
         _choice(o.loss, LOSSES, "optim.loss")
         _choice(o.schedule, SCHEDULES, "optim.schedule")

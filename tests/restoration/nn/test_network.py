@@ -461,6 +461,8 @@ def test_a_device_network_keeps_the_field_channels_in_its_input():
     in the input, the layout the correction stage feeds; K ≥ 0."""
     with pytest.raises(ConfigError, match="descriptor channels"):
         build_model("device", device=-1)
+    with pytest.raises(ConfigError, match="film"):      # nothing to modulate by
+        build_model("doconv", field=False, film=True)
     no_field = build_model("device", field=False)
     assert no_field.in_channels == 5 + 16 and no_field.fov_encoding == "xy"
     assert build_model("device").in_channels == 5 + 16 and build_model("device_attention").config["pool"] == "field"
