@@ -344,6 +344,8 @@ def main(argv=None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         folders = {"held_out": held_out_folder(Path(tmp)), "skimage": skimage_folder(Path(tmp) / "skimage")}
         work = [Path(args.work) / f"{args.lens}_{args.seed}_{d}" for d in range(len(lenses))]
+        # every module is fitted before any is scored: the wrong-file arms read the next module's file
+        prepared = []
         for d, pl in enumerate(lenses):
             part = parts / f"{args.lens}_{args.seed}_{d}.json"
             rec = json.loads(part.read_text()) if part.is_file() else {"lens": LENSES[args.lens], "device": d}
@@ -356,8 +358,10 @@ def main(argv=None) -> dict:
                 if "fit_quick" not in rec or not files["quick"].is_file():
                     fit_module(rec, "fit_quick", work[d], lens_path, Path(args.basis), args.fit_args.split())
                     _harness.write_record(part, rec)
+            prepared.append((part, rec, files))
+        for d, (part, rec, files) in enumerate(prepared):
             if args.fit_only:
-                continue
+                break
             scores = rec.setdefault("scores", {})
             arms = {"blind": (args.blind, None), "fitted": (args.model, files["fitted"]),
                     "true": (args.model, files["true"])}
