@@ -15,7 +15,7 @@ simulated chart capture (``fit/device.json``, beside the fit's
 * the fit's **χ² per observation** at its end (the noise floor is about 1;
   the true lens through the fitting model scores about 2–3,
   ``benchmarks/forward_fidelity.py``) and its SFRA RMS error;
-* the parameters it fitted (``n_params`` of its settings).
+* the parameters it fitted and the restarts it probed.
 
 Per folder: the mean error, the median χ²; pooled over every folder: the
 correlation between χ² and the descriptor error. Nothing is fitted here:
@@ -49,7 +49,9 @@ def module_error(folder: Path, fit: str = "fit") -> dict | None:
             "correlation": round(float(np.corrcoef(t.ravel(), f.ravel())[0, 1]), 3),
             "chi2_per_obs": round(float(rec["errors"]["after"]["chi2_per_obs"]), 2),
             "sfra_rms": round(float(rec["errors"]["after"]["sfra_rms"]), 5),
-            "n_params": len(rec.get("parameters", {})) or None, "fit_seconds": rec.get("seconds")}
+            "n_params": len(rec.get("parameters", {})) or None,
+            "restarts": sum(isinstance(t.get("start"), int) for t in rec.get("restarts", [])),
+            "fit_seconds": rec.get("seconds")}
 
 
 def main(argv=None) -> dict:
@@ -57,6 +59,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--work", nargs="+", required=True, metavar="NAME=DIR",
                     help="device_eval work folders, each named")
     ap.add_argument("--fit", default="fit", help="the fit's subfolder in each module (default fit; fit_quick)")
+    ap.add_argument("--label", help="publish as device_fit_error_LABEL.json")
     args = ap.parse_args(argv)
     folders, pooled = {}, []
     for spec in args.work:
@@ -85,7 +88,7 @@ def main(argv=None) -> dict:
         print(f"pooled over {len(pooled)} fits: correlation of χ²/obs and descriptor error {corr:.2f}")
     return _harness.publish("device_fit_error", {"folders": folders, "fits": len(pooled),
                                                  "chi2_error_correlation": None if corr is None else round(corr, 3)},
-                            args, argv)
+                            args, argv, label=args.label)
 
 
 if __name__ == "__main__":
