@@ -9,9 +9,10 @@ simulated chart capture (``fit/device.json``, beside the fit's
 
 * the **descriptor error**: RMS over regions and components of fitted −
   true, in units of each component's spread over the design's tolerances
-  (the unit the descriptor is stored in, :mod:`isp.io.device`; a file of
-  the design's mean lens is about 1 from the truth), and the correlation
-  of the two descriptors;
+  (the unit the descriptor is stored in, :mod:`isp.io.device`; the true
+  descriptors themselves are about 1 RMS, so an all-zero file, the
+  design's mean PSFs, is about 1 from the truth), and the correlation of
+  the two descriptors;
 * the fit's **χ² per observation** at its end (the noise floor is about 1;
   the true lens through the fitting model scores about 2–3,
   ``benchmarks/forward_fidelity.py``) and its SFRA RMS error;
@@ -50,7 +51,7 @@ def module_error(folder: Path, fit: str = "fit") -> dict | None:
             "chi2_per_obs": round(float(rec["errors"]["after"]["chi2_per_obs"]), 2),
             "sfra_rms": round(float(rec["errors"]["after"]["sfra_rms"]), 5),
             "n_params": len(rec.get("parameters", {})) or None,
-            "restarts": sum(isinstance(t.get("start"), int) for t in rec.get("restarts", [])),
+            "restarts": sum(isinstance(start.get("start"), int) for start in rec.get("restarts", [])),
             "fit_seconds": rec.get("seconds")}
 
 
