@@ -53,6 +53,7 @@ if __name__ == "__main__":
     _harness.pin_threads(2, blas=1)
 
 import json  # noqa: E402
+import shlex  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -351,12 +352,12 @@ def main(argv=None) -> dict:
             rec = json.loads(part.read_text()) if part.is_file() else {"lens": LENSES[args.lens], "device": d}
             if args.redo:
                 rec.pop("scores", None)
-            files = prepare(rec, work[d], lens_path, pl, Path(args.basis), args.size, args.fit_args.split())
+            files = prepare(rec, work[d], lens_path, pl, Path(args.basis), args.size, shlex.split(args.fit_args))
             _harness.write_record(part, rec)
             if args.quick:
                 files["quick"] = work[d] / "fit_quick" / "device.json"
                 if "fit_quick" not in rec or not files["quick"].is_file():
-                    fit_module(rec, "fit_quick", work[d], lens_path, Path(args.basis), args.fit_args.split())
+                    fit_module(rec, "fit_quick", work[d], lens_path, Path(args.basis), shlex.split(args.fit_args))
                     _harness.write_record(part, rec)
             prepared.append((part, rec, files))
         for d, (part, rec, files) in enumerate(prepared):

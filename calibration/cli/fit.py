@@ -91,14 +91,25 @@ def run(args: argparse.Namespace) -> int:
     nominal, obs = match_sensor(nominal, obs, pixel_um=args.pixel_um)
     print(f"{args.measured}: {len(obs)} observations; fitting {args.n_params} parameters "
           f"({args.method}, {args.residuals} residuals)", flush=True)
-    settings = None if args.window_um is None else ModelSettings().with_window(args.window_um)
-    fit = fit_proxy(nominal, obs, ProxyFitSettings(model=settings, method=args.method, max_iter=args.max_iter,
-                                                   n_params=args.n_params, residuals=args.residuals,
-                                                   jacobian_model=FAST_JACOBIAN if args.fast_jacobian else None,
-                                                   refresh=args.refresh, restarts=args.restarts,
-                                                   coarse=coarse,
-                                                   fine_iter=args.fine_iter, widen=args.widen),
-                    executor=pool_executor(args.workers, progress=True, executor=args.executor))
+    variants = [("(as given)", args)] + [(text, _try_options(args, text)) for text in args.tries or ()]
+    fits = []
+    with pool_executor(args.workers, progress=True, executor=args.executor) as ex:
+        for text, a in variants:
+            if len(variants) > 1:
+                print(f"fit {len(fits) + 1} of {len(variants)}: {text}", flush=True)
+            settings = None if a.window_um is None else ModelSettings().with_window(a.window_um)
+            fits.append(fit_proxy(nominal, obs, ProxyFitSettings(
+                model=settings, method=a.method, max_iter=a.max_iter, n_params=a.n_params, residuals=a.residuals,
+                jacobian_model=FAST_JACOBIAN if args.fast_jacobian else None, refresh=args.refresh,
+                restarts=a.restarts, coarse=coarse, fine_iter=args.fine_iter, widen=a.widen), executor=ex))
+    fit = min(fits, key=lambda f: f.errors()["after"]["chi2_per_obs"])
+    if len(fits) > 1:
+        fit.settings["tries"] = [{"options": text, "chi2_per_obs": round(f.errors()["after"]["chi2_per_obs"], 3),
+                                  "seconds": round(f.seconds, 1), "kept": f is fit}
+                                 for (text, _), f in zip(variants, fits)]
+        for t in fit.settings["tries"]:
+            print(f"{t['options']}: χ²/obs {t['chi2_per_obs']:.2f} ({t['seconds']:.0f} s)"
+                  + ("  ← kept: the lowest" if t["kept"] else ""))
     with staged_folder(out) as tmp:
         fit.save(tmp)
         if basis is not None:
@@ -136,6 +147,36 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {out}/proxy.json, fit.json, merit.png, sfra_maps.png, parameters.png"
           f"{', device.json' if basis is not None else ''} ({time.perf_counter() - t0:.0f} s)")
     return 0
+
+
+#: what ``--try`` may change: the options that decide which basin a fit ends in
+TRY_OPTIONS = ("--n-params", "--restarts", "--max-iter", "--window-um", "--widen", "--no-widen", "--method",
+               "--residuals")
+
+
+def _try_options(args: argparse.Namespace, text: str) -> argparse.Namespace:
+    """``args`` with the fitting options of one ``--try`` string replaced
+    (:data:`TRY_OPTIONS`); ConfigError (one line) for anything else."""
+    import shlex
+
+    p = argparse.ArgumentParser(prog="--try", add_help=False, exit_on_error=False)
+    for name in ("--n-params", "--restarts", "--max-iter"):
+        p.add_argument(name, type=int, default=getattr(args, name[2:].replace("-", "_")))
+    p.add_argument("--window-um", type=float, default=args.window_um)
+    p.add_argument("--widen", action=argparse.BooleanOptionalAction, default=args.widen)
+    p.add_argument("--method", choices=("dls", "scipy"), default=args.method)
+    p.add_argument("--residuals", choices=("auto", "sfra", "bands", "odd", "shape"), default=args.residuals)
+    try:
+        got, rest = p.parse_known_args(shlex.split(text))
+    except (argparse.ArgumentError, ValueError) as e:
+        raise ConfigError(f"--try {text!r}: {e}") from None
+    if rest:
+        raise ConfigError(f"--try {text!r}: {' '.join(rest)} is not one of {', '.join(TRY_OPTIONS)}")
+    if got.n_params < 1 or got.restarts < 0 or got.max_iter < 1:
+        raise ConfigError(f"--try {text!r}: --n-params and --max-iter at least 1, --restarts 0 or more")
+    if got.window_um is not None and not 8.0 <= got.window_um <= 256.0:
+        raise ConfigError(f"--try {text!r}: --window-um between 8 and 256 µm")
+    return argparse.Namespace(**{**vars(args), **vars(got)})
 
 
 def _device_file(fit, basis, args, path):
@@ -211,6 +252,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "window, fit again 1.5× wider, and again while widening recovers that light (each "
                         "refit costs a fit; default off: on e9's modules, which lose 8–23 %% at 32 µm, it "
                         "would double the quick fit's time for a gain not measured)")
+    p.add_argument("--try", dest="tries", action="append", metavar="OPTIONS",
+                   help="fit again with these fitting options changed (repeatable; --n-params, --restarts, "
+                        "--max-iter, --window-um, --widen, --method, --residuals) and keep the fit of the lowest "
+                        "χ² per observation, the first included: a fit stops in a local minimum, and how near the "
+                        "device file comes to the module follows that χ² (on e2's quick fits the lowest of "
+                        "'', '--widen', '--n-params 48' and '--n-params 48 --restarts 12' gained +1.53 dB at FoV "
+                        "0.9 where the first alone gained +1.19; docs/results/device.md); fit.json lists them "
+                        "under settings.tries")
     p.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
     p.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")
     p.add_argument("--pixel-um", type=float, metavar="UM", help="pixel pitch, µm (default: the capture's)")

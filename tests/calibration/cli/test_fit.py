@@ -189,3 +189,28 @@ def test_a_wider_window_grows_the_pupil_grid_with_it(capsys, tmp_path, device_ob
                  "--widen", "--window-um", "200"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "--widen" in err and "128" in err and "\n" not in err and not (tmp_path / "p3").exists()
+
+
+def test_a_fit_tried_several_ways_keeps_the_lowest_chi2(capsys, tmp_path, device_obs, e9_zmx):
+    """`--try`: a fit of one iteration, tried again with five from the same
+    start (damped least squares only takes steps that lower the merit), so
+    the longer fit ends lower and is the one written; fit.json lists both;
+    an option --try cannot change is one line, exit 2, no folder."""
+    _, obs_path = device_obs
+    out = tmp_path / "proxy"
+    base = ["calib", "fit", "--lens", str(e9_zmx), "--measured", str(obs_path), "--n-params", "2",
+            "--workers", "1", "--restarts", "0", "--coarse", "0", "0", "--basis", "none"]
+    code = main([*base, "-o", str(out), "--max-iter", "1", "--try", "--max-iter 5"])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    fit = json.loads((out / "fit.json").read_text())
+    tries = fit["settings"]["tries"]
+    assert [t["options"] for t in tries] == ["(as given)", "--max-iter 5"]
+    kept = min(tries, key=lambda t: t["chi2_per_obs"])
+    assert kept["kept"] and sum(t["kept"] for t in tries) == 1
+    assert fit["errors"]["after"]["chi2_per_obs"] == pytest.approx(kept["chi2_per_obs"], abs=1e-3)
+    assert kept["options"] == "--max-iter 5" and tries[1]["chi2_per_obs"] < tries[0]["chi2_per_obs"], tries
+    assert "← kept" in printed.out
+    code = main([*base, "-o", str(tmp_path / "p2"), "--try", "--lens other.zmx"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--try" in err and "--lens" in err and "\n" not in err and not (tmp_path / "p2").exists()
