@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     if args.fine_iter == 0 and args.coarse[0] == 0:
         raise ConfigError("--fine-iter 0 stops after the coarse stage; it needs --coarse R C")
     coarse = coarse_grid(args.coarse)
+    variants = [("(as given)", args)] + [(text, _try_options(args, text)) for text in args.tries or ()]
     out = Path(args.output)
     check_output_folder(out)
     nominal = read_lens(args.lens)              # a bad lens file fails before any measurement
@@ -91,7 +92,6 @@ def run(args: argparse.Namespace) -> int:
     nominal, obs = match_sensor(nominal, obs, pixel_um=args.pixel_um)
     print(f"{args.measured}: {len(obs)} observations; fitting {args.n_params} parameters "
           f"({args.method}, {args.residuals} residuals)", flush=True)
-    variants = [("(as given)", args)] + [(text, _try_options(args, text)) for text in args.tries or ()]
     fits = []
     with pool_executor(args.workers, progress=True, executor=args.executor) as ex:
         for text, a in variants:
@@ -176,6 +176,8 @@ def _try_options(args: argparse.Namespace, text: str) -> argparse.Namespace:
         raise ConfigError(f"--try {text!r}: --n-params and --max-iter at least 1, --restarts 0 or more")
     if got.window_um is not None and not 8.0 <= got.window_um <= 256.0:
         raise ConfigError(f"--try {text!r}: --window-um between 8 and 256 µm")
+    if got.widen and got.window_um is not None and got.window_um >= 128.0:
+        raise ConfigError(f"--try {text!r}: --widen needs a window below 128 µm, the widest it tries")
     return argparse.Namespace(**{**vars(args), **vars(got)})
 
 
