@@ -214,3 +214,24 @@ def test_a_fit_tried_several_ways_keeps_the_lowest_chi2(capsys, tmp_path, device
     code = main([*base, "-o", str(tmp_path / "p2"), "--try", "--lens other.zmx"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "--try" in err and "--lens" in err and "\n" not in err and not (tmp_path / "p2").exists()
+
+
+def test_a_try_changes_only_the_fitting_options_it_names():
+    """`--try` strings: the options named replace the command line's, the
+    rest are kept; a one-option try comes as `--try=--widen`; anything else
+    is a one-line ConfigError naming the try."""
+    import argparse
+
+    from calibration.cli.fit import _try_options
+    from isp.errors import ConfigError
+
+    given = argparse.Namespace(n_params=24, restarts=4, max_iter=20, window_um=None, widen=False, method="dls",
+                               residuals="auto", lens="e2.zmx", tries=None)
+    got = _try_options(given, "--n-params 48 --restarts 12")
+    assert (got.n_params, got.restarts, got.max_iter, got.widen, got.lens) == (48, 12, 20, False, "e2.zmx")
+    assert _try_options(given, "--widen").widen and given.widen is False
+    for bad, word in [("--lens other.zmx", "--lens"), ("--n-params x", "--n-params"), ("--widen --window-um 200", "128"),
+                      ("--restarts -1", "--restarts"), ('"--n-params 48', "quotation")]:
+        with pytest.raises(ConfigError, match=word) as e:
+            _try_options(given, bad)
+        assert "\n" not in str(e.value) and "--try" in str(e.value)
