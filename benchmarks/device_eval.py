@@ -346,18 +346,18 @@ def main(argv=None) -> dict:
         folders = {"held_out": held_out_folder(Path(tmp)), "skimage": skimage_folder(Path(tmp) / "skimage")}
         work = [Path(args.work) / f"{args.lens}_{args.seed}_{d}" for d in range(len(lenses))]
         # every module is fitted before any is scored: the wrong-file arms read the next module's file
-        prepared = []
+        prepared, fit_args = [], shlex.split(args.fit_args)
         for d, pl in enumerate(lenses):
             part = parts / f"{args.lens}_{args.seed}_{d}.json"
             rec = json.loads(part.read_text()) if part.is_file() else {"lens": LENSES[args.lens], "device": d}
             if args.redo:
                 rec.pop("scores", None)
-            files = prepare(rec, work[d], lens_path, pl, Path(args.basis), args.size, shlex.split(args.fit_args))
+            files = prepare(rec, work[d], lens_path, pl, Path(args.basis), args.size, fit_args)
             _harness.write_record(part, rec)
             if args.quick:
                 files["quick"] = work[d] / "fit_quick" / "device.json"
                 if "fit_quick" not in rec or not files["quick"].is_file():
-                    fit_module(rec, "fit_quick", work[d], lens_path, Path(args.basis), shlex.split(args.fit_args))
+                    fit_module(rec, "fit_quick", work[d], lens_path, Path(args.basis), fit_args)
                     _harness.write_record(part, rec)
             prepared.append((part, rec, files))
         for d, (part, rec, files) in enumerate(prepared):

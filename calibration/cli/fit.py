@@ -59,21 +59,11 @@ def run(args: argparse.Namespace) -> int:
     from calibration.fit.forward_model import FAST_JACOBIAN, ModelSettings
 
     t0 = time.perf_counter()
-    if args.max_iter < 1:
-        raise ConfigError(f"--max-iter {args.max_iter}: at least 1")
-    if args.n_params < 1:
-        raise ConfigError(f"--n-params {args.n_params}: at least 1")
-    if args.restarts < 0:
-        raise ConfigError(f"--restarts {args.restarts}: 0 or more")
+    _check_fitting_options(args)
     if args.bootstrap < 0:
         raise ConfigError(f"--bootstrap {args.bootstrap}: 0 or more")
     if args.components < 1:
         raise ConfigError(f"--components {args.components}: at least 1")
-    if args.widen and args.window_um is not None and args.window_um >= 128.0:
-        raise ConfigError(f"--widen with --window-um {args.window_um:g}: the window to start from must be below "
-                          "128 µm, the widest --widen tries")
-    if args.window_um is not None and not 8.0 <= args.window_um <= 256.0:
-        raise ConfigError(f"--window-um {args.window_um:g}: between 8 and 256 µm")
     if args.fine_iter is not None and args.fine_iter < 0:
         raise ConfigError(f"--fine-iter {args.fine_iter}: 0 or more")
     if args.fine_iter == 0 and args.coarse[0] == 0:
@@ -149,9 +139,28 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+#: ``--method`` and ``--residuals`` choices (the command line's and a ``--try``'s)
+METHODS = ("dls", "scipy")
+RESIDUALS = ("auto", "sfra", "bands", "odd", "shape")
 #: what ``--try`` may change: the options that decide which basin a fit ends in
 TRY_OPTIONS = ("--n-params", "--restarts", "--max-iter", "--window-um", "--widen", "--no-widen", "--method",
                "--residuals")
+
+
+def _check_fitting_options(a: argparse.Namespace, where: str = "") -> None:
+    """ConfigError (one line, prefixed by ``where``) for a fitting option
+    out of its range: the command line's, or a ``--try``'s."""
+    if a.max_iter < 1:
+        raise ConfigError(f"{where}--max-iter {a.max_iter}: at least 1")
+    if a.n_params < 1:
+        raise ConfigError(f"{where}--n-params {a.n_params}: at least 1")
+    if a.restarts < 0:
+        raise ConfigError(f"{where}--restarts {a.restarts}: 0 or more")
+    if a.widen and a.window_um is not None and a.window_um >= 128.0:
+        raise ConfigError(f"{where}--widen with --window-um {a.window_um:g}: the window to start from must be "
+                          "below 128 µm, the widest --widen tries")
+    if a.window_um is not None and not 8.0 <= a.window_um <= 256.0:
+        raise ConfigError(f"{where}--window-um {a.window_um:g}: between 8 and 256 µm")
 
 
 def _try_options(args: argparse.Namespace, text: str) -> argparse.Namespace:
@@ -164,21 +173,18 @@ def _try_options(args: argparse.Namespace, text: str) -> argparse.Namespace:
         p.add_argument(name, type=int, default=getattr(args, name[2:].replace("-", "_")))
     p.add_argument("--window-um", type=float, default=args.window_um)
     p.add_argument("--widen", action=argparse.BooleanOptionalAction, default=args.widen)
-    p.add_argument("--method", choices=("dls", "scipy"), default=args.method)
-    p.add_argument("--residuals", choices=("auto", "sfra", "bands", "odd", "shape"), default=args.residuals)
+    p.add_argument("--method", choices=METHODS, default=args.method)
+    p.add_argument("--residuals", choices=RESIDUALS, default=args.residuals)
+    where = f"--try {text!r}: "
     try:
         got, rest = p.parse_known_args(shlex.split(text))
     except (argparse.ArgumentError, ValueError) as e:
-        raise ConfigError(f"--try {text!r}: {e}") from None
+        raise ConfigError(f"{where}{e}") from None
     if rest:
-        raise ConfigError(f"--try {text!r}: {' '.join(rest)} is not one of {', '.join(TRY_OPTIONS)}")
-    if got.n_params < 1 or got.restarts < 0 or got.max_iter < 1:
-        raise ConfigError(f"--try {text!r}: --n-params and --max-iter at least 1, --restarts 0 or more")
-    if got.window_um is not None and not 8.0 <= got.window_um <= 256.0:
-        raise ConfigError(f"--try {text!r}: --window-um between 8 and 256 µm")
-    if got.widen and got.window_um is not None and got.window_um >= 128.0:
-        raise ConfigError(f"--try {text!r}: --widen needs a window below 128 µm, the widest it tries")
-    return argparse.Namespace(**{**vars(args), **vars(got)})
+        raise ConfigError(f"{where}{' '.join(rest)} is not one of {', '.join(TRY_OPTIONS)}")
+    merged = argparse.Namespace(**{**vars(args), **vars(got)})
+    _check_fitting_options(merged, where)
+    return merged
 
 
 def _device_file(fit, basis, args, path):
@@ -206,9 +212,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--measured", required=True, metavar="MEAS",
                    help="chart capture (DNG/raw or image), SFR JSON of `isp calib sfr`, or sfr-observations/v1")
     p.add_argument("-o", "--output", default="proxy_fit", metavar="DIR", help="output folder (default proxy_fit/)")
-    p.add_argument("--method", choices=("dls", "scipy"), default="dls",
+    p.add_argument("--method", choices=METHODS, default="dls",
                    help="dls: damped least squares, dynamic damping (default); scipy: least_squares TRF")
-    p.add_argument("--residuals", choices=("auto", "sfra", "bands", "odd", "shape"), default="auto",
+    p.add_argument("--residuals", choices=RESIDUALS, default="auto",
                    help="auto (default): shape where the measurement has the LSF asymmetry, else sfra; "
                         "sfra: SFRA per edge (the paper); bands: plus the mean SFR in four frequency bands; "
                         "odd: plus the LSF's asymmetry in four bands (coma's direction, which SFR drops); "
@@ -255,8 +261,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "refit costs a fit; default off: on e9's modules, which lose 8–23 %% at 32 µm, it "
                         "would double the quick fit's time for a gain not measured)")
     p.add_argument("--try", dest="tries", action="append", metavar="OPTIONS",
-                   help="fit again with these fitting options changed (repeatable; --n-params, --restarts, "
-                        "--max-iter, --window-um, --widen, --method, --residuals) and keep the fit of the lowest "
+                   help=f"fit again with these fitting options changed (repeatable; {', '.join(TRY_OPTIONS)}) "
+                        "and keep the fit of the lowest "
                         "χ² per observation, the first included: a fit stops in a local minimum, and how near the "
                         "device file comes to the module follows that χ² (on e2's quick fits the lowest of "
                         "'', '--widen', '--n-params 48' and '--n-params 48 --restarts 12' gained +1.53 dB at FoV "
