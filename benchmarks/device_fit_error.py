@@ -20,9 +20,17 @@ simulated chart capture (``fit/device.json``, beside the fit's
 
 Per folder: the mean error, the median χ²; pooled over every folder: the
 correlation between χ² and the descriptor error. Nothing is fitted here:
-the folders are what ``device_eval.py`` (its ``--fit-args``) left. Usage::
+the folders are what ``device_eval.py`` (its ``--fit-args``) left.
+
+``--best-into DIR`` also assembles, per module, the fit of the lowest χ² per
+observation among the folders (a choice the line can make: χ² needs no
+truth; ``isp calib fit --try`` makes it within one run) into a work folder of
+its own, which ``device_eval.py --work DIR`` then scores as any other (it
+finds every module fitted). Usage::
 
     python -m benchmarks.device_fit_error --work e9=out/device_eval_packaged e2=out/device_eval_e2_auto
+    python -m benchmarks.device_fit_error --work a=out/device_eval_e2 b=out/device_eval_e2_all \
+        --best-into out/device_eval_e2_best --label e2_best
 """
 
 from __future__ import annotations
@@ -55,14 +63,53 @@ def module_error(folder: Path, fit: str = "fit") -> dict | None:
             "fit_seconds": rec.get("seconds")}
 
 
+def best_of(folders: dict, into: Path, fit: str = "fit") -> dict:
+    """Copy, per module, the module folder (capture, true lens and
+    descriptor) with the fit of the lowest χ² per observation among
+    ``folders`` (name → device_eval work folder) into ``into``; returns
+    ``{module: name of the folder chosen}``. A module already in ``into``
+    is left as it is (its choice read back from ``into/chosen.json``)."""
+    import shutil
+
+    into.mkdir(parents=True, exist_ok=True)
+    record = into / "chosen.json"
+    chosen = json.loads(record.read_text()) if record.is_file() else {}
+    modules = sorted({d.name for w in folders.values() for d in Path(w).glob("*_*_*")
+                      if (d / fit / "fit.json").is_file()})
+    for m in modules:
+        if (into / m / fit / "fit.json").is_file() and m in chosen:
+            continue
+        chi2 = {name: json.loads((Path(w) / m / fit / "fit.json").read_text())["errors"]["after"]["chi2_per_obs"]
+                for name, w in folders.items() if (Path(w) / m / fit / "fit.json").is_file()}
+        name = min(chi2, key=chi2.get)
+        if (into / m).exists():
+            shutil.rmtree(into / m)
+        shutil.copytree(Path(folders[name]) / m, into / m)
+        chosen[m] = name
+    for n in Path(next(iter(folders.values()))).glob("nominal_device.json"):
+        shutil.copy2(n, into / n.name)
+    record.write_text(json.dumps(chosen, indent=1))
+    return chosen
+
+
 def main(argv=None) -> dict:
     ap = _harness.parser(__doc__)
     ap.add_argument("--work", nargs="+", required=True, metavar="NAME=DIR",
                     help="device_eval work folders, each named")
     ap.add_argument("--fit", default="fit", help="the fit's subfolder in each module (default fit; fit_quick)")
     ap.add_argument("--label", help="publish as device_fit_error_LABEL.json")
+    ap.add_argument("--best-into", metavar="DIR",
+                    help="also copy each module's lowest-χ² fit among the folders into DIR (reported as 'best')")
     args = ap.parse_args(argv)
     folders, pooled = {}, []
+    chosen = None
+    if args.best_into:
+        given = {}
+        for spec in args.work:
+            name, _, where = spec.partition("=")
+            given[name] = where
+        chosen = best_of(given, Path(args.best_into), args.fit)
+        args.work = [*args.work, f"best={args.best_into}"]
     for spec in args.work:
         name, _, where = spec.partition("=")
         if not where:
@@ -82,12 +129,15 @@ def main(argv=None) -> dict:
                   f"{r['n_params']} parameters")
         print(f"  mean error {folders[name]['mean_descriptor_error']:.3f}, "
               f"median χ²/obs {folders[name]['median_chi2_per_obs']:.1f}")
+    if chosen is not None:   # the chosen fits are copies of the others: pooled once
+        print("lowest χ² per module: " + ", ".join(f"{m} from {n}" for m, n in chosen.items()))
+        pooled = [r for name, f in folders.items() if name != "best" for r in f["modules"]]
     chi2 = np.array([r["chi2_per_obs"] for r in pooled])
     err = np.array([r["descriptor_rms_error"] for r in pooled])
     corr = float(np.corrcoef(chi2, err)[0, 1]) if len(pooled) > 2 else None
     if corr is not None:
         print(f"pooled over {len(pooled)} fits: correlation of χ²/obs and descriptor error {corr:.2f}")
-    return _harness.publish("device_fit_error", {"folders": folders, "fits": len(pooled),
+    return _harness.publish("device_fit_error", {"folders": folders, "fits": len(pooled), "chosen": chosen,
                                                  "chi2_error_correlation": None if corr is None else round(corr, 3)},
                             args, argv, label=args.label)
 

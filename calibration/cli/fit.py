@@ -91,7 +91,9 @@ def run(args: argparse.Namespace) -> int:
             fits.append(fit_proxy(nominal, obs, ProxyFitSettings(
                 model=settings, method=a.method, max_iter=a.max_iter, n_params=a.n_params, residuals=a.residuals,
                 jacobian_model=FAST_JACOBIAN if args.fast_jacobian else None, refresh=args.refresh,
-                restarts=a.restarts, coarse=coarse, fine_iter=args.fine_iter, widen=a.widen), executor=ex))
+                restarts=a.restarts, coarse=coarse, fine_iter=args.fine_iter, widen=a.widen, kinds=a.kinds,
+                stage_params=a.stage),
+                executor=ex))
     fit = min(fits, key=lambda f: f.errors()["after"]["chi2_per_obs"])
     if len(fits) > 1:
         fit.settings["tries"] = [{"options": text, "chi2_per_obs": round(f.errors()["after"]["chi2_per_obs"], 3),
@@ -144,23 +146,40 @@ METHODS = ("dls", "scipy")
 RESIDUALS = ("auto", "sfra", "bands", "odd", "shape")
 #: what ``--try`` may change: the options that decide which basin a fit ends in
 TRY_OPTIONS = ("--n-params", "--restarts", "--max-iter", "--window-um", "--widen", "--no-widen", "--method",
-               "--residuals")
+               "--residuals", "--kinds", "--stage")
+
+
+def kind_list(text: str) -> tuple[str, ...]:
+    """``--kinds``'s comma-separated list, e.g. ``"curvature,conic,focus"``;
+    ``"all"``: every kind a module's tolerances perturb, and focus."""
+    from calibration.fit.proxy import ALL_KINDS
+
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    return ALL_KINDS if kinds == ("all",) else kinds
 
 
 def _check_fitting_options(a: argparse.Namespace, where: str = "") -> None:
     """ConfigError (one line, prefixed by ``where``) for a fitting option
     out of its range: the command line's, or a ``--try``'s."""
+    from calibration.fit.proxy import KINDS
+
     if a.max_iter < 1:
         raise ConfigError(f"{where}--max-iter {a.max_iter}: at least 1")
     if a.n_params < 1:
         raise ConfigError(f"{where}--n-params {a.n_params}: at least 1")
     if a.restarts < 0:
         raise ConfigError(f"{where}--restarts {a.restarts}: 0 or more")
+    if a.stage is not None and a.stage < 1:
+        raise ConfigError(f"{where}--stage {a.stage}: at least 1")
     if a.widen and a.window_um is not None and a.window_um >= 128.0:
         raise ConfigError(f"{where}--widen with --window-um {a.window_um:g}: the window to start from must be "
                           "below 128 µm, the widest --widen tries")
     if a.window_um is not None and not 8.0 <= a.window_um <= 256.0:
         raise ConfigError(f"{where}--window-um {a.window_um:g}: between 8 and 256 µm")
+    unknown = [k for k in a.kinds if k not in KINDS]
+    if unknown or not a.kinds:
+        raise ConfigError(f"{where}--kinds {','.join(a.kinds)}: {', '.join(unknown) or 'none given'} is not a kind "
+                          f"of perturbation ({', '.join(KINDS)})")
 
 
 def _try_options(args: argparse.Namespace, text: str) -> argparse.Namespace:
@@ -169,12 +188,13 @@ def _try_options(args: argparse.Namespace, text: str) -> argparse.Namespace:
     import shlex
 
     p = argparse.ArgumentParser(prog="--try", add_help=False, exit_on_error=False)
-    for name in ("--n-params", "--restarts", "--max-iter"):
+    for name in ("--n-params", "--restarts", "--max-iter", "--stage"):
         p.add_argument(name, type=int, default=getattr(args, name[2:].replace("-", "_")))
     p.add_argument("--window-um", type=float, default=args.window_um)
     p.add_argument("--widen", action=argparse.BooleanOptionalAction, default=args.widen)
     p.add_argument("--method", choices=METHODS, default=args.method)
     p.add_argument("--residuals", choices=RESIDUALS, default=args.residuals)
+    p.add_argument("--kinds", type=kind_list, default=args.kinds)
     where = f"--try {text!r}: "
     try:
         got, rest = p.parse_known_args(shlex.split(text))
@@ -203,7 +223,7 @@ def _device_file(fit, basis, args, path):
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``isp calib fit``."""
     from calibration.fit.device import DEFAULT_COMPONENTS
-    from calibration.fit.proxy import COARSE_GRID, MAX_ITER, N_PARAMS, REFRESH, RESTART_CHI2, RESTARTS
+    from calibration.fit.proxy import COARSE_GRID, FIT_KINDS, MAX_ITER, N_PARAMS, REFRESH, RESTART_CHI2, RESTARTS
 
     p.description = __doc__.split("\n\n")[0].replace("``", "`")
     p.epilog = EPILOG
@@ -221,6 +241,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "shape: SFRA, bands and asymmetry")
     p.add_argument("--n-params", type=int, default=N_PARAMS,
                    help=f"perturbations fitted, the most sensitive (default {N_PARAMS})")
+    p.add_argument("--kinds", type=kind_list, default=FIT_KINDS, metavar="K,K,...",
+                   help=f"the kinds of perturbation screened to --n-params (default {','.join(FIT_KINDS)}; also "
+                        "curvature, conic, nd, vd, asphere, tilt_xy: a module's power and form errors, which "
+                        "decenters, tilts and gaps can only mimic)")
+    p.add_argument("--stage", type=int, metavar="N",
+                   help="with more than N perturbations fitted: fit first the N most sensitive decenters, tilts, "
+                        "gaps and focus (restarts among them), then all from there, and keep the better of that "
+                        "and all at once (default: all at once). With --kinds all --n-params 92 --stage 24 an e2 "
+                        "module's quick fit ended at χ²/obs 18.9 against 36.0 over 48 assembly perturbations, its "
+                        "device file 0.22 spreads from the module's against 0.92")
     p.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"iterations at most (default {MAX_ITER})")
     p.add_argument("--refresh", type=int, default=REFRESH,
                    help="a finite-difference Jacobian every REFRESH accepted steps, Broyden secant updates "

@@ -54,7 +54,7 @@ from isp.runtime.executor import Executor, pool_executor, worker_payload
 
 from calibration.fit.dls import DLSSettings, DlsResult, damped_least_squares
 from calibration.optics.lens import Lens
-from calibration.optics.perturb import ParameterSpace, Perturbation, PerturbedLens, apply
+from calibration.optics.perturb import PARAMETER_KINDS, TOLERANCED_KINDS, ParameterSpace, Perturbation, PerturbedLens, apply
 from calibration.fit.observations import Observations
 
 #: the focus parameter's tolerance (mm): assembly sets focus within a few µm,
@@ -100,11 +100,21 @@ COARSE_GRID = (5, 7)
 #: what :func:`fit_proxy` can fit to
 RESIDUALS = ("sfra", "bands", "odd", "shape")
 
-def default_names(lens: Lens, kinds=("decenter", "tilt", "thickness", "focus")) -> list[str]:
-    """The fitted parameters by default: each element's decenter (x, y) and
-    tilt (about x and y), the air gaps, and focus — the perturbations that
-    break the field symmetry or move focus, to which SFRA over the field is
-    most sensitive; curvatures, conics and materials can be added by name."""
+#: the kinds of perturbation a fit screens by default (:func:`default_names`)
+FIT_KINDS = ("decenter", "tilt", "thickness", "focus")
+#: every kind a fit can be given (:attr:`ProxyFitSettings.kinds`): a lens's own
+#: (:data:`calibration.optics.perturb.PARAMETER_KINDS`) and the focus (the last air gap)
+KINDS = (*PARAMETER_KINDS, "focus")
+#: every kind a module's tolerances perturb, and focus: ``isp calib fit --kinds all``, the loop's base
+ALL_KINDS = (*TOLERANCED_KINDS, "focus")
+
+
+def default_names(lens: Lens, kinds=FIT_KINDS) -> list[str]:
+    """The fitted parameters of ``kinds``: by default each element's decenter
+    (x, y) and tilt (about x and y), the air gaps, and focus — the
+    perturbations that break the field symmetry or move focus, to which SFRA
+    over the field is most sensitive; curvatures, conics and materials
+    (``"curvature"``, ``"conic"``, ``"nd"``, ...: :data:`KINDS`) where asked."""
     space = ParameterSpace.default(lens, kinds=[k for k in kinds if k != "focus"])
     names = list(space.names)
     if "focus" in kinds:
@@ -446,11 +456,18 @@ class ProxyFitSettings:
         of :func:`default_names`: decenters, tilts, gaps and focus; screened
         on the sub-grid, restarts included), then all of them from there
         (no restarts), and keeps the better of that and the fit of all at
-        once (recorded among ``restarts``). None: all at once only. Why:
+        once (recorded among ``restarts``), which then runs without restarts.
+        None: all at once only, restarts included. Why:
         from the nominal lens, all of a lens's perturbations at once can
         settle where their directions drift together, far from the device,
         and the staged fit can too, on other devices
-        (:data:`calibration.loop.base.LOOP_STAGE_PARAMS`).
+        (:data:`calibration.loop.base.LOOP_STAGE_PARAMS`). Why no restarts of
+        the fit of all at once: in 92 dimensions their starts land far from
+        any device (on the loop suite's case 14 their probes ended at 107–139 k
+        where the fit itself reached 70.9 k and the staged one 26.4 k); on an
+        e2 module fitted over all 92 (``isp calib fit --kinds all --stage 24
+        --fine-iter 0``) they cost 207 of 481 s and the staged fit won either
+        way, at the same χ².
     widen : bool
         Where the fitted lens throws more than a tenth of some
         observation's light outside the model's PSF window
@@ -465,6 +482,10 @@ class ProxyFitSettings:
         conditioned correction's gain at FoV 0.9 went from +1.19 to
         +1.35 dB (docs/results/device.md). False (default): one fit, the window as
         given (``isp calib fit --widen`` turns it on).
+    kinds : tuple of str
+        The kinds of perturbation screened to ``n_params`` when the fit is
+        given no names (:data:`KINDS`; default :data:`FIT_KINDS`: decenters,
+        tilts, air gaps and focus).
 
     Examples
     --------
@@ -493,6 +514,7 @@ class ProxyFitSettings:
     floor_chi2: float = 1.0
     stage_params: int | None = None
     widen: bool = False
+    kinds: tuple = FIT_KINDS
 
     def __post_init__(self):
         from calibration.fit.forward_model import ModelSettings
@@ -537,6 +559,11 @@ class ProxyFitSettings:
         integer("seed", 0)
         if not isinstance(self.widen, bool):
             raise bad("widen", f"must be True or False, got {self.widen!r}")
+        kinds = (self.kinds,) if isinstance(self.kinds, str) else tuple(self.kinds)
+        unknown = [k for k in kinds if k not in KINDS]
+        if unknown or not kinds:
+            raise bad("kinds", f"unknown {', '.join(map(repr, unknown)) or 'none given'}; valid: {', '.join(KINDS)}")
+        object.__setattr__(self, "kinds", kinds)
         positive("bound_factor")
         positive("prior", optional=True)
         positive("floor_chi2")
@@ -624,10 +651,19 @@ MAX_WINDOW_UM = 128.0
 WIDEN_RECOVERS = 0.25
 
 
+def _fitted_count(nominal: Lens, names, cfg: ProxyFitSettings) -> int:
+    """How many perturbations a fit given ``names`` (None: screened from
+    ``cfg.kinds`` to ``cfg.n_params``) asks for, the size its coarse
+    sub-grid is chosen by."""
+    if names is not None:
+        return len(names)
+    return cfg.n_params or len(default_names(nominal, cfg.kinds))
+
+
 def _fit_proxy(nominal: Lens, obs: Observations, cfg: ProxyFitSettings, names, x0,
                executor: Executor | None) -> ProxyFit:
     """:func:`fit_proxy` with one window."""
-    n_fit = len(names) if names is not None else (cfg.n_params or len(default_names(nominal)))
+    n_fit = _fitted_count(nominal, names, cfg)
     mask = coarse_subset(obs, cfg.coarse, min_obs=2 * n_fit) if cfg.coarse is not None and x0 is None else None
     own = executor is None
     ex = pool_executor(None, progress=True) if own else executor
@@ -655,7 +691,7 @@ def _fit(nominal, obs, cfg: ProxyFitSettings, names, x0, ex: Executor, screen: b
     residuals = resolve_residuals(cfg.residuals, obs)
     bias = residual_bias(model, nominal, residuals, ex)
     screen = (screen or names is None) and n_params is not None
-    names = list(names) if names is not None else default_names(nominal)
+    names = list(names) if names is not None else default_names(nominal, cfg.kinds)
     cheap_model = None   # in this process, where there is no pool
     pool = None
     if ex.parallel:
@@ -819,8 +855,11 @@ def _coarse_to_fine(nominal, obs, mask, names, cfg: ProxyFitSettings, ex: Execut
 
     t0 = time.perf_counter()
     sub = obs.subset(mask)
-    first = _fit(nominal, sub, cfg, names, None, ex)
-    if cfg.stage_params is not None and names is not None and len(names) > cfg.stage_params:
+    n_fit = _fitted_count(nominal, names, cfg)
+    staging = cfg.stage_params is not None and n_fit > cfg.stage_params
+    first = _fit(nominal, sub, dataclasses.replace(cfg, restarts=0) if staging else cfg, names, None, ex)
+    names = list(first.space.names)   # the screened ones where none were given
+    if staging and len(names) > cfg.stage_params:
         # also: the most sensitive assembly parameters find a basin (screening and restarts among
         # them), then all of them from there; the better of the two coarse fits is kept
         assembly = [k for k in default_names(nominal) if k in names]

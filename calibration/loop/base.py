@@ -29,6 +29,7 @@ import numpy as np
 from calibration.loop.effects import Geometry
 from calibration.fit.observations import Observations
 from calibration.fit.forward_model import BANDS, Prediction, aperture_mtf, band_means, measure_like, sfra_of
+from calibration.fit.proxy import ALL_KINDS
 
 __all__ = ["BASE_KINDS", "LensBase", "ParametricBase", "area_weights", "colour_shift_mtf", "diffraction_mtf", "disc_mtf",
            "disc_otf", "edge_profile", "make_base"]
@@ -228,7 +229,7 @@ LOOP_WINDOW_UM = 45.0
 #: every kind but focus (91) at 53, and over every kind and focus (92) at 14.2, where the
 #: device's own lens scores 14.1 (χ² with the fitter's default σ of 0.002 cycles/pixel per
 #: edge, about a quarter of this capture's noise)
-BASE_KINDS = ("curvature", "conic", "thickness", "decenter", "tilt", "nd", "vd", "focus")
+BASE_KINDS = ALL_KINDS
 
 
 #: the base fit's coarse stage also fits this many of its most sensitive assembly perturbations

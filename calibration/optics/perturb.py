@@ -508,8 +508,13 @@ def nominal_value(lens: Lens, name: str) -> float:
     return float(m.nd if attr == "nd" else m.vd)
 
 
-def default_names(lens: Lens, kinds: Iterable[str] = ("curvature", "conic", "thickness", "decenter",
-                                                       "tilt", "nd", "vd")) -> list[str]:
+#: the kinds of perturbation :func:`default_names` knows
+PARAMETER_KINDS = ("curvature", "conic", "asphere", "thickness", "decenter", "tilt", "tilt_xy", "nd", "vd")
+#: the kinds a default tolerance analysis perturbs (and ``isp calib simulate --perturb random`` draws)
+TOLERANCED_KINDS = ("curvature", "conic", "thickness", "decenter", "tilt", "nd", "vd")
+
+
+def default_names(lens: Lens, kinds: Iterable[str] = TOLERANCED_KINDS) -> list[str]:
     """The parameters a default tolerance analysis perturbs.
 
     * curvature / conic: every surface of an element that is curved or
@@ -527,10 +532,9 @@ def default_names(lens: Lens, kinds: Iterable[str] = ("curvature", "conic", "thi
     * nd, vd: every solid medium (vd only where it disperses).
     """
     kinds = tuple(kinds)
-    valid = {"curvature", "conic", "asphere", "thickness", "decenter", "tilt", "tilt_xy", "nd", "vd"}
-    bad = set(kinds) - valid
+    bad = set(kinds) - set(PARAMETER_KINDS)
     if bad:
-        raise PerturbationError(f"unknown parameter kinds {sorted(bad)}; valid: {sorted(valid)}")
+        raise PerturbationError(f"unknown parameter kinds {sorted(bad)}; valid: {sorted(PARAMETER_KINDS)}")
     elements = lens.elements()
     in_element = sorted({i for a, b in elements for i in range(a, b + 1)})
     names: list[str] = []

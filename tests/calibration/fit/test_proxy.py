@@ -185,6 +185,40 @@ def test_a_staged_coarse_fit_leads_with_a_few_parameters_and_recovers_the_device
         ProxyFitSettings(stage_params=0)
 
 
+@pytest.fixture(scope="module")
+def power_device(make_e9_device):
+    """An e9 device whose one perturbation is a power error (0.9 tolerance on surface 4's curvature)."""
+    return make_e9_device(["s4.curvature"], np.array([0.9]), grid=(4, 6), noise=0.003, rng=3)
+
+
+def test_a_power_error_is_fitted_by_the_kinds_that_make_it_not_mimicked_by_assembly(power_device):
+    """``kinds``: a device with a power error, which decenters, tilts, gaps
+    and focus (the default kinds) can only mimic: screened from those, the
+    fit ends at tens of times the χ² of a fit of the true parameter alone
+    (the reference); screened from curvatures and focus, at a quarter of
+    the assembly fit's or less, whichever surfaces' powers it uses (they
+    are near-degenerate: it picks others than surface 4 and stops above
+    the reference)."""
+    from calibration.fit.proxy import FIT_KINDS, ProxyFitSettings, fit_proxy
+
+    lens, obs = power_device
+    kw = dict(residuals="sfra", max_iter=6, restarts=0, coarse=None, n_params=3)
+    serial = create_executor("serial")
+
+    def chi2(fit):
+        return fit.errors()["after"]["chi2_per_obs"]
+
+    truth = chi2(fit_proxy(lens, obs, ProxyFitSettings(**kw), names=["s4.curvature"], executor=serial))
+    assembly = fit_proxy(lens, obs, ProxyFitSettings(kinds=FIT_KINDS, **kw), executor=serial)
+    power = fit_proxy(lens, obs, ProxyFitSettings(kinds=("curvature", "focus"), **kw), executor=serial)
+    assert not any("curvature" in n for n in assembly.space.names)
+    assert all(n.endswith(("curvature", "thickness")) for n in power.space.names)
+    assert chi2(assembly) > 20 * truth
+    assert truth < chi2(power) < chi2(assembly) / 4
+    with pytest.raises(ConfigError, match="kinds"):
+        ProxyFitSettings(kinds=("power",))
+
+
 def test_a_fit_whose_lens_spills_out_of_the_window_is_redone_wider(grid_device):
     """``widen``: the fitted lens keeps less than 90 % of some observation's
     light inside a 4 µm window (e9's PSF is several µm wide); the fit is
