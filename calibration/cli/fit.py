@@ -295,8 +295,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "and keep the fit of the lowest "
                         "χ² per observation, the first included: a fit stops in a local minimum, and how near the "
                         "device file comes to the module follows that χ² (on e2's quick fits the lowest of "
-                        "'', '--widen', '--n-params 48' and '--n-params 48 --restarts 12' gained +1.53 dB at FoV "
-                        "0.9 where the first alone gained +1.19; docs/results/device.md); fit.json lists them "
+                        "'', '--widen', '--n-params 48', '--n-params 48 --restarts 12' and '--kinds all --n-params "
+                        "92 --stage 24' gained +1.67 dB at FoV 0.9, as the true descriptors do, where the first "
+                        "alone gained +1.19; docs/results/device.md); fit.json lists them "
                         "under settings.tries. One option alone goes with '=': --try=--widen")
     p.add_argument("--channel", help="R, G, B, L or all (default G; grey images: L)")
     p.add_argument("--encoding", choices=("linear", "srgb"), default="linear", help="image codes (default linear)")

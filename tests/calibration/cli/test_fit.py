@@ -226,14 +226,18 @@ def test_a_try_changes_only_the_fitting_options_it_names():
     from isp.errors import ConfigError
 
     given = argparse.Namespace(n_params=24, restarts=4, max_iter=20, window_um=None, widen=False, method="dls",
-                               residuals="auto", lens="e2.zmx", tries=None, kinds=("decenter", "tilt"))
+                               residuals="auto", lens="e2.zmx", tries=None, kinds=("decenter", "tilt"),
+                               stage=None)
     got = _try_options(given, "--n-params 48 --restarts 12")
     assert (got.n_params, got.restarts, got.max_iter, got.widen, got.lens) == (48, 12, 20, False, "e2.zmx")
     assert got.kinds == ("decenter", "tilt")
     assert _try_options(given, "--widen").widen and given.widen is False
     assert _try_options(given, "--kinds curvature,conic,focus").kinds == ("curvature", "conic", "focus")
+    every = _try_options(given, "--kinds all --n-params 92 --stage 24")
+    assert (every.n_params, every.stage, given.stage) == (92, 24, None)
+    assert {"curvature", "conic", "nd", "vd", "decenter", "tilt", "thickness", "focus"} == set(every.kinds)
     for bad, word in [("--lens other.zmx", "--lens"), ("--n-params x", "--n-params"), ("--widen --window-um 200", "128"),
-                      ("--restarts -1", "--restarts"), ('"--n-params 48', "quotation"), ("--kinds curv", "curv")]:
+                      ("--restarts -1", "--restarts"), ('"--n-params 48', "quotation"), ("--kinds curv", "curv"), ("--stage 0", "--stage")]:
         with pytest.raises(ConfigError, match=word) as e:
             _try_options(given, bad)
         assert "\n" not in str(e.value) and "--try" in str(e.value)

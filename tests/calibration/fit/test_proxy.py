@@ -185,6 +185,21 @@ def test_a_staged_coarse_fit_leads_with_a_few_parameters_and_recovers_the_device
         ProxyFitSettings(stage_params=0)
 
 
+def test_every_kind_spans_what_a_module_drawn_within_tolerance_is_perturbed_in(e9_lens):
+    """``--kinds all`` (:data:`ALL_KINDS`): the perturbations ``isp calib
+    simulate --perturb random`` draws for a module (the design's default
+    tolerance space), and focus, which assembly sets; the default kinds
+    are the assembly's alone, a strict subset."""
+    from calibration.fit.proxy import ALL_KINDS, FIT_KINDS, default_names, focus_name
+    from calibration.optics.perturb import ParameterSpace
+
+    drawn = set(ParameterSpace.default(e9_lens).names)
+    every = default_names(e9_lens, ALL_KINDS)
+    assert set(every) == drawn | {focus_name(e9_lens)} and len(every) == len(set(every))
+    assert set(default_names(e9_lens, FIT_KINDS)) < set(every)
+    assert any(n.endswith(".curvature") for n in drawn) and any(n.endswith(".conic") for n in drawn)
+
+
 @pytest.fixture(scope="module")
 def power_device(make_e9_device):
     """An e9 device whose one perturbation is a power error (0.9 tolerance on surface 4's curvature)."""
