@@ -249,8 +249,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with more than N perturbations fitted: fit first the N most sensitive decenters, tilts, "
                         "gaps and focus (restarts among them), then all from there, and keep the better of that "
                         "and all at once (default: all at once). With --kinds all --n-params 92 --stage 24 an e2 "
-                        "module's quick fit ended at χ²/obs 18.9 against 36.0 over 48 assembly perturbations, its "
-                        "device file 0.22 spreads from the module's against 0.92")
+                        "module's quick fit ended at χ²/obs 19.0 against 36.0 over 48 assembly perturbations, its "
+                        "device file 0.26 spreads from the module's against 0.92")
     p.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"iterations at most (default {MAX_ITER})")
     p.add_argument("--refresh", type=int, default=REFRESH,
                    help="a finite-difference Jacobian every REFRESH accepted steps, Broyden secant updates "
