@@ -29,8 +29,8 @@ its own, which ``device_eval.py --work DIR`` then scores as any other (it
 finds every module fitted). Usage::
 
     python -m benchmarks.device_fit_error --work e9=out/device_eval_packaged e2=out/device_eval_e2_auto
-    python -m benchmarks.device_fit_error --work a=out/device_eval_e2 b=out/device_eval_e2_all \
-        --best-into out/device_eval_e2_best --label e2_best
+    python -m benchmarks.device_fit_error --work np48=out/device_eval_e2_np48 all_kinds=out/device_eval_e2_all \
+        --best-into out/device_eval_e2_best2 --label e2_best2
 """
 
 from __future__ import annotations
