@@ -101,19 +101,15 @@ def main(argv=None) -> dict:
     ap.add_argument("--best-into", metavar="DIR",
                     help="also copy each module's lowest-χ² fit among the folders into DIR (reported as 'best')")
     args = ap.parse_args(argv)
-    folders, pooled = {}, []
-    chosen = None
-    if args.best_into:
-        given = {}
-        for spec in args.work:
-            name, _, where = spec.partition("=")
-            given[name] = where
-        chosen = best_of(given, Path(args.best_into), args.fit)
-        args.work = [*args.work, f"best={args.best_into}"]
+    given = {}
     for spec in args.work:
         name, _, where = spec.partition("=")
         if not where:
             ap.error(f"--work {spec!r}: give NAME=DIR")
+        given[name] = where
+    chosen = best_of(given, Path(args.best_into), args.fit) if args.best_into else None
+    folders, pooled = {}, []
+    for name, where in {**given, **({"best": args.best_into} if chosen is not None else {})}.items():
         rows = [r for d in sorted(Path(where).glob("*_*_*")) if d.is_dir()
                 for r in [module_error(d, args.fit)] if r is not None]
         if not rows:
@@ -121,7 +117,8 @@ def main(argv=None) -> dict:
         folders[name] = {"work": where, "modules": rows,
                          "mean_descriptor_error": round(float(np.mean([r["descriptor_rms_error"] for r in rows])), 3),
                          "median_chi2_per_obs": round(float(np.median([r["chi2_per_obs"] for r in rows])), 2)}
-        pooled += rows
+        if name in given:   # the chosen fits are copies of the others: pooled once
+            pooled += rows
         print(f"{name} ({where}):")
         for r in rows:
             print(f"  {r['module']}: χ²/obs {r['chi2_per_obs']:6.1f}, SFRA {r['sfra_rms']:.4f}, "
@@ -129,9 +126,8 @@ def main(argv=None) -> dict:
                   f"{r['n_params']} parameters")
         print(f"  mean error {folders[name]['mean_descriptor_error']:.3f}, "
               f"median χ²/obs {folders[name]['median_chi2_per_obs']:.1f}")
-    if chosen is not None:   # the chosen fits are copies of the others: pooled once
+    if chosen is not None:
         print("lowest χ² per module: " + ", ".join(f"{m} from {n}" for m, n in chosen.items()))
-        pooled = [r for name, f in folders.items() if name != "best" for r in f["modules"]]
     chi2 = np.array([r["chi2_per_obs"] for r in pooled])
     err = np.array([r["descriptor_rms_error"] for r in pooled])
     corr = float(np.corrcoef(chi2, err)[0, 1]) if len(pooled) > 2 else None

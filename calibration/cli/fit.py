@@ -60,12 +60,8 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     _check_fitting_options(args)
-    if args.bootstrap < 0:
-        raise ConfigError(f"--bootstrap {args.bootstrap}: 0 or more")
-    if args.components < 1:
-        raise ConfigError(f"--components {args.components}: at least 1")
-    if args.fine_iter is not None and args.fine_iter < 0:
-        raise ConfigError(f"--fine-iter {args.fine_iter}: 0 or more")
+    for option, least in (("--bootstrap", 0), ("--components", 1), ("--fine-iter", 0)):
+        _at_least(args, option, least)
     if args.fine_iter == 0 and args.coarse[0] == 0:
         raise ConfigError("--fine-iter 0 stops after the coarse stage; it needs --coarse R C")
     coarse = coarse_grid(args.coarse)
@@ -158,19 +154,21 @@ def kind_list(text: str) -> tuple[str, ...]:
     return ALL_KINDS if kinds == ("all",) else kinds
 
 
+def _at_least(a: argparse.Namespace, option: str, least: int, where: str = "") -> None:
+    """ConfigError (one line, prefixed by ``where``) where integer ``option``
+    of ``a`` is given and below ``least``."""
+    value = getattr(a, option[2:].replace("-", "_"))
+    if value is not None and value < least:
+        raise ConfigError(f"{where}{option} {value}: " + ("0 or more" if least == 0 else f"at least {least}"))
+
+
 def _check_fitting_options(a: argparse.Namespace, where: str = "") -> None:
     """ConfigError (one line, prefixed by ``where``) for a fitting option
     out of its range: the command line's, or a ``--try``'s."""
     from calibration.fit.proxy import KINDS
 
-    if a.max_iter < 1:
-        raise ConfigError(f"{where}--max-iter {a.max_iter}: at least 1")
-    if a.n_params < 1:
-        raise ConfigError(f"{where}--n-params {a.n_params}: at least 1")
-    if a.restarts < 0:
-        raise ConfigError(f"{where}--restarts {a.restarts}: 0 or more")
-    if a.stage is not None and a.stage < 1:
-        raise ConfigError(f"{where}--stage {a.stage}: at least 1")
+    for option, least in (("--max-iter", 1), ("--n-params", 1), ("--restarts", 0), ("--stage", 1)):
+        _at_least(a, option, least, where)
     if a.widen and a.window_um is not None and a.window_um >= 128.0:
         raise ConfigError(f"{where}--widen with --window-um {a.window_um:g}: the window to start from must be "
                           "below 128 µm, the widest --widen tries")
