@@ -699,18 +699,30 @@ def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_tim
     )
 
 
-def _default_psf_map(lens, options: dict | None):
+def _default_psf_map(lens, options: dict | None, injections=()):
+    """The lens's PSF map with ``options``, on the sensor surface the
+    ``"optics"`` injections make (:func:`calibration.simulate.injected.surface_dz_mm`)."""
     import dataclasses
 
+    from calibration.optics.perturb import nominal
     from calibration.optics.psf.map import (  # lazily: the PSF map is the expensive part (and cached on disk)
         PSFMapSettings,
         psf_map,
+        region_centers_mm,
     )
+    from calibration.simulate.injected import surface_dz_mm
 
     options = dict(options or {})
     fields = {f.name for f in dataclasses.fields(PSFMapSettings)}
     settings = PSFMapSettings(**{k: v for k, v in options.items() if k in fields})
-    return psf_map(lens, settings, **{k: v for k, v in options.items() if k not in fields})
+    rest = {k: v for k, v in options.items() if k not in fields}
+    geo = rest.get("sensor") or nominal(lens).nominal.sensor
+    dz = surface_dz_mm(injections, region_centers_mm(geo, settings.grid), 0.5 * math.hypot(*geo.size_mm))
+    if dz is not None:
+        if rest.get("image_dz_mm") is not None:
+            dz = dz + np.asarray(rest["image_dz_mm"], float)
+        rest["image_dz_mm"] = dz
+    return psf_map(lens, settings, **rest)
 
 
 def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel | None = None,
@@ -756,9 +768,11 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
     gain_map_points, gain_map_fit
         See :func:`shading_gain_maps`.
     injections : sequence of calibration.simulate.injected.Injection
-        Effects the lens model lacks, put into the mosaic: the ``"light"``
-        ones on the noise-free signal in their order, then the noise, then
-        the ``"chain"`` ones, then the quantisation.
+        Effects the lens model lacks: the ``"optics"`` ones move the
+        sensor's surface, on which the PSF map is computed (so not with
+        ``psfmap``); then, on the mosaic, the ``"light"`` ones on the
+        noise-free signal in their order, then the noise, then the
+        ``"chain"`` ones, then the quantisation.
 
     Returns
     -------
@@ -769,6 +783,10 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
     """
     if lens_shading not in ("gainmap", "none"):
         raise ImagingError(f"unknown lens_shading {lens_shading!r}; valid: 'gainmap', 'none'")
+    on_mosaic = [inj for inj in injections if inj.where != "optics"]
+    if psfmap is not None and len(on_mosaic) < len(injections):
+        raise ImagingError("an optics injection moves the sensor's surface, on which the PSF map is computed: "
+                           "give the lens, not psfmap")
     if psfmap is None:
         if lens is None:
             raise ImagingError("give a lens or a PSF map")
@@ -782,7 +800,7 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
                                f"differs from the lens's ({geo.width_px} × {geo.height_px} px of "
                                f"{geo.pixel_pitch_um} µm), whose regions the PSF map divides: give the lens that "
                                "sensor (lens.replace(sensor=...)) or pass psfmap")
-        psfmap = _default_psf_map(lens, psf_map_options)
+        psfmap = _default_psf_map(lens, psf_map_options, injections)
     if sensor is None:
         geo = getattr(psfmap, "sensor", None)
         if geo is None:
@@ -810,9 +828,9 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
         scene = slanted_square_chart(sensor.height_px, sensor.width_px, (rows, cols))
     if isinstance(scene, Chart):
         rend = render_chart(scene, psfmap, sensor, exposure=exposure, relative_illumination=ri,
-                            noise=noise and not injections, rng=gen,
+                            noise=noise and not on_mosaic, rng=gen,
                             supersample=8 if supersample is None else supersample, blend=blend or "nearest")
-        raw = _injected(rend.signal, sensor, gen, noise, injections) if injections else rend.raw
+        raw = _injected(rend.signal, sensor, gen, noise, on_mosaic) if on_mosaic else rend.raw
     else:
         s = 1 if supersample is None else int(supersample)
         img = blur_image(scene, psfmap, pixel_pitch_um=sensor.pixel_pitch_um, supersample=s,
@@ -821,7 +839,7 @@ def simulate_capture(lens=None, scene=None, *, psfmap=None, sensor: SensorModel 
             raise ImagingError(f"raster scene gives a {img.shape[:2]} image, the sensor is {sensor.shape} "
                                "(the scene must be (H·s, W·s, 3))")
         sig = float(exposure) * mosaic(img, sensor.cfa) * (1.0 if ri is None else ri)
-        raw = _injected(sig, sensor, gen, noise, injections) if injections else expose(sig, sensor, gen, noise=noise)
+        raw = _injected(sig, sensor, gen, noise, on_mosaic) if on_mosaic else expose(sig, sensor, gen, noise=noise)
     maps = shading_gain_maps(ri, sensor.cfa, gain_map_points, fit=gain_map_fit) if ri is not None else None
     return raw, capture_meta(sensor, gain_maps=maps, lens=lens)
 

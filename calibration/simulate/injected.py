@@ -1,27 +1,27 @@
 """Effects put into a simulated capture's mosaic that the lens model lacks:
 what a production line meets between the lens and the measured DNG.
 
-Each maker returns an :class:`Injection`: a function of the mosaic (0..1
-signal, ``(H, W)``) and its CFA, and where it acts. ``"light"`` acts on the
-noise-free signal before the sensor's noise (optics and charge: glare,
-defocus, crosstalk, lateral colour), ``"chain"`` after the noise, before
-quantisation (processing in the measurement chain: sharpening).
+Each maker returns an :class:`Injection`: where it acts and what it does
+there. ``"optics"`` moves the sensor's surface off the lens's image plane
+(a focus shift, a tilted or a curved sensor): the PSF map is computed on
+that surface (:func:`calibration.optics.psf.map.psf_map`'s
+``image_dz_mm``), so the defocus is the lens's own, aberrations and
+diffraction included. The others act on the mosaic (0..1 signal, ``(H,
+W)``) and its CFA: ``"light"`` on the noise-free signal before the sensor's
+noise (charge and stray light: glare, crosstalk, colour), ``"chain"``
+after the noise, before quantisation (processing in the measurement chain:
+sharpening).
 :func:`calibration.simulate.capture.simulate_capture` applies them
 (``injections=``); :func:`make_injection` builds one by the name of the
 loop's registry effect whose signature it leaves
 (:mod:`calibration.loop.effects`), so that a benchmark can check that the
 loop names what was put in.
 
-The injections are pixel-level stand-ins, not the registry's own model:
-defocus is a Gaussian blur of each Bayer plane whose σ varies over the
-field as that effect's defocus does (uniform for ``focus_shift``, linear in
-x for ``sensor_tilt``, ∝ r² for ``field_curvature``). A real defocus is the
-lens's own rays cut further from focus (a disc-like blur through the
-aberrations), which is what the loop's defocus effects model; a Gaussian
-blur's transfer is closer to crosstalk's, and the loop may name crosstalk
-for it. Defocus put in through the optics (the device's
-focus, a tilted or curved image surface in its PSF map) is the faithful
-injection for those three; crosstalk leaks charge
+The sensor's surface is ``Δz = dz`` for a focus shift, ``y tan θx + x
+tan θy`` for a sensor tilted by θx about x and θy about y, and ``dz_corner
+(r / r_corner)²`` for a curved one (x, y, r on the image plane, mm; +:
+away from the lens); each PSF-map region takes the value at its centre.
+Crosstalk leaks charge
 to the four neighbouring sites whatever their colour; lateral colour
 magnifies the R and B planes about the centre; longitudinal colour blurs
 the R and B planes by a uniform disc each (a colour focused off the
@@ -41,6 +41,7 @@ True
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -49,15 +50,15 @@ import numpy as np
 from isp.errors import ConfigError
 from isp.frame import CFA
 
-__all__ = ["Injection", "INJECTIONS", "disc_blur", "motion_blur", "make_injection"]
+__all__ = ["Injection", "INJECTIONS", "WHERE", "disc_blur", "motion_blur", "make_injection", "surface_dz_mm"]
 
-#: σ levels a field-varying blur is interpolated between (per σ_max)
-BLUR_LEVELS = 9
+#: where an injection acts, in the order a capture meets them
+WHERE = ("optics", "light", "chain")
 
 
 @dataclass(frozen=True)
 class Injection:
-    """An effect put into a mosaic.
+    """An effect put into a capture.
 
     Attributes
     ----------
@@ -65,10 +66,14 @@ class Injection:
         The loop registry's effect whose signature it leaves.
     params : dict
         Its magnitudes (units in :data:`INJECTIONS`).
-    where : {"light", "chain"}
-        Before the sensor noise (``"light"``) or after it (``"chain"``).
+    where : {"optics", "light", "chain"}
+        The sensor's surface (``"optics"``), or the mosaic before the
+        sensor noise (``"light"``) or after it (``"chain"``).
     apply : callable
-        ``apply(mosaic, cfa) -> mosaic``, both ``(H, W)`` float on 0..1.
+        ``"optics"``: ``apply(x_mm, y_mm, half_diagonal_mm) -> Δz_mm``,
+        the surface's distance beyond the image plane at image-plane
+        points; else ``apply(mosaic, cfa) -> mosaic``, both ``(H, W)``
+        float on 0..1.
     """
 
     effect: str
@@ -77,7 +82,7 @@ class Injection:
     apply: Callable[[np.ndarray, CFA], np.ndarray] = field(repr=False)
 
     def __post_init__(self):
-        if self.where not in ("light", "chain"):
+        if self.where not in WHERE:
             raise ConfigError(f"an injection acts on 'light' or 'chain', not {self.where!r}")
 
 
@@ -110,41 +115,31 @@ def _gauss(plane: np.ndarray, sigma: float) -> np.ndarray:
     return plane if sigma <= 0 else gaussian_filter(plane, sigma, mode="nearest", truncate=4.0)
 
 
-def _varying_blur(plane: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """A Gaussian blur whose σ (plane px, broadcast to the plane) varies
-    over it: the plane blurred at :data:`BLUR_LEVELS` σ levels, each pixel
-    interpolated linearly between the two levels around its σ."""
-    sigma = np.broadcast_to(np.asarray(sigma, dtype=np.float64), plane.shape)
-    top = float(sigma.max())
-    if top <= 0:
-        return plane.copy()
-    levels = np.linspace(0.0, top, BLUR_LEVELS)
-    pos = np.clip(sigma / top * (BLUR_LEVELS - 1), 0, BLUR_LEVELS - 1)
-    lo = np.minimum(pos.astype(int), BLUR_LEVELS - 2)
-    t = pos - lo
-    out = np.zeros_like(plane)
-    for k, s in enumerate(levels):
-        wk = np.where(lo == k, 1.0 - t, 0.0) + np.where(lo == k - 1, t, 0.0)
-        if np.any(wk):
-            out += wk * _gauss(plane, s)
-    return out
+def _focus(dz_um: float):
+    return lambda x_mm, y_mm, half_mm: np.full(np.shape(x_mm), 1e-3 * dz_um)
 
 
-def _focus(sigma_px: float):
-    return _per_plane(lambda p, ys, xs, c: _gauss(p, sigma_px))
+def _tilt(tilt_x_deg: float, tilt_y_deg: float):
+    return lambda x_mm, y_mm, half_mm: (np.asarray(y_mm) * math.tan(math.radians(tilt_x_deg))
+                                        + np.asarray(x_mm) * math.tan(math.radians(tilt_y_deg)))
 
 
-def _tilt(sigma_left_px: float, sigma_right_px: float):
-    def fn(p, ys, xs, c):
-        u = (xs - xs.min()) / max(xs.max() - xs.min(), 1e-12)          # 0 at the left, 1 at the right
-        return _varying_blur(p, (sigma_left_px + (sigma_right_px - sigma_left_px) * u)[None, :])
-    return _per_plane(fn)
+def _curvature(dz_corner_um: float):
+    return lambda x_mm, y_mm, half_mm: 1e-3 * dz_corner_um * (np.square(x_mm) + np.square(y_mm)) / half_mm ** 2
 
 
-def _curvature(sigma_corner_px: float):
-    def fn(p, ys, xs, c):
-        return _varying_blur(p, sigma_corner_px * (ys[:, None] ** 2 + xs[None, :] ** 2))
-    return _per_plane(fn)
+def surface_dz_mm(injections, centres_mm: np.ndarray, half_diagonal_mm: float) -> np.ndarray | None:
+    """The sensor's surface beyond the image plane (mm) at ``centres_mm``
+    (``(..., 2)`` x, y), the ``"optics"`` injections' Δz added; None
+    where there are none.
+
+    >>> c = np.array([[[-2.0, 0.0], [2.0, 0.0]]])
+    >>> surface_dz_mm([make_injection("sensor_tilt", tilt_x_deg=0.0, tilt_y_deg=0.1)], c, 2.5).round(5).tolist()
+    [[-0.00349, 0.00349]]
+    """
+    parts = [inj.apply(centres_mm[..., 0], centres_mm[..., 1], half_diagonal_mm)
+             for inj in injections if inj.where == "optics"]
+    return np.sum(parts, axis=0) if parts else None
 
 
 def _lateral_ca(red_px_at_corner: float, blue_px_at_corner: float):
@@ -241,9 +236,9 @@ def _crosstalk(leak: float):
 
 #: effect name → (maker, where, parameter names with units)
 INJECTIONS = {
-    "focus_shift": (_focus, "light", {"sigma_px": "plane px"}),
-    "sensor_tilt": (_tilt, "light", {"sigma_left_px": "plane px", "sigma_right_px": "plane px"}),
-    "field_curvature": (_curvature, "light", {"sigma_corner_px": "plane px"}),
+    "focus_shift": (_focus, "optics", {"dz_um": "µm (+: away from the lens)"}),
+    "sensor_tilt": (_tilt, "optics", {"tilt_x_deg": "degree about x", "tilt_y_deg": "degree about y"}),
+    "field_curvature": (_curvature, "optics", {"dz_corner_um": "µm at the corner"}),
     "lateral_ca": (_lateral_ca, "light", {"red_px_at_corner": "sensor px", "blue_px_at_corner": "sensor px"}),
     "longitudinal_ca": (_longitudinal_ca, "light", {"red_disc_px": "plane px", "blue_disc_px": "plane px"}),
     "pixel_crosstalk": (_crosstalk, "light", {"leak": "fraction to each neighbour"}),

@@ -37,3 +37,18 @@ def test_summary_counts_what_was_named():
     assert s["per_effect"]["pixel_crosstalk"] == {"put_in": 1, "named": 0}
     assert s["false_additions"] == {"focus_shift": 1, "veiling_glare": 1}
     assert s["clean_cases"] == 2 and s["clean_given_an_effect"] == 1 and s["all_right"] == 2
+
+
+def test_a_focus_shift_counts_as_named_where_the_base_took_it_up():
+    """A focus shift within the base's ±20 µm is its focus parameter: named
+    where the fitted focus moved by the shift (30 %, or 1.5 µm)."""
+    from types import SimpleNamespace
+
+    rep = SimpleNamespace(base_names=("e1.decenter_x", "s9.thickness"), base_x=[0.1, 1.2])
+    moved = loop_suite.focus_moved_um(rep, ("s9.thickness", 0.003))        # 12 µm fitted, 3 µm the device's
+    assert moved == pytest.approx(9.0)
+    put = {"focus_shift": {"dz_um": 8.0}, "sharpening": {"gain": 0.5, "sigma_px": 1.0}}
+    assert loop_suite.judged(put, ["sharpening"], moved) == {"focus_shift", "sharpening"}
+    assert loop_suite.judged(put, [], 4.0) == set()
+    assert loop_suite.judged(put, ["focus_shift"], None) == {"focus_shift"}
+    assert loop_suite.focus_moved_um(rep, ("s7.thickness", 0.0)) is None

@@ -517,14 +517,18 @@ def _is_coaxial(pl: PerturbedLens) -> bool:
     return all(p.rotation is None and p.vertex[0] == 0.0 and p.vertex[1] == 0.0 for p in poses)
 
 
-def region_task(args) -> tuple[np.ndarray, np.ndarray]:
-    """One region: (channels, m, m) PSFs and (channels,) window energies.
-    A plain picklable function of its inputs (DESIGN.md, scale-out)."""
+def region_task(args, dz_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """One region: (channels, m, m) PSFs and (channels,) window energies,
+    on an image surface ``dz_mm`` beyond the lens's image plane there
+    (+: away from the lens). A plain picklable function of its inputs
+    (DESIGN.md, scale-out)."""
     pl, fld, center, nodes, weights, method, samples, m, pitch, aiming, aim_each, threads = args
     o = grid_offsets_mm(m, pitch)
     out = np.zeros((weights.shape[0], m, m))
     energy = np.zeros(weights.shape[0])
     traced = trace_pupils(pl, (float(fld[0]), float(fld[1])), nodes, samples, aiming, exit_pupil_z(pl), aim_each)
+    if dz_mm:
+        traced = [dataclasses.replace(tr, z_image=tr.z_image + float(dz_mm)) for tr in traced]
     for k, tr in enumerate(traced):
         data, e = monochromatic_samples(reference_sphere(tr, np.asarray(center)), method, o, o, workers=threads)
         for c in range(weights.shape[0]):
@@ -532,6 +536,22 @@ def region_task(args) -> tuple[np.ndarray, np.ndarray]:
                 out[c] += weights[c, k] * data
                 energy[c] += weights[c, k] * e
     return out, energy
+
+
+def _image_dz(image_dz_mm, grid: tuple[int, int]) -> np.ndarray:
+    """``image_dz_mm`` checked: a finite (rows, cols) array (0 for None)."""
+    if image_dz_mm is None:
+        return np.zeros(grid)
+    dz = np.asarray(image_dz_mm, dtype=np.float64)
+    if dz.shape != tuple(grid) or not np.all(np.isfinite(dz)):
+        raise ConfigError(f"image_dz_mm must be a finite {grid[0]} × {grid[1]} array (one per region), "
+                          f"got shape {dz.shape}")
+    return dz
+
+
+def _mirrored(dz: np.ndarray) -> bool:
+    """Whether ``dz`` is the same in the four quadrants (the map's symmetry holds)."""
+    return bool(np.array_equal(dz, dz[::-1, :]) and np.array_equal(dz, dz[:, ::-1]))
 
 
 @dataclass(frozen=True)
@@ -648,12 +668,12 @@ def _region_job(task) -> tuple[np.ndarray, np.ndarray]:
     """:func:`region_task` of one region's (field, centre), the rest of its
     arguments read from the executor's payload (sent to each worker once)."""
     pl, *rest = worker_payload()
-    fld, center = task
-    return region_task((pl, fld, center, *rest))
+    fld, center, dz = task
+    return region_task((pl, fld, center, *rest), dz)
 
 
 def psf_map(lens_or_perturbed: Lens | PerturbedLens, settings: PSFMapSettings | None = None, *,
-            sensor: Sensor | None = None, cache_dir=None, cache: bool = True,
+            sensor: Sensor | None = None, image_dz_mm=None, cache_dir=None, cache: bool = True,
             executor: Executor | None = None) -> PSFMap:
     """PSFs of every sensor region and channel of a (perturbed) lens.
 
@@ -668,6 +688,14 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, settings: PSFMapSettings | 
     sensor : Sensor, optional
         The sensor whose regions are mapped (default the lens's; centred on
         the optical axis).
+    image_dz_mm : (rows, cols) array_like, optional
+        Where the sensor's surface lies at each region, mm beyond the
+        lens's image plane (+: away from the lens): a focus shift
+        (constant), a tilted sensor (linear in x, y) or a curved one. Each
+        region's rays are cut at its own plane, so its PSF is the lens's
+        own defocus there, aberrations and diffraction included (the
+        chief ray's slope moves it by ``dz·tan θ``, as on the sensor).
+        Default: 0 everywhere.
     cache_dir : path, optional
         Default ``$ISP_CACHE/psf`` or ``~/.cache/phone-isp/psf``.
     cache : bool
@@ -703,11 +731,14 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, settings: PSFMapSettings | 
     nodes, weights = channel_quadrature(channels, n_wl, camera, illuminant)
     if method != "fft":          # the FFT method checks its own period
         check_window(pl, n, pitch, samples, float(np.min(nodes)))
-    symmetric = s.symmetry == "auto" and _is_coaxial(pl)
+    dz = _image_dz(image_dz_mm, (rows, cols))
+    symmetric = s.symmetry == "auto" and _is_coaxial(pl) and _mirrored(dz)
     settings = {"grid": [rows, cols], "channels": list(channels), "method": method, "n": n, "pitch_um": pitch,
                 "pupil_samples": samples, "n_wavelengths": n_wl, "camera": camera, "illuminant": illuminant,
                 "aiming": aiming, "aim_each_wavelength": bool(aim_each_wavelength), "symmetric": symmetric,
                 "sensor": dataclasses.asdict(sensor)}
+    if np.any(dz):
+        settings["image_dz_mm"] = dz.tolist()
     key = cache_key(pl, settings)
     path = _cache_dir(cache_dir) / f"{key}.npz"
     if cache and path.exists():
@@ -731,7 +762,7 @@ def psf_map(lens_or_perturbed: Lens | PerturbedLens, settings: PSFMapSettings | 
     ex = pool_executor(None, progress=True) if executor is None else executor
     threads = 1 if ex.parallel else None     # FFTs and sums on one thread per worker, as BLAS is
     payload = (pl, nodes, weights, method, samples, m, pitch, aiming, bool(aim_each_wavelength), threads)
-    tasks = [(fields[i], centers[r, c]) for i, (r, c) in enumerate(todo)]
+    tasks = [(fields[i], centers[r, c], float(dz[r, c])) for i, (r, c) in enumerate(todo)]
     try:
         with ex.bind(payload) as job:
             results = job.map(_region_job, tasks, chunksize=max(1, len(tasks) // (8 * ex.workers)),

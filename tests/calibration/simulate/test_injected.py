@@ -1,9 +1,9 @@
 """Effects put into a simulated capture's mosaic (calibration/simulate/injected.py).
 
 Kind: property (analytic). Each injection against a closed form: the
-unsharp mask's and the crosstalk kernel's transfer on a sinusoid, a blur's
-σ from an impulse's second moment where the field puts it (uniform, linear
-in x, ∝ r²), lateral colour's radial shift from an impulse's centroid,
+unsharp mask's and the crosstalk kernel's transfer on a sinusoid, the
+sensor surface a focus shift, a tilt or a curvature makes (and that the
+capture hands its PSF map), lateral colour's radial shift from an impulse's centroid,
 glare's share of the light; and in a whole capture, a "light" injection
 acts before the noise and a "chain" one after it (sharpening amplifies the
 noise only as a chain effect).
@@ -80,24 +80,52 @@ def impulses(shape, spots):
     return m
 
 
-def test_blurs_follow_their_field_dependence():
-    h, w = 240, 320                            # planes 120 × 160
-    spots = [(60, 20), (60, 80), (60, 140)]    # left, centre, right on the middle row
-    m = impulses((h, w), spots)
-    # σ ≥ 1 plane px, where a sampled Gaussian's second moment is its σ
-    tilt = make_injection("sensor_tilt", sigma_left_px=1.0, sigma_right_px=3.0).apply(m, CFA.RGGB)[0::2, 0::2]
-    u = [x / 159 for _, x in spots]                       # 0 at the left plane column, 1 at the right
-    for (y, x), ui in zip(spots, u):
-        assert second_moment_sigma(tilt, y, x) == pytest.approx(1.0 + 2.0 * ui, abs=0.05)
-    focus = make_injection("focus_shift", sigma_px=1.5).apply(m, CFA.RGGB)[0::2, 0::2]
-    assert [second_moment_sigma(focus, y, x) for y, x in spots] == pytest.approx([1.5] * 3, abs=0.02)
-    corner = [(12, 16), (60, 80)]               # near the corner, the centre
-    m = impulses((h, w), corner)
-    curv = make_injection("field_curvature", sigma_corner_px=2.0).apply(m, CFA.RGGB)[0::2, 0::2]
-    half = 0.5 * math.hypot(h, w)
-    r2 = ((2 * 12 - (h - 1) / 2) ** 2 + (2 * 16 - (w - 1) / 2) ** 2) / half ** 2
-    assert second_moment_sigma(curv, 12, 16, r=10) == pytest.approx(2.0 * r2, abs=0.1)
-    assert second_moment_sigma(curv, 60, 80) < 0.05
+def test_optics_injections_move_the_sensor_surface():
+    """Closed forms at image-plane points (mm): a focus shift is Δz
+    everywhere, a tilt θy about y is x·tan θy (θx about x: y·tan θx), a
+    curved sensor dz_corner·(r/r_corner)²; two add."""
+    from calibration.simulate.injected import surface_dz_mm
+
+    pts = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, -1.5], [2.0, 1.5]])
+    half = 2.5
+    focus = surface_dz_mm([make_injection("focus_shift", dz_um=6.0)], pts, half)
+    assert focus == pytest.approx([0.006] * 4)
+    tilt = surface_dz_mm([make_injection("sensor_tilt", tilt_x_deg=0.2, tilt_y_deg=-0.1)], pts, half)
+    tx, ty = math.tan(math.radians(0.2)), math.tan(math.radians(-0.1))
+    assert tilt == pytest.approx([0.0, 2.0 * ty, -1.5 * tx, 2.0 * ty + 1.5 * tx])
+    curved = [make_injection("field_curvature", dz_corner_um=8.0)]
+    assert surface_dz_mm(curved, pts, half) == pytest.approx([0.0, 0.008 * 0.64, 0.008 * 0.36, 0.008])
+    both = surface_dz_mm(curved + [make_injection("focus_shift", dz_um=6.0)], pts, half)
+    assert both == pytest.approx(surface_dz_mm(curved, pts, half) + 0.006)
+    assert surface_dz_mm([make_injection("sharpening", gain=0.5, sigma_px=1.0)], pts, half) is None
+
+
+def test_a_capture_computes_its_psf_map_on_the_moved_surface(monkeypatch, e9_lens):
+    """simulate_capture hands the PSF map the surface at each region's
+    centre (the map's own plumbing: tests/calibration/optics/psf/test_map.py),
+    and refuses an optics injection with a ready-made map."""
+    from calibration.optics import psf
+    from calibration.optics.psf.map import region_centers_mm
+    from calibration.simulate.capture import ImagingError
+
+    sensor = Sensor(2.0, 160, 120)
+    seen = {}
+
+    def fake_psf_map(lens, settings, image_dz_mm=None, **kw):
+        seen["dz"] = image_dz_mm
+        return gaussian_psf_map(sensor, settings.grid, lambda r, c, k: 1.0, pitch_um=0.5, n=17)
+
+    monkeypatch.setattr(psf.map, "psf_map", fake_psf_map)
+    lens = e9_lens.replace(sensor=sensor)
+    tilt = make_injection("sensor_tilt", tilt_x_deg=0.0, tilt_y_deg=0.3)
+    scene = np.broadcast_to(np.array([0.4, 0.4, 0.4]), (120, 160, 3))
+    simulate_capture(lens, scene, lens_shading="none", noise=False, injections=[tilt],
+                     psf_map_options={"grid": (3, 4)})
+    x = region_centers_mm(sensor, (3, 4))[..., 0]
+    assert seen["dz"] == pytest.approx(x * math.tan(math.radians(0.3)))
+    pm = gaussian_psf_map(sensor, (3, 4), lambda r, c, k: 1.0, pitch_um=0.5, n=17)
+    with pytest.raises(ImagingError, match="optics injection"):
+        simulate_capture(None, scene, psfmap=pm, sensor=SensorModel.from_sensor(sensor), injections=[tilt])
 
 
 def test_lateral_colour_moves_red_radially_by_its_corner_shift():
