@@ -23,15 +23,10 @@ effects of the registry (:mod:`calibration.loop.effects`):
    decomposed by field position (x, y, radius), orientation, channel and
    band for the report.
 4. Every registry effect not yet in the model is tried: its parameters are
-   fitted (from ``x0`` and the effect's further ``starts``, the best on
-   the training data kept) on the training folds of a K-fold split *by
-   field region* and scored on the held-out regions, the base re-balanced
-   with it: refitted where the base is cheap, and for a lens, whose every
-   evaluation traces it, moved in its linear model (:class:`_Profile`:
-   the Jacobian over its parameters at the fitted base, a ridge prior of
-   one tolerance each), so that an effect the base had mimicked (a uniform
-   blur taken up by focus and decenters) is scored on all it explains,
-   not on what the mimicry left; its gain is the fall of the
+   fitted (base held, or refitted with it where the base is cheap; from
+   ``x0`` and the effect's further ``starts``, the best on the training
+   data kept) on the training folds of a K-fold split *by field
+   region* and scored on the held-out regions; its gain is the fall of the
    held-out χ², penalised by 2 per parameter per fold (AIC). An effect must
    also be *consistent*: no held-out fold may get worse by more than the
    penalty plus 3σ of that fold's χ² (σ = √(2n) for n terms). A physical
@@ -42,8 +37,7 @@ effects of the registry (:mod:`calibration.loop.effects`):
    fold 4.8× worse while helping the other two; the injected tilt helped
    all three folds by > 1000×). The best consistent effect is kept if it
    explains at least ``min_gain`` of the held-out χ²; then all
-   parameters are refitted together, from the base's linear move where
-   that starts lower (:func:`_rebalanced_start`; :func:`_joint_fit`: for a lens base,
+   parameters are refitted together (:func:`_joint_fit`: for a lens base,
    the Jacobian from the fitter's cheaper model on the executor's workers,
    refreshed every few steps as the fitter's; from a 1,200-edge e1
    capture, 81 parameters, from the nominal lens: 3 iterations to χ² 16.8
@@ -148,8 +142,6 @@ class _Problem:
         self.sigma = sigma
         self.meas_bands = band_means(obs.freq, np.asarray(obs.sfr))
         self.effects = []
-        self.base_jac = None     # (N, M, P): :func:`base_jacobian`, for :class:`_Profile`
-        self.base_mu = None
 
     def split(self, p):
         out, i = [], len(self.base.names)
@@ -228,15 +220,12 @@ def _folds(obs, k: int, seed: int = 0) -> np.ndarray:
     return np.array([fold_of[v] for v in keys])
 
 
-def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None, pool=None, refresh=1,
-         profile=None):
+def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None, pool=None, refresh=1):
     """DLS on the ``free`` parameters (bool mask), others held. ``pool``:
     an executor bound by :func:`_bind_problem` (every parameter free, no
     mask): the line search's trial points on its workers, the Jacobian's
     columns by the cheaper model there, a finite-difference Jacobian
-    every ``refresh`` accepted steps (Broyden updates between).
-    ``profile`` (a :class:`_Profile` of the ``mask`` terms): minimise its
-    profiled residuals, the base re-balanced in its linear model."""
+    every ``refresh`` accepted steps (Broyden updates between)."""
     if pool is not None and mask is not None:
         raise ValueError("a pool's workers fit every observation: no mask")
     p0 = np.asarray(p0, float)
@@ -249,8 +238,7 @@ def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None,
         return p
 
     def fun(q):
-        r = prob.residuals(prob.predict(full(q)), mask)
-        return r if profile is None else profile.residuals(r)
+        return prob.residuals(prob.predict(full(q)), mask)
 
     def on_pool(which):
         return lambda qs: pool.map(functools.partial(_worker_residuals, which), [full(q) for q in qs])
@@ -396,9 +384,6 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
             break
         best = None
         t = time.perf_counter()
-        if not getattr(base, "refit_in_cv", False):   # a lens: the candidates re-balance it linearly
-            prob.base_jac = base_jacobian(prob, p, ex)
-            prob.base_mu = (np.asarray(base.scale, float) / LINEAR_BASE_PRIOR) ** 2
         pool = _bind_problem(prob, ex, cheap=False)
         try:
             for name in names:
@@ -427,11 +412,9 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
             break
         gain, e, xs = best
         say(f"loop: adding {e.name} (held-out χ² −{gain:.0%})")
-        q = _rebalanced_start(prob, p, e, xs)
         prob.effects.append(e)
-        prob.base_jac = None
         kept.append(e.name)
-        p = q
+        p = np.concatenate([p, xs])
         lower = np.concatenate([lower, e.lower])
         upper = np.concatenate([upper, e.upper])
         p, _ = _joint_fit(prob, p, lower, upper, base_iter, ex)
@@ -548,9 +531,8 @@ def _sigma_law(obs, sd) -> np.ndarray:
 
 def _cv_gain(prob: _Problem, p, e, fold, k, pool=None):
     """Held-out χ² without and with effect ``e`` (its parameters fitted on
-    the other folds, the rest held, or re-balanced in the base's linear
-    model where ``prob`` has one: :class:`_Profile`). ``pool``
-    (:func:`_bind_problem` of ``prob``): the folds' fits on its workers."""
+    the other folds, the rest held). ``pool`` (:func:`_bind_problem` of
+    ``prob``): the folds' fits on its workers."""
     g_old = g_new = 0.0
     xs_all, per_fold = [], []
     trial = copy.copy(prob)
@@ -572,14 +554,9 @@ def _cv_gain(prob: _Problem, p, e, fold, k, pool=None):
         q = min(fitted[j * len(starts):(j + 1) * len(starts)], key=lambda f: f[1])[0]
         train = fold != j
         r_new = trial.residuals(trial.predict(q)).reshape(len(prob.obs), -1)
-        held_old, held_new = r_old[~train].ravel(), r_new[~train].ravel()
-        if prob.base_jac is not None:   # both models with the base re-balanced on the training folds
-            prof = _Profile(prob.base_jac, prob.base_mu, train)
-            held_old = prof.held_out(r_old[train].ravel(), held_old)
-            held_new = prof.held_out(r_new[train].ravel(), held_new)
-        old_j = float(np.sum(held_old ** 2))
-        new_j = float(np.sum(held_new ** 2)) + 2.0 * len(e.names)
-        per_fold.append((old_j, new_j, int(held_old.size)))
+        old_j = float(np.sum(r_old[~train] ** 2))
+        new_j = float(np.sum(r_new[~train] ** 2)) + 2.0 * len(e.names)
+        per_fold.append((old_j, new_j, int(r_old[~train].size)))
         g_old += old_j
         g_new += new_j
         xs_all.append(q[len(p):])
@@ -590,11 +567,9 @@ def _cv_gain(prob: _Problem, p, e, fold, k, pool=None):
 def _cv_fit(trial: _Problem, e, start, lo, hi, free, train) -> tuple[np.ndarray, float]:
     """One fold's fit of a candidate effect (``trial``'s last) from
     ``start`` on the ``train`` observations: its parameters and its
-    training χ² (profiled, where ``trial`` has the base's linear model)."""
-    prof = None if trial.base_jac is None else _Profile(trial.base_jac, trial.base_mu, train)
-    q, _ = _fit(trial, start, lo, hi, free, mask=train, max_iter=6, profile=prof)
-    r = trial.residuals(trial.predict(q), train)
-    return q, float(np.sum((r if prof is None else prof.residuals(r)) ** 2))
+    training χ²."""
+    q, _ = _fit(trial, start, lo, hi, free, mask=train, max_iter=6)
+    return q, float(np.sum(trial.residuals(trial.predict(q), train) ** 2))
 
 
 def _cv_fit_task(task) -> tuple[np.ndarray, float]:
@@ -603,104 +578,6 @@ def _cv_fit_task(task) -> tuple[np.ndarray, float]:
     trial = copy.copy(prob)
     trial.effects = prob.effects + [e]
     return _cv_fit(trial, *task)
-
-
-#: the prior on a lens base's re-balancing in the candidates' held-out fits (:class:`_Profile`):
-#: each parameter's move has a standard deviation of this many of its own units (tolerances)
-LINEAR_BASE_PRIOR = 1.0
-
-
-class _Profile:
-    """The base re-balanced, in its linear model, on some observations:
-    the candidates' held-out fits for a base too costly to refit there (a
-    lens, whose every evaluation traces it).
-
-    A lens base fitted without an effect has already absorbed what it can
-    mimic of it (a uniform blur such as crosstalk moves its focus and
-    decenters), so a candidate fitted with the base held is scored on what
-    is left, the effect less its mimicry. Here the base moves with the
-    candidate: with ``J`` the Jacobian of the weighted residuals over the
-    base's parameters (:func:`base_jacobian`, at the fitted base) and the
-    training rows' residuals ``r``, the move is the ridge solution
-    ``δ = −(JᵀJ + M)⁻¹ Jᵀ r`` (``M`` diagonal: a prior of
-    :data:`LINEAR_BASE_PRIOR` on each parameter), the candidate's
-    parameters minimise the profiled ``‖r + Jδ‖² + δᵀMδ`` and the held-out
-    rows are scored at ``r + Jδ``. The model without the candidate is
-    scored the same way, so that the gain is the candidate's alone.
-
-    Parameters
-    ----------
-    jac : (N, M, P) array
-        The weighted residuals' Jacobian per observation (N), residual
-        term (M) and base parameter (P), in the fit's scaled units.
-    mu : (P,) array
-        The ridge weights ``M``.
-    train : (N,) bool array
-        The observations it is fitted on.
-    """
-
-    def __init__(self, jac, mu, train):
-        p = jac.shape[-1]
-        self.jt = jac[train].reshape(-1, p)
-        self.jh = jac[~train].reshape(-1, p)
-        self.sqrt_mu = np.sqrt(mu)
-        self.a = np.linalg.solve(self.jt.T @ self.jt + np.diag(mu), self.jt.T)
-
-    def delta(self, r_train) -> np.ndarray:
-        """The base's move (P,) for the training residuals ``r_train``."""
-        return -(self.a @ r_train)
-
-    def residuals(self, r_train) -> np.ndarray:
-        """The profiled residuals: ``r + Jδ`` and the prior's ``√M δ``."""
-        d = self.delta(r_train)
-        return np.concatenate([r_train + self.jt @ d, self.sqrt_mu * d])
-
-    def held_out(self, r_train, r_held) -> np.ndarray:
-        """The held-out residuals at the move fitted on ``r_train``."""
-        return r_held + self.jh @ self.delta(r_train)
-
-
-def base_jacobian(prob: _Problem, p, ex=None, h: float = 0.5) -> np.ndarray:
-    """(N, M, P): forward differences of ``prob``'s weighted residuals over
-    its base's P parameters at ``p`` (steps of ``h`` in the fit's scaled
-    units, :func:`prob_scale`; backwards at an upper bound), on the
-    fitter's cheaper model over ``ex``'s workers where it has them
-    (:func:`_bind_problem`), else in this process."""
-    nb = len(prob.base.names)
-    scale = prob_scale(prob)[:nb]
-    p = np.asarray(p, float)
-    steps = np.where(p[:nb] + h * scale <= np.asarray(prob.base.upper, float), h, -h)
-    points = [p]
-    for i in range(nb):
-        q = p.copy()
-        q[i] += steps[i] * scale[i]
-        points.append(q)
-    pool = None if ex is None else _bind_problem(prob, ex)
-    if pool is None:
-        rs = [prob.residuals(prob.predict(q)) for q in points]
-    else:
-        with pool:
-            rs = pool.map(functools.partial(_worker_residuals, "cheap"), points)
-    jac = (np.stack(rs[1:], axis=-1) - rs[0][:, None]) / steps
-    return jac.reshape(len(prob.obs), -1, nb)
-
-
-def _rebalanced_start(prob: _Problem, p, e, xs) -> np.ndarray:
-    """Where the joint fit starts once ``e`` is kept at ``xs``: ``[p, xs]``,
-    or the base moved by its linear model's ridge solution with ``e`` in
-    (:class:`_Profile` on every observation), whichever has the lower χ²."""
-    q = np.concatenate([p, xs])
-    if prob.base_jac is None:
-        return q
-    trial = copy.copy(prob)
-    trial.effects = prob.effects + [e]
-    nb = len(prob.base.names)
-    r = trial.residuals(trial.predict(q))
-    d = _Profile(prob.base_jac, prob.base_mu, np.ones(len(prob.obs), bool)).delta(r)
-    moved = q.copy()
-    moved[:nb] = np.clip(q[:nb] + d * prob_scale(prob)[:nb], prob.base.lower, prob.base.upper)
-    chi2 = [float(np.sum(trial.residuals(trial.predict(x)) ** 2)) for x in (q, moved)]
-    return moved if chi2[1] < chi2[0] else q
 
 
 def confidence(per_fold) -> dict:
