@@ -34,6 +34,11 @@ Lateral colour is left out: the loop measures a capture's edges on the
 mosaic's green plane, which a shift of the red and blue planes does not
 reach.
 
+Cases from :data:`REGISTRY_CASES` on put in one effect each from outside
+the registry (:data:`OUTSIDE_RANGES`: a denoiser or JPEG in the chain, a
+smudge on the lens), in turn: right when the loop adds nothing (what is
+left it reports unexplained, or it is within the noise).
+
 Each case is written to ``benchmarks/results/loop_suite_parts/case_KKK.json``
 as it ends, and a recorded case is not run again (``--redo``), so the
 suite runs in parts; the summary over the cases recorded so far
@@ -72,6 +77,16 @@ RANGES = {
     "veiling_glare": {"share": (0.03, 0.12), "halo_sigma_px": (5.0, 15.0)},
     "sharpening": {"gain": (0.4, 1.2), "sigma_px": (1.0, 1.0)},
 }
+#: effects outside the loop's registry (:data:`calibration.simulate.injected.OUTSIDE`), one per case
+#: after the :data:`REGISTRY_CASES`: the loop must add nothing for them
+OUTSIDE_RANGES = {
+    "denoise": {"sigma_range": (0.02, 0.04), "sigma_px": (1.0, 2.0)},
+    "jpeg": {"quality": (40.0, 80.0)},
+    "haze": {"share": (0.1, 0.3), "halo_sigma_px": (8.0, 15.0), "x": (-0.6, 0.6), "y": (-0.4, 0.4),
+             "radius": (0.2, 0.4)},
+}
+#: cases 0 … REGISTRY_CASES − 1 draw registry effects; the next ones an effect outside it each
+REGISTRY_CASES = 24
 SIZE = (2000, 1500)
 SEED0 = 100
 EXPOSURE = 0.8
@@ -80,10 +95,14 @@ EXPOSURE = 0.8
 def draw_case(k: int) -> dict:
     """Case ``k``: lens, device seed and the effects with their magnitudes."""
     rng = np.random.default_rng(k)
-    names = list(RANGES)
-    n = int(rng.integers(0, 3))
-    picked = [names[i] for i in sorted(rng.choice(len(names), n, replace=False))]
-    effects = {e: {p: round(float(rng.uniform(lo, hi)), 4) for p, (lo, hi) in RANGES[e].items()} for e in picked}
+    if k < REGISTRY_CASES:
+        names = list(RANGES)
+        n = int(rng.integers(0, 3))
+        picked = [names[i] for i in sorted(rng.choice(len(names), n, replace=False))]
+    else:
+        picked = [list(OUTSIDE_RANGES)[(k - REGISTRY_CASES) % len(OUTSIDE_RANGES)]]
+    ranges = {**RANGES, **OUTSIDE_RANGES}
+    effects = {e: {p: round(float(rng.uniform(lo, hi)), 4) for p, (lo, hi) in ranges[e].items()} for e in picked}
     lens = list(LENSES)[k % len(LENSES)]
     return {"case": k, "lens": lens, "seed": SEED0 + k, "effects": effects}
 
@@ -152,7 +171,7 @@ def run_case(case: dict, log) -> dict:
     lens_path, obs, what, focus = capture(case, log)
     rep, wall = run_loop(lens_path, obs)
     moved = focus_moved_um(rep, focus)
-    put, added = set(case["effects"]), set(rep.effects_added)
+    put, added = set(case["effects"]) - set(OUTSIDE_RANGES), set(rep.effects_added)
     right = judged(case["effects"], rep.effects_added, moved)
     return {**case, "device": what, "edges": len(obs), "effects_added": list(rep.effects_added),
             "focus_moved_um": None if moved is None else round(moved, 2),
@@ -172,16 +191,21 @@ def summarise(cases: list[dict]) -> dict:
     """Per effect: put in and named; false additions per effect; clean
     devices given an effect; the after/floor ratios and wall seconds."""
     per = {e: {"put_in": 0, "named": 0} for e in RANGES}
+    outside = {e: {"put_in": 0, "nothing_added": 0} for e in OUTSIDE_RANGES}
     false = {}
     for c in cases:
         for e in c["effects"]:
+            if e in outside:
+                outside[e]["put_in"] += 1
+                outside[e]["nothing_added"] += not c["effects_added"]
+                continue
             per[e]["put_in"] += 1
             per[e]["named"] += e in c["right"]
         for e in c["false"]:
             false[e] = false.get(e, 0) + 1
     clean = [c for c in cases if not c["effects"]]
     ratio = [c["after_over_floor"] for c in cases]
-    return {"cases": len(cases), "per_effect": per, "false_additions": false,
+    return {"cases": len(cases), "per_effect": per, "outside_registry": outside, "false_additions": false,
             "clean_cases": len(clean), "clean_given_an_effect": sum(bool(c["effects_added"]) for c in clean),
             "all_right": sum(not c["missed"] and not c["false"] for c in cases),
             "after_over_floor_median": round(float(np.median(ratio)), 3) if ratio else None,
@@ -192,7 +216,9 @@ def summarise(cases: list[dict]) -> dict:
 
 def main(argv=None) -> dict:
     ap = _harness.parser(__doc__)
-    ap.add_argument("--cases", type=int, default=24, help="cases 0 … N − 1 (default 24)")
+    ap.add_argument("--cases", type=int, default=REGISTRY_CASES + len(OUTSIDE_RANGES),
+                    help=f"cases 0 … N − 1 (default {REGISTRY_CASES + len(OUTSIDE_RANGES)}: {REGISTRY_CASES} with "
+                         "registry effects, then one per effect outside it)")
     ap.add_argument("--only", type=int, nargs="+", metavar="K", help="run these cases only")
     ap.add_argument("--redo", action="store_true", help="run recorded cases again")
     ap.add_argument("--max-seconds", type=float, default=0.0,
@@ -229,7 +255,8 @@ def main(argv=None) -> dict:
 def row(c: dict) -> dict:
     """A case as one flat table row."""
     def put(e, p):
-        return f"{e} ({', '.join(f'{k} {v:g}' for k, v in p.items() if RANGES[e][k] != (0.0, 0.0))})"
+        ranges = {**RANGES, **OUTSIDE_RANGES}
+        return f"{e} ({', '.join(f'{k} {v:g}' for k, v in p.items() if ranges[e][k] != (0.0, 0.0))})"
 
     return {"case": c["case"], "lens": c["lens"], "device seed": c["seed"],
             "put in": "; ".join(put(e, p) for e, p in c["effects"].items()) or "nothing",

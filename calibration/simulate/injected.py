@@ -30,6 +30,11 @@ plane's light in a wide Gaussian halo; motion blur spreads each plane's
 light along a segment (:func:`motion_blur`); sharpening is an unsharp mask
 of each plane. Lengths on a plane are in plane pixels (two sensor pixels).
 
+:data:`OUTSIDE` holds what a line meets that the loop's registry lacks, for
+the loop to leave unexplained: an edge-preserving denoiser and a JPEG
+encoder in the measurement chain, and a smudge on the lens (glare in one
+part of the field).
+
 Examples
 --------
 >>> import numpy as np
@@ -50,7 +55,7 @@ import numpy as np
 from isp.errors import ConfigError
 from isp.frame import CFA
 
-__all__ = ["Injection", "INJECTIONS", "WHERE", "disc_blur", "motion_blur", "make_injection", "surface_dz_mm"]
+__all__ = ["Injection", "INJECTIONS", "OUTSIDE", "WHERE", "disc_blur", "motion_blur", "make_injection", "surface_dz_mm"]
 
 #: where an injection acts, in the order a capture meets them
 WHERE = ("optics", "light", "chain")
@@ -248,18 +253,65 @@ INJECTIONS = {
 }
 
 
+def _denoise(sigma_range: float, sigma_px: float):
+    """An edge-preserving denoiser in the chain: OpenCV's bilateral filter
+    on each plane (Tomasi & Manduchi, ICCV 1998), range σ in signal units."""
+    import cv2
+
+    d = 2 * int(math.ceil(2.0 * sigma_px)) + 1
+    return _per_plane(lambda p, ys, xs, c: cv2.bilateralFilter(p.astype(np.float32), d, float(sigma_range),
+                                                               float(sigma_px)).astype(np.float64))
+
+
+def _jpeg(quality: float):
+    """Each plane through 8-bit baseline JPEG at ``quality`` (OpenCV's
+    libjpeg): 8 × 8 DCT blocks quantised, the detail of the edges lost
+    block by block."""
+    import cv2
+
+    def fn(p, ys, xs, c):
+        u8 = np.clip(np.round(p * 255.0), 0, 255).astype(np.uint8)
+        ok, buf = cv2.imencode(".jpg", u8, [cv2.IMWRITE_JPEG_QUALITY, int(round(quality))])
+        return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED).astype(np.float64) / 255.0
+    return _per_plane(fn)
+
+
+def _haze(share: float, halo_sigma_px: float, x: float, y: float, radius: float):
+    """A smudge on the lens: glare whose share falls off as a Gaussian of
+    ``radius`` (over the half diagonal) about (``x``, ``y``) (relative to
+    the centre, over the half diagonal, y down); the registry's glare is
+    the same everywhere."""
+    def fn(p, ys, xs, c):
+        w = share * np.exp(-((xs[None, :] - x) ** 2 + (ys[:, None] - y) ** 2) / (2.0 * radius ** 2))
+        return (1.0 - w) * p + w * _gauss(p, halo_sigma_px)
+    return _per_plane(fn)
+
+
+#: effects a line meets that the loop's registry lacks: the loop must leave them unexplained
+#: (name → (maker, where, parameter names with units))
+OUTSIDE = {
+    "denoise": (_denoise, "chain", {"sigma_range": "signal (0..1)", "sigma_px": "plane px"}),
+    "jpeg": (_jpeg, "chain", {"quality": "libjpeg 1–100"}),
+    "haze": (_haze, "light", {"share": "fraction at the centre", "halo_sigma_px": "plane px",
+                              "x": "over the half diagonal", "y": "over the half diagonal",
+                              "radius": "over the half diagonal"}),
+}
+
+
 def make_injection(effect: str, **params: float) -> Injection:
     """The injection leaving ``effect``'s signature, with its magnitudes
-    (:data:`INJECTIONS` names them and their units).
+    (:data:`INJECTIONS` names them and their units; :data:`OUTSIDE` those
+    outside the loop's registry).
 
     Raises
     ------
     ConfigError
         An unknown effect, or parameters that are not its own.
     """
-    if effect not in INJECTIONS:
-        raise ConfigError(f"no injection for effect {effect!r}; known: {', '.join(INJECTIONS)}")
-    maker, where, names = INJECTIONS[effect]
+    known = {**INJECTIONS, **OUTSIDE}
+    if effect not in known:
+        raise ConfigError(f"no injection for effect {effect!r}; known: {', '.join(known)}")
+    maker, where, names = known[effect]
     if set(params) != set(names):
         raise ConfigError(f"{effect} takes {', '.join(names)}; got {', '.join(params) or 'nothing'}")
     values = {k: float(params[k]) for k in names}

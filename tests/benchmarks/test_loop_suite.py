@@ -52,3 +52,21 @@ def test_a_focus_shift_counts_as_named_where_the_base_took_it_up():
     assert loop_suite.judged(put, [], 4.0) == set()
     assert loop_suite.judged(put, ["focus_shift"], None) == {"focus_shift"}
     assert loop_suite.focus_moved_um(rep, ("s7.thickness", 0.0)) is None
+
+
+def test_cases_past_the_registry_put_in_one_effect_outside_it():
+    from calibration.simulate.injected import OUTSIDE
+
+    extra = [loop_suite.draw_case(loop_suite.REGISTRY_CASES + j) for j in range(len(loop_suite.OUTSIDE_RANGES))]
+    assert [list(c["effects"]) for c in extra] == [[e] for e in loop_suite.OUTSIDE_RANGES]
+    for c in extra:
+        for e, p in c["effects"].items():
+            assert e in OUTSIDE and set(p) == set(loop_suite.OUTSIDE_RANGES[e])
+    rows = [{"effects": {"jpeg": {}}, "effects_added": [], "right": [], "missed": [], "false": [],
+             "after_over_floor": 1.3, "wall_s": 1.0},
+            {"effects": {"haze": {}}, "effects_added": ["veiling_glare"], "right": [], "missed": [],
+             "false": ["veiling_glare"], "after_over_floor": 1.1, "wall_s": 1.0}]
+    s = loop_suite.summarise(rows)
+    assert s["outside_registry"]["jpeg"] == {"put_in": 1, "nothing_added": 1}
+    assert s["outside_registry"]["haze"] == {"put_in": 1, "nothing_added": 0}
+    assert s["all_right"] == 1 and s["false_additions"] == {"veiling_glare": 1}

@@ -221,3 +221,31 @@ def test_longitudinal_colour_blurs_red_by_its_disc_and_leaves_green(f):
     x = math.pi * d * f
     assert amplitude(out, f) / amplitude(m, f) == pytest.approx(2 * j1(x) / x, abs=2e-3)
     assert np.allclose(out[0::2, 1::2], m[0::2, 1::2]) and np.allclose(out[1::2, 1::2], m[1::2, 1::2])
+
+
+def test_effects_outside_the_registry():
+    """The denoiser halves a flat plane's noise and leaves a strong edge
+    (its range σ far below the step) within 1 % of the step; JPEG at
+    quality 100 keeps a plane within 8-bit rounding (and at 20 loses
+    detail); the smudge takes its share from an impulse at its centre into
+    the halo and leaves one far from it. None is a registry effect."""
+    from calibration.loop.effects import list_effects
+    from calibration.simulate.injected import OUTSIDE
+
+    assert not set(OUTSIDE) & set(list_effects())
+    rng = np.random.default_rng(0)
+    h, w = 120, 160
+    step = np.where(np.arange(w)[None, :] < w // 2, 0.2, 0.8) * np.ones((h, 1))
+    noisy = step + rng.normal(0.0, 0.01, step.shape)
+    out = make_injection("denoise", sigma_range=0.03, sigma_px=1.5).apply(noisy, CFA.RGGB)
+    flat = (slice(10, -10), slice(10, 60))
+    assert out[flat].std() < 0.5 * noisy[flat].std()
+    assert np.abs(out - step)[:, 70:90].max() < 0.05 * 0.6
+    assert np.abs(make_injection("jpeg", quality=100).apply(step, CFA.RGGB) - step).max() <= 1.5 / 255
+    coarse = make_injection("jpeg", quality=20).apply(noisy, CFA.RGGB)
+    assert np.abs(coarse - noisy)[flat].std() > 0.005
+    m = impulses((240, 320), [(60, 80), (10, 10)])                         # the plane centre, a corner
+    out = make_injection("haze", share=0.2, halo_sigma_px=10.0, x=0.0, y=0.0, radius=0.2).apply(m, CFA.RGGB)
+    plane = out[0::2, 0::2]
+    assert plane[60, 80] == pytest.approx(0.8 + 0.2 / (2 * math.pi * 100), rel=1e-2)
+    assert plane[10, 10] == pytest.approx(1.0, abs=1e-3)
