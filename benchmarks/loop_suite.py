@@ -249,19 +249,22 @@ def main(argv=None) -> dict:
     log(json.dumps(summary["per_effect"]))
     # the record is the parts', whichever run wrote them: its command is the plain one, which resumes
     return _harness.publish("loop_suite", {"size": list(SIZE), "seed0": SEED0, "ranges": RANGES,
-                                           "summary": summary, "cases": [row(c) for c in cases]}, args, [])
+                                           "outside_ranges": OUTSIDE_RANGES, "summary": summary,
+                                           "cases": [row(c) for c in cases]}, args, [])
 
 
 def row(c: dict) -> dict:
     """A case as one flat table row."""
     def put(e, p):
         ranges = {**RANGES, **OUTSIDE_RANGES}
-        return f"{e} ({', '.join(f'{k} {v:g}' for k, v in p.items() if ranges[e][k] != (0.0, 0.0))})"
+        return f"{e} ({', '.join(f'{k} {v:g}' for k, v in p.items() if ranges[e].get(k) != (0.0, 0.0))})"
 
     return {"case": c["case"], "lens": c["lens"], "device seed": c["seed"],
             "put in": "; ".join(put(e, p) for e, p in c["effects"].items()) or "nothing",
             "added": ", ".join(c["effects_added"]) or "nothing", "missed": ", ".join(c["missed"]) or "-",
-            "false": ", ".join(c["false"]) or "-", "SFRA RMS before": round(c["error_before"], 4),
+            "false": ", ".join(c["false"]) or "-",
+            "focus moved": "-" if c.get("focus_moved_um") is None else c["focus_moved_um"],
+            "SFRA RMS before": round(c["error_before"], 4),
             "after": round(c["error_after"], 4), "floor": round(c["noise_floor"], 4),
             "after / floor": round(c["after_over_floor"], 2), "wall s": c["wall_s"],
             **{f"{k} s": c.get("seconds_by_step", {}).get(k, "-") for k in ("base", "noise", "trials", "refits")}}

@@ -19,6 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.epilog = ("examples:\n  isp calib simulate e9.json -o nominal.dng --size 2000,1500\n"
                 "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3\n"
                 "  isp calib simulate e9.json -o dev3.dng --perturb random --seed 3 --save-lens dev3.json\n"
+                "  isp calib simulate e9.json -o tilted.dng --perturb random --seed 3 --sensor-tilt 0,0.2"
+                "   # the sensor tilted 0.2° about y\n"
                 "  isp calib simulate e9.json -o scene.dng --perturb random --seed 3 --device dev3/device.json"
                 "   # the capture carries its module's calibration")
     p.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -34,7 +36,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", metavar="FILE",
                    help="a device calibration (device/v1) the DNG carries in DNGPrivateData, as a calibrated "
                         "module's captures would: `isp process` then corrects it with that calibration")
+    sensor = p.add_argument_group("the sensor's surface", "where the sensor lies off the lens's image plane "
+                                  "(+: away from the lens); each PSF region is computed on it, so its blur is "
+                                  "the lens's own defocus there")
+    sensor.add_argument("--focus-shift", type=float, metavar="UM", help="the whole sensor moved by UM µm")
+    sensor.add_argument("--sensor-tilt", metavar="X,Y", help="the sensor tilted X° about x and Y° about y")
+    sensor.add_argument("--field-curvature", type=float, metavar="UM",
+                        help="a sensor curved by UM µm at the corner (∝ r²)")
     add_device_arguments(p)
+
+
+def surface_injections(args) -> list:
+    """The ``"optics"`` injections of ``--focus-shift``, ``--sensor-tilt``
+    and ``--field-curvature`` (:mod:`calibration.simulate.injected`)."""
+    from calibration.simulate.injected import make_injection
+
+    out = []
+    if args.focus_shift:
+        out.append(make_injection("focus_shift", dz_um=args.focus_shift))
+    if args.sensor_tilt:
+        tx, ty = numbers(args.sensor_tilt, 2)
+        out.append(make_injection("sensor_tilt", tilt_x_deg=tx, tilt_y_deg=ty))
+    if args.field_curvature:
+        out.append(make_injection("field_curvature", dz_corner_um=args.field_curvature))
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from calibration.simulate.chart import slanted_square_chart
     from calibration.simulate.device import device_lens
 
+    surface = surface_injections(args)       # a bad value fails before the render
     carried = ""
     if args.device:
         from isp.io.device import DeviceCalibration
@@ -59,8 +85,11 @@ def run(args: argparse.Namespace) -> int:
     model, what = device_lens(lens, args.perturb, args.seed)
     sensor = lens.sensor
     chart = slanted_square_chart(sensor.height_px, sensor.width_px, colorchecker=args.colorchecker)
-    capture = simulate_capture(model, chart, exposure=args.exposure, rng=args.seed,
+    capture = simulate_capture(model, chart, exposure=args.exposure, rng=args.seed, injections=surface,
                                psf_map_options={"cache_dir": args.cache} if args.cache else None)
+    if surface:
+        what += ", sensor " + "; ".join(f"{i.effect} " + ", ".join(f"{k} {v:g}" for k, v in i.params.items())
+                                        for i in surface)
     if carried:
         capture = (capture[0], capture[1].replace(device_calibration=carried))
     out = write_capture(args.output, capture=capture)

@@ -150,3 +150,11 @@ def test_sfr_chart_on_a_raw_capture(cli, tmp_path):
     assert res["kind"] == "raw" and len(res["edges"]) >= 16
     # the demo blurs with a Gaussian of 0.7 px: MTF50 well below Nyquist, far above a blur of 2 px
     assert all(0.15 < e["mtf50"] < 0.5 for e in res["edges"])
+
+
+@pytest.mark.property
+def test_simulate_refuses_a_bad_sensor_tilt(cli, tmp_path, e9_zmx):
+    dng = tmp_path / "t.dng"
+    code, _, stderr = cli("calib", "simulate", str(e9_zmx), "-o", str(dng), "--sensor-tilt", "0.2")
+    assert code == 2 and "expected 2 numbers" in stderr and len(stderr.strip().splitlines()) == 1
+    assert not dng.exists()
