@@ -24,8 +24,8 @@ what it left unexplained, and the wall seconds. The magnitude ranges are
 what a line meets and what the loop's tests use; they are not yet
 multiples of measured detection limits.
 
-A focus shift within the loop base's focus range (±2 focus tolerances,
-±20 µm) is the lens's own focus parameter, which the base fits
+A focus shift within the loop base's focus range (±80 µm,
+:data:`calibration.fit.proxy.FOCUS_BOUND`) is the lens's own focus parameter, which the base fits
 (:mod:`calibration.loop.base`): it counts as named where the loop adds
 ``focus_shift`` or where the base's fitted focus moved from the device's
 by the shift put in, within 30 % (or 1.5 µm); the fitted move is recorded.

@@ -10,7 +10,7 @@ the edge at the measured ROI's geometry (centre, size, angle, levels;
 ``Σ (simulated − measured)²`` over all pixels of all ROIs with
 ``scipy.optimize.least_squares`` (trust-region reflective, forward
 differences of 0.1 tolerance) over the same parameters, in tolerance units
-and bounds (±2 tolerances), as :func:`calibration.fit.proxy.fit_proxy`.
+and bounds (±2 tolerances, focus ±8), as :func:`calibration.fit.proxy.fit_proxy`.
 
 Unlike the SFRA fit it has no noise model: the measured noise is simply
 part of the residual (its MSE floor is σ²), and the pixels also weigh the
@@ -30,7 +30,7 @@ from isp.runtime.executor import Executor, create_executor, worker_payload
 
 from calibration.optics.lens import Lens
 from calibration.optics.perturb import ParameterSpace
-from calibration.fit.proxy import FittedLens, default_names, parameter_space
+from calibration.fit.proxy import FittedLens, default_names, focus_name, parameter_bounds, parameter_space
 from calibration.fit.observations import Observations
 
 __all__ = ["PixelFit", "edge_offset", "fit_pixel_mse", "pixel_residuals", "register_edge", "render_edges"]
@@ -203,7 +203,7 @@ def fit_pixel_mse(nominal: Lens, obs: Observations, edges, *, names=None, settin
     model = SfrModel(nominal, obs, settings)
     space = parameter_space(nominal, names)
     n = len(space.names)
-    lower, upper = np.full(n, -float(bound_factor)), np.full(n, float(bound_factor))
+    lower, upper = parameter_bounds(space.names, focus_name(nominal), float(bound_factor))
     u0 = np.zeros(n) if x0 is None else np.clip(np.asarray(x0, dtype=np.float64), lower, upper)
     ex = create_executor("serial") if executor is None else executor
     workers = ex.workers

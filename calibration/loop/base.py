@@ -8,8 +8,9 @@ the hooks of added effects (:mod:`calibration.loop.effects`):
   every toleranced perturbation of the lens and its focus
   (:data:`BASE_KINDS`): a device with every tolerance drawn needs them
   all to reach the noise floor. A focus shift within the base's range
-  (±2 focus tolerances) is the lens's focus parameter, reported with the
-  base's parameters; the ``focus_shift`` effect finds what lies beyond.
+  (:data:`calibration.fit.proxy.FOCUS_BOUND`: ±80 µm, the range a
+  device's best focus takes) is the lens's focus parameter, reported with
+  the base's parameters; the ``focus_shift`` effect finds what lies beyond.
 * :class:`ParametricBase` — no prescription (an unknown camera): a
   diffraction-limited circular pupil at F-number N (ISO 12233 Annex /
   Goodman eq. 6-33) × a Gaussian aberration blur of σ px × the square pixel
@@ -264,7 +265,7 @@ class LensBase:
     def __init__(self, nominal, obs: Observations, *, settings=None, names=None, n_params: int | None = None,
                  kinds=BASE_KINDS):
         from calibration.optics.perturb import nominal as as_perturbed
-        from calibration.fit.proxy import default_names, parameter_space, screen_parameters
+        from calibration.fit.proxy import default_names, focus_name, parameter_bounds, parameter_space, screen_parameters
         from calibration.fit.forward_model import ModelSettings, SfrModel
 
         self.model = SfrModel(nominal, obs, settings or ModelSettings().with_window(LOOP_WINDOW_UM))
@@ -276,7 +277,8 @@ class LensBase:
         self.space = parameter_space(nominal, names)
         self.names = tuple(self.space.names)
         k = len(self.names)
-        self.x0, self.lower, self.upper = np.zeros(k), np.full(k, -2.0), np.full(k, 2.0)
+        self.x0 = np.zeros(k)
+        self.lower, self.upper = parameter_bounds(self.names, focus_name(nominal))
         self.scale = np.full(k, 0.1)
         self.geometry = _geometry(obs, self.model.node_mm[:, 0], self.model.node_mm[:, 1], self.model.channels)
         self._pl = as_perturbed(nominal)

@@ -40,7 +40,7 @@ def test_summary_counts_what_was_named():
 
 
 def test_a_focus_shift_counts_as_named_where_the_base_took_it_up():
-    """A focus shift within the base's ±20 µm is its focus parameter: named
+    """A focus shift within the base's ±80 µm is its focus parameter: named
     where the fitted focus moved by the shift (30 %, or 1.5 µm)."""
     from types import SimpleNamespace
 

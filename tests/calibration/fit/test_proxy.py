@@ -289,3 +289,21 @@ def test_widening_stops_where_a_wider_window_recovers_no_light(monkeypatch):
     monkeypatch.setattr(proxy, "_fit_proxy", fit)
     out = proxy.fit_proxy(None, None, proxy.ProxyFitSettings(widen=True))
     assert calls == [32.0, 48.0, 72.0, 108.0] and out.window_energy == 0.95
+
+
+def test_a_device_focused_beyond_two_tolerances_is_fitted_at_its_focus(make_e9_device):
+    """A module's best focus moves with its tolerance stack (up to 56 µm on
+    e9 devices drawn within tolerance): the fit's focus range is
+    ±FOCUS_BOUND tolerances, not the others' ±2. A device 35 µm out of focus
+    (3.5 tolerances) with a decenter is fitted at its focus, to within 3 µm
+    (measured 33.0 µm: the device's PSFs are the map's, the fit's model its
+    own), where a ±2 bound would hold it at 20."""
+    from calibration.fit.proxy import FOCUS_BOUND, ProxyFitSettings, fit_proxy
+
+    assert FOCUS_BOUND * 10 >= 56
+    lens, obs = make_e9_device(["e1.decenter_x", "s17.thickness"], np.array([0.8, 3.5]), grid=(4, 6), noise=0.003,
+                               rng=3)
+    fit = fit_proxy(lens, obs, ProxyFitSettings(residuals="sfra", max_iter=12, restarts=0, coarse=None),
+                    names=["e1.decenter_x", "s17.thickness"], executor=create_executor("serial"))
+    u = dict(zip(fit.space.names, fit.u))
+    assert u["s17.thickness"] == pytest.approx(3.5, abs=0.3)
