@@ -97,6 +97,7 @@ __all__ = [
     "shading_gain_maps",
     "simulate_capture",
     "slanted_square_chart",
+    "surface_dz_mm",
     "write_capture",
 ]
 
@@ -699,9 +700,24 @@ def capture_meta(sensor: SensorModel, *, gain_maps=None, lens=None, exposure_tim
     )
 
 
+def surface_dz_mm(injections, centres_mm: np.ndarray, half_diagonal_mm: float) -> np.ndarray | None:
+    """The sensor's surface beyond the image plane (mm) at ``centres_mm``
+    (``(..., 2)`` x, y), the ``"optics"`` injections' Δz added; None
+    where there are none.
+
+    >>> from calibration.simulate.injected import make_injection
+    >>> c = np.array([[[-2.0, 0.0], [2.0, 0.0]]])
+    >>> surface_dz_mm([make_injection("sensor_tilt", tilt_x_deg=0.0, tilt_y_deg=0.1)], c, 2.5).round(5).tolist()
+    [[-0.00349, 0.00349]]
+    """
+    parts = [inj.apply(centres_mm[..., 0], centres_mm[..., 1], half_diagonal_mm)
+             for inj in injections if inj.where == "optics"]
+    return np.sum(parts, axis=0) if parts else None
+
+
 def _default_psf_map(lens, options: dict | None, injections=()):
     """The lens's PSF map with ``options``, on the sensor surface the
-    ``"optics"`` injections make (:func:`calibration.simulate.injected.surface_dz_mm`)."""
+    ``"optics"`` injections make (:func:`surface_dz_mm`)."""
     import dataclasses
 
     from calibration.optics.perturb import nominal
@@ -710,7 +726,6 @@ def _default_psf_map(lens, options: dict | None, injections=()):
         psf_map,
         region_centers_mm,
     )
-    from calibration.simulate.injected import surface_dz_mm
 
     options = dict(options or {})
     fields = {f.name for f in dataclasses.fields(PSFMapSettings)}

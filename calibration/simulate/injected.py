@@ -55,7 +55,7 @@ import numpy as np
 from isp.errors import ConfigError
 from isp.frame import CFA
 
-__all__ = ["Injection", "INJECTIONS", "OUTSIDE", "WHERE", "disc_blur", "motion_blur", "make_injection", "surface_dz_mm"]
+__all__ = ["Injection", "INJECTIONS", "OUTSIDE", "WHERE", "disc_blur", "motion_blur", "make_injection"]
 
 #: where an injection acts, in the order a capture meets them
 WHERE = ("optics", "light", "chain")
@@ -131,20 +131,6 @@ def _tilt(tilt_x_deg: float, tilt_y_deg: float):
 
 def _curvature(dz_corner_um: float):
     return lambda x_mm, y_mm, half_mm: 1e-3 * dz_corner_um * (np.square(x_mm) + np.square(y_mm)) / half_mm ** 2
-
-
-def surface_dz_mm(injections, centres_mm: np.ndarray, half_diagonal_mm: float) -> np.ndarray | None:
-    """The sensor's surface beyond the image plane (mm) at ``centres_mm``
-    (``(..., 2)`` x, y), the ``"optics"`` injections' Δz added; None
-    where there are none.
-
-    >>> c = np.array([[[-2.0, 0.0], [2.0, 0.0]]])
-    >>> surface_dz_mm([make_injection("sensor_tilt", tilt_x_deg=0.0, tilt_y_deg=0.1)], c, 2.5).round(5).tolist()
-    [[-0.00349, 0.00349]]
-    """
-    parts = [inj.apply(centres_mm[..., 0], centres_mm[..., 1], half_diagonal_mm)
-             for inj in injections if inj.where == "optics"]
-    return np.sum(parts, axis=0) if parts else None
 
 
 def _lateral_ca(red_px_at_corner: float, blue_px_at_corner: float):

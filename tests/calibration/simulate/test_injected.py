@@ -84,7 +84,7 @@ def test_optics_injections_move_the_sensor_surface():
     """Closed forms at image-plane points (mm): a focus shift is Δz
     everywhere, a tilt θy about y is x·tan θy (θx about x: y·tan θx), a
     curved sensor dz_corner·(r/r_corner)²; two add."""
-    from calibration.simulate.injected import surface_dz_mm
+    from calibration.simulate.capture import surface_dz_mm
 
     pts = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, -1.5], [2.0, 1.5]])
     half = 2.5
