@@ -1,5 +1,5 @@
-"""Effects put into a simulated capture's mosaic that the lens model lacks:
-what a production line meets between the lens and the measured DNG.
+"""Effects put into a simulated capture that the lens model lacks: what a
+production line meets between the lens and the measured DNG.
 
 Each maker returns an :class:`Injection`: where it acts and what it does
 there. ``"optics"`` moves the sensor's surface off the lens's image plane
@@ -10,9 +10,9 @@ diffraction included. The others act on the mosaic (0..1 signal, ``(H,
 W)``) and its CFA: ``"light"`` on the noise-free signal before the sensor's
 noise (charge and stray light: glare, crosstalk, colour), ``"chain"``
 after the noise, before quantisation (processing in the measurement chain:
-sharpening).
-:func:`calibration.simulate.capture.simulate_capture` applies them
-(``injections=``); :func:`make_injection` builds one by the name of the
+sharpening). :func:`calibration.simulate.capture.simulate_capture`
+applies them (``injections=``; the surface by
+:func:`~calibration.simulate.capture.surface_dz_mm`); :func:`make_injection` builds one by the name of the
 loop's registry effect whose signature it leaves
 (:mod:`calibration.loop.effects`), so that a benchmark can check that the
 loop names what was put in.
@@ -21,8 +21,8 @@ The sensor's surface is ``Δz = dz`` for a focus shift, ``y tan θx + x
 tan θy`` for a sensor tilted by θx about x and θy about y, and ``dz_corner
 (r / r_corner)²`` for a curved one (x, y, r on the image plane, mm; +:
 away from the lens); each PSF-map region takes the value at its centre.
-Crosstalk leaks charge
-to the four neighbouring sites whatever their colour; lateral colour
+Crosstalk leaks charge to the four neighbouring sites whatever their
+colour; lateral colour
 magnifies the R and B planes about the centre; longitudinal colour blurs
 the R and B planes by a uniform disc each (a colour focused off the
 sensor, :func:`disc_blur`), G untouched; glare adds a share of each
