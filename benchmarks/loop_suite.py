@@ -68,7 +68,8 @@ from benchmarks.forward_fidelity import LENSES, PHONE  # noqa: E402
 from benchmarks.loop_clean import run_loop  # noqa: E402
 
 #: the effects put in and their magnitude ranges (each parameter uniform between the two values;
-#: lengths on a Bayer plane: :mod:`calibration.simulate.injected`)
+#: defocus in µm and degrees on the sensor, other lengths on a Bayer plane:
+#: :mod:`calibration.simulate.injected`)
 RANGES = {
     "focus_shift": {"dz_um": (4.0, 12.0)},
     "sensor_tilt": {"tilt_x_deg": (0.0, 0.0), "tilt_y_deg": (0.06, 0.3)},
@@ -87,6 +88,8 @@ OUTSIDE_RANGES = {
 }
 #: cases 0 … REGISTRY_CASES − 1 draw registry effects; the next ones an effect outside it each
 REGISTRY_CASES = 24
+#: every effect a case can put in, and its ranges
+ALL_RANGES = {**RANGES, **OUTSIDE_RANGES}
 SIZE = (2000, 1500)
 SEED0 = 100
 EXPOSURE = 0.8
@@ -101,8 +104,7 @@ def draw_case(k: int) -> dict:
         picked = [names[i] for i in sorted(rng.choice(len(names), n, replace=False))]
     else:
         picked = [list(OUTSIDE_RANGES)[(k - REGISTRY_CASES) % len(OUTSIDE_RANGES)]]
-    ranges = {**RANGES, **OUTSIDE_RANGES}
-    effects = {e: {p: round(float(rng.uniform(lo, hi)), 4) for p, (lo, hi) in ranges[e].items()} for e in picked}
+    effects = {e: {p: round(float(rng.uniform(lo, hi)), 4) for p, (lo, hi) in ALL_RANGES[e].items()} for e in picked}
     lens = list(LENSES)[k % len(LENSES)]
     return {"case": k, "lens": lens, "seed": SEED0 + k, "effects": effects}
 
@@ -256,8 +258,7 @@ def main(argv=None) -> dict:
 def row(c: dict) -> dict:
     """A case as one flat table row."""
     def put(e, p):
-        ranges = {**RANGES, **OUTSIDE_RANGES}
-        return f"{e} ({', '.join(f'{k} {v:g}' for k, v in p.items() if ranges[e].get(k) != (0.0, 0.0))})"
+        return f"{e} ({', '.join(f'{k} {v:g}' for k, v in p.items() if ALL_RANGES[e].get(k) != (0.0, 0.0))})"
 
     return {"case": c["case"], "lens": c["lens"], "device seed": c["seed"],
             "put in": "; ".join(put(e, p) for e, p in c["effects"].items()) or "nothing",
