@@ -64,6 +64,7 @@ and χ² per observation.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -103,6 +104,7 @@ class LoopReport:
     base_x_before: np.ndarray = field(repr=False, default=None)    # the base fit before any effect
     asymmetry: dict | None = None                                   # :func:`asymmetry_check`
     steps_s: dict = field(default_factory=dict)    # wall seconds by step: base, noise, trials, refits
+    defocus_um: float | None = None                 # :func:`sensor_defocus_um` of the final model
 
     def kept_effects(self) -> list[dict]:
         """The effects kept, in order, with their fitted values: the
@@ -119,6 +121,8 @@ class LoopReport:
             if t is not None:
                 out[name] = {"heldout_gain": round(float(t["gain"]), 4),
                              **{x: t[x] for x in ("z", "folds_improved", "folds") if x in t}}
+                if "joint_gain" in t:       # kept by the confirmation (:func:`_confirm`)
+                    out[name]["joint_gain"] = round(float(t["joint_gain"]), 4)
         return out
 
     def to_dict(self) -> dict:
@@ -127,7 +131,7 @@ class LoopReport:
                 "effects_added": list(self.effects_added), "effect_values": self.effect_values,
                 "confidence": self.confidence(),
                 "tried": self.tried, "error_before": self.error_before, "error_after": self.error_after,
-                "noise_floor": self.noise_floor, "unexplained": self.unexplained,
+                "noise_floor": self.noise_floor, "defocus_um": self.defocus_um, "unexplained": self.unexplained,
                 "decomposition_before": self.decomposition_before,
                 "decomposition_after": self.decomposition_after, "asymmetry": self.asymmetry,
                 "seconds": round(self.seconds, 1), "seconds_by_step": {k: round(v, 1) for k, v in self.steps_s.items()}}
@@ -318,15 +322,24 @@ def prob_scale(prob: _Problem) -> np.ndarray:
 #: iteration costs as many predictions as the lens has perturbations
 START_POLISH = 0
 
+#: candidates a confirmation refits with the base (:func:`_confirm`), the best by held-out gain
+CONFIRM_CANDIDATES = 2
+#: serial-equivalent iterations of each confirmation refit (× :data:`POOLED_ITER_FACTOR` on workers)
+CONFIRM_ITER = 3
+#: the fall of χ² against the base refitted alone that confirms a candidate
+CONFIRM_GAIN = 0.10
+
 
 def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.15, stop_ratio: float = 1.2,
                max_effects: int = 3, base_iter: int = 12, seed: int = 0, fold=None,
+               confirm: int = CONFIRM_CANDIDATES, confirm_gain: float = CONFIRM_GAIN,
                executor=None) -> LoopReport:
     """Fit ``base`` to ``obs`` and add effects while they explain held-out
     data (module docstring). ``effects``: registry names to try (default
     all). ``executor`` (an :class:`isp.runtime.executor.Executor`) runs the
     base's start fit and, where it shows progress, the loop's bar and step
-    notes; default up to 2 worker processes with progress."""
+    notes; default up to 2 worker processes with progress. ``confirm``,
+    ``confirm_gain``: :func:`_confirm` (0 candidates: none)."""
     t0 = time.perf_counter()
     names = list(list_effects()) if effects is None else list(effects)
     ex = pool_executor(None, progress=True) if executor is None else executor
@@ -341,7 +354,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     # (a lens: calibration.fit.proxy's coarse stage and restarts) starts there
     nb = len(base.names)
     started = hasattr(base, "start")
-    steps = {"base": 0.0, "noise": 0.0, "trials": 0.0, "refits": 0.0}
+    steps = {"base": 0.0, "noise": 0.0, "trials": 0.0, "refits": 0.0, "confirm": 0.0}
 
     def timed(step, t):
         steps[step] += time.perf_counter() - t
@@ -382,7 +395,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
         if cur["chi2_per_obs"] <= stop_ratio ** 2:
             say(f"loop: residual χ² {cur['chi2_per_obs']:.2f} per term, within {stop_ratio}² of the noise: done")
             break
-        best = None
+        best, round_ = None, []
         t = time.perf_counter()
         pool = _bind_problem(prob, ex, cheap=False)
         try:
@@ -401,6 +414,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
                     tick(f"{name}: gain {gain:.2f}{'' if consistent else ' (inconsistent across folds)'}")
                 if not consistent:
                     continue
+                round_.append((rec, e, xs))
                 if best is None or gain > best[0]:
                     best = (gain, e, xs)
         finally:
@@ -408,17 +422,29 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
                 pool.close()
         t = timed("trials", t)
         if best is None or best[0] < min_gain:
-            say(f"loop: no effect explains ≥ {min_gain:.0%} of the held-out residual; stopping")
-            break
-        gain, e, xs = best
-        say(f"loop: adding {e.name} (held-out χ² −{gain:.0%})")
+            ranked = sorted((c for c in round_ if c[0]["gain"] > 0), key=lambda c: -c[0]["gain"])[:confirm]
+            found = None
+            if ranked and not getattr(base, "refit_in_cv", True):
+                say(f"loop: no effect explains ≥ {min_gain:.0%} of the held-out residual with the base held; "
+                    f"refitting the base with {', '.join(c[1].name for c in ranked)}")
+                found, p = _confirm(prob, p, lower, upper, ranked, confirm_gain, ex)
+                t = timed("confirm", t)
+            if found is None:
+                say("loop: nothing explains the residual; stopping")
+                break
+            e, p = found
+            say(f"loop: adding {e.name} (χ² −{found_gain(tried, e.name, len(kept) + 1):.0%} refitted with the base)")
+        else:
+            gain, e, xs = best
+            say(f"loop: adding {e.name} (held-out χ² −{gain:.0%})")
+            p = np.concatenate([p, xs])
         prob.effects.append(e)
         kept.append(e.name)
-        p = np.concatenate([p, xs])
         lower = np.concatenate([lower, e.lower])
         upper = np.concatenate([upper, e.upper])
-        p, _ = _joint_fit(prob, p, lower, upper, base_iter, ex)
-        timed("refits", t)
+        if best is not None and best[0] >= min_gain:
+            p, _ = _joint_fit(prob, p, lower, upper, base_iter, ex)
+            timed("refits", t)
     if bar is not None:
         bar.close()
     pred1 = prob.predict(p)
@@ -428,6 +454,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     values = {e.name: dict(zip(e.names, map(float, x))) for e, x in zip(prob.effects, xe)}
     unexplained = _unexplained(prob, pred1, obs, d_after, noise_floor, stop_ratio)
     asym = asymmetry_check(base, prob, p, stop_ratio)
+    defocus = sensor_defocus_um(base, xb, zip(prob.effects, xe))
     if asym is not None and not asym["explained"]:
         unexplained.append(
             f"LSF asymmetry the model does not make: χ² {asym['chi2_per_term']:.1f} per term (noise: 1); measured A "
@@ -436,7 +463,63 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     return LoopReport(base.description, tuple(base.names), xb, kept, values, tried, before, after, noise_floor,
                       unexplained, dec_before, _decompose(obs, d_after), time.perf_counter() - t0,
                       np.asarray(obs.sfra), pred0.sfra + prob.bias_a, pred1.sfra + prob.bias_a, x_before,
-                      asymmetry=asym, steps_s=steps)
+                      asymmetry=asym, steps_s=steps, defocus_um=defocus)
+
+
+def sensor_defocus_um(base, xb, effects) -> float | None:
+    """The sensor's defocus on axis, µm (+: away from the lens): the lens
+    base's (:meth:`calibration.loop.base.LensBase.defocus_um`) plus what the
+    kept ``effects`` ((Effect, parameters) pairs) put at the image centre (a
+    focus shift; a tilt or a curvature puts none there; a per-colour one
+    its mean). None for a base without a lens."""
+    if not hasattr(base, "defocus_um"):
+        return None
+    centre = dataclasses.replace(base.geometry, x_mm=np.zeros(1), y_mm=np.zeros(1), node_r=np.zeros(1))
+    dz = base.defocus_um(xb)
+    for e, x in effects:
+        d = e.defocus_mm(x, centre)
+        if d is not None:
+            dz += 1e3 * float(np.mean(d))
+    return float(dz)
+
+
+def _confirm(prob: _Problem, p, lower, upper, ranked, min_gain: float, ex) -> tuple:
+    """A lens base fitted first may have absorbed an effect (a uniform blur
+    such as crosstalk taken up by defocus and aberrations), so that the
+    effect fitted with the base held explains little held-out data. Refit
+    the base together with each of ``ranked`` (``(trial record, effect,
+    held-out fit)``, best first) for :data:`CONFIRM_ITER` iterations, and
+    the base alone for as many: a candidate whose joint χ² falls by at least
+    ``min_gain`` below the base's own is kept, the best of them.
+    ``(effect, parameters)`` of that one, or ``(None, p)`` with the base's
+    own refit where it fits better. Each record gains ``joint_gain``.
+
+    Measured on the loop suite's case 6 (e9, 3.4 % crosstalk the base
+    absorbed; held-out gains 5.9 % for motion blur, 5.2 % for crosstalk):
+    refitted for six iterations, the base alone goes from χ² 1.443 to
+    1.406 per term, with crosstalk to 1.201 (leak 0.030 for 0.034 put in),
+    with motion blur to 1.217."""
+    alone, _ = _joint_fit(prob, p, lower, upper, CONFIRM_ITER, ex)
+    chi0 = float(np.mean(prob.residuals(prob.predict(alone)) ** 2))
+    if chi0 > float(np.mean(prob.residuals(prob.predict(p)) ** 2)):
+        alone, chi0 = p, float(np.mean(prob.residuals(prob.predict(p)) ** 2))
+    best = None
+    for rec, e, xs in ranked:
+        trial = copy.copy(prob)
+        trial.effects = prob.effects + [e]
+        q, _ = _joint_fit(trial, np.concatenate([p, xs]), np.concatenate([lower, e.lower]),
+                          np.concatenate([upper, e.upper]), CONFIRM_ITER, ex)
+        chi = float(np.mean(trial.residuals(trial.predict(q)) ** 2))
+        rec["joint_gain"] = 1.0 - chi / chi0
+        rec["joint_values"] = dict(zip(e.names, map(float, q[len(p):])))
+        if rec["joint_gain"] >= min_gain and (best is None or rec["joint_gain"] > best[0]):
+            best = (rec["joint_gain"], e, q)
+    return (None, alone) if best is None else (best[1], best[2])
+
+
+def found_gain(tried, name: str, round_: int) -> float:
+    """The confirmation's gain of effect ``name`` in round ``round_``."""
+    return next(t.get("joint_gain", t["gain"]) for t in tried if t["effect"] == name and t["round"] == round_)
 
 
 def effect_terms(base, effects) -> tuple:
@@ -633,8 +716,11 @@ def write_report(report: LoopReport, obs, directory) -> dict:
     d.mkdir(parents=True, exist_ok=True)
     paths = {"json": write_json(d / "report.json", report.to_dict())}
     lines = ["# Loop closure report", "", f"Base model: {report.base}", "",
-             f"Noise floor (SFRA RMS from the data): {report.noise_floor:.4f} cycles/pixel", "",
-             "| metric | before | after |", "|---|---|---|"]
+             f"Noise floor (SFRA RMS from the data): {report.noise_floor:.4f} cycles/pixel", ""]
+    if report.defocus_um is not None:
+        lines += [f"Sensor defocus on axis: {report.defocus_um:+.1f} µm (+: beyond the lens's best focus, "
+                  "against the design's own focus)", ""]
+    lines += ["| metric | before | after |", "|---|---|---|"]
     for k, v in report.error_before.items():
         after = report.error_after.get(k, float("nan"))
         if isinstance(v, list):          # one value per SFR band
@@ -762,6 +848,8 @@ def summary(rep: LoopReport) -> str:
                  f"chi2/term {b['chi2_per_obs']:.2f} -> {a['chi2_per_obs']:.2f}")
     base = ", ".join(f"{k} = {float(v):.4g}" for k, v in zip(rep.base_names, rep.base_x))
     lines.append(f"base: {base}")
+    if rep.defocus_um is not None:
+        lines.append(f"sensor defocus on axis: {rep.defocus_um:+.1f} µm (+: beyond the lens's best focus)")
     lines += [f"left: {u}" for u in rep.unexplained[:1]]
     d = rep.decomposition_after.get("direction", {})   # measured − final model, by edge direction
     if len(d) == 2 and abs(d["vertical"] - d["horizontal"]) > 2 * rep.noise_floor:

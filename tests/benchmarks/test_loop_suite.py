@@ -39,19 +39,32 @@ def test_summary_counts_what_was_named():
     assert s["clean_cases"] == 2 and s["clean_given_an_effect"] == 1 and s["all_right"] == 2
 
 
-def test_a_focus_shift_counts_as_named_where_the_base_took_it_up():
-    """A focus shift within the base's ±80 µm is its focus parameter: named
-    where the fitted focus moved by the shift (30 %, or 1.5 µm)."""
-    from types import SimpleNamespace
-
-    rep = SimpleNamespace(base_names=("e1.decenter_x", "s9.thickness"), base_x=[0.1, 1.2])
-    moved = loop_suite.focus_moved_um(rep, ("s9.thickness", 0.003))        # 12 µm fitted, 3 µm the device's
-    assert moved == pytest.approx(9.0)
+def test_a_focus_shift_is_judged_by_the_defocus_the_loop_reports():
+    """A focus shift is named where the reported defocus lies within 30 %
+    of the shift (or 1.5 µm) of the truth; without a shift, a defocus off by
+    more than the smallest shift put in is a false focus shift."""
     put = {"focus_shift": {"dz_um": 8.0}, "sharpening": {"gain": 0.5, "sigma_px": 1.0}}
-    assert loop_suite.judged(put, ["sharpening"], moved) == {"focus_shift", "sharpening"}
-    assert loop_suite.judged(put, [], 4.0) == set()
-    assert loop_suite.judged(put, ["focus_shift"], None) == {"focus_shift"}
-    assert loop_suite.focus_moved_um(rep, ("s7.thickness", 0.0)) is None
+    assert loop_suite.judged(put, ["sharpening"], 9.9, 8.3) == ({"focus_shift", "sharpening"}, set())
+    assert loop_suite.judged(put, [], 5.0, 8.3) == (set(), set())              # 3.3 µm off: more than 30 %
+    assert loop_suite.judged(put, ["focus_shift"], None, 8.3) == ({"focus_shift"}, set())
+    clean = {"pixel_crosstalk": {"leak": 0.03}}
+    assert loop_suite.judged(clean, [], 4.8, 0.1) == (set(), {"focus_shift"})
+    assert loop_suite.judged(clean, ["pixel_crosstalk"], 3.9, 0.1) == ({"pixel_crosstalk"}, set())
+    assert loop_suite.judged({}, ["veiling_glare"], None, 0.0) == (set(), {"veiling_glare"})
+
+
+def test_the_true_defocus_is_the_shift_put_in_on_a_refocused_device():
+    """A refocused device is at the design's own focus (its best focus
+    moved by the last gap, exactly), so its true defocus is the shift's."""
+    from calibration.optics.io import read_lens
+    from calibration.simulate.device import device_lens
+
+    path = loop_suite.PHONE / f"{loop_suite.LENSES['e9']}.zmx"
+    if not path.is_file():
+        pytest.skip(f"{path} absent (../shared/data)")
+    device, _ = device_lens(read_lens(path), "random", seed=3)
+    assert loop_suite.true_defocus_um(device, {}) == pytest.approx(0.0, abs=1e-6)
+    assert loop_suite.true_defocus_um(device, {"focus_shift": {"dz_um": 6.5}}) == pytest.approx(6.5, abs=1e-6)
 
 
 def test_cases_past_the_registry_put_in_one_effect_outside_it():

@@ -51,10 +51,33 @@ def test_close_loop_fits_from_the_start(lens_base, monkeypatch):
     monkeypatch.setattr(type(lens_base), "start", lambda self, executor=None: U_TRUE.copy())
     rep = loop.close_loop(lens_base, lens_base.obs, effects=[], executor=pool_executor(None))
     np.testing.assert_allclose(rep.base_x_before, U_TRUE)     # no polish: the base is where start() put it
+    assert rep.defocus_um == pytest.approx(lens_base.defocus_um(U_TRUE)) and rep.to_dict()["defocus_um"] == rep.defocus_um
     assert seen == []
     monkeypatch.setattr(loop, "START_POLISH", 1)                # a polish starts there too
     loop.close_loop(lens_base, lens_base.obs, effects=[], executor=pool_executor(None))
     np.testing.assert_allclose(seen[0], U_TRUE)
+
+
+def test_the_sensor_defocus_is_the_last_gap_where_nothing_else_moves_focus(lens_base):
+    """Beyond the last surface rays are straight: moving the sensor by d
+    (the last gap + d) moves the best focus by exactly −d, whatever the
+    other perturbations; a focus shift the loop keeps adds its Δz, a tilt
+    about the centre nothing."""
+    from calibration.fit.proxy import FOCUS_TOLERANCE_MM, focus_name
+    from calibration.loop.base import LensBase
+    from calibration.loop.closure import sensor_defocus_um
+    from calibration.loop.effects import create_effect
+
+    base = LensBase(lens_base.nominal, lens_base.obs, names=[focus_name(lens_base.nominal), NAMES[0]])
+    tilted = base.defocus_um([0.0, 1.5])
+    assert abs(tilted) > 0.05                                   # a decentred element moves focus itself
+    assert base.defocus_um([0.0, 0.0]) == pytest.approx(0.0, abs=1e-9)
+    for d_um in (-12.0, 7.0):
+        u = 1e-3 * d_um / FOCUS_TOLERANCE_MM
+        assert base.defocus_um([u, 1.5]) - tilted == pytest.approx(d_um, abs=1e-6)
+    x = np.array([0.0, 1.5])
+    effects = [(create_effect("focus_shift"), [4.0]), (create_effect("sensor_tilt"), [0.2, -0.3])]
+    assert sensor_defocus_um(base, x, effects) == pytest.approx(tilted + 4.0, abs=1e-9)
 
 
 def test_a_lens_base_travels_to_a_worker_without_its_caches(lens_base):

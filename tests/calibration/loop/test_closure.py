@@ -316,3 +316,42 @@ def test_field_curvature_on_a_perturbed_phone_lens(e9_lens):
     for name in BASE_NAMES:
         assert fitted[name] == pytest.approx(TRUTH.get(name, 0.0) / base.space.tolerance[BASE_NAMES.index(name)],
                                              abs=0.25), name
+
+
+def _confirmed(ops):
+    """:func:`_confirm` on a parametric base fitted first without effects (its
+    blur takes up what it can), candidates crosstalk then sharpening."""
+    from calibration.loop import closure as loop
+    from calibration.loop.effects import create_effect
+
+    obs = synthetic_observations(StandInDevice(), noise=0.003, image_ops=ops, rng=1, channels=("G",))
+    base = ParametricBase(obs, f_number=2.0)
+    a0, c0, sd0 = base.measurement_bias(base.x0)
+    prob = loop._Problem(base, obs, a0, c0, loop._sigma_law(obs, sd0))
+    lo, hi = np.asarray(base.lower, float), np.asarray(base.upper, float)
+    p, _ = loop._fit(prob, base.x0, lo, hi, np.ones(1, bool), max_iter=12)
+    chi_base = float(np.mean(prob.residuals(prob.predict(p)) ** 2))
+    fold = loop._folds(obs, 3)
+    ranked = []
+    for n in ("pixel_crosstalk", "sharpening"):      # each from its held-out fit, the base held, as the loop has it
+        e = create_effect(n)
+        ranked.append(({"effect": n}, e, loop._cv_gain(prob, p, e, fold, 3)[3]))
+    found, q = loop._confirm(prob, p, lo, hi, ranked, 0.10, pool_executor(None))
+    return found, q, [r for r, _, _ in ranked], chi_base
+
+
+def test_a_confirmation_refit_names_what_the_base_took_up():
+    """Crosstalk (8 % to each neighbour) under a base already fitted
+    without it: refitted with the base, crosstalk lowers χ² far beyond the
+    base's own refit and comes out at the leak put in; sharpening, which
+    the data do not hold, gains nothing. On the clean device neither is
+    confirmed and the base's own refit comes back."""
+    found, q, recs, chi_base = _confirmed((crosstalk(0.08),))
+    assert chi_base > 1.5 ** 2                      # the base alone cannot explain it
+    assert found is not None and found.name == "pixel_crosstalk"
+    assert q[-1] == pytest.approx(0.08, abs=0.02)
+    assert recs[0]["joint_gain"] > 0.5 and recs[1]["joint_gain"] < 0.10
+    assert recs[0]["joint_values"]["leak"] == pytest.approx(q[-1])
+    found, q, recs, _ = _confirmed(())
+    assert found is None and len(q) == 1
+    assert all(r["joint_gain"] < 0.10 for r in recs)
