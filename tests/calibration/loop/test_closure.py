@@ -355,3 +355,18 @@ def test_a_confirmation_refit_names_what_the_base_took_up():
     found, q, recs, _ = _confirmed(())
     assert found is None and len(q) == 1
     assert all(r["joint_gain"] < 0.10 for r in recs)
+
+
+def test_the_loop_keeps_what_the_confirmation_names(monkeypatch):
+    """With the base held in the held-out fits and a held-out bar no
+    candidate can reach, the crosstalk is added by the confirmation, with
+    its gain there as its confidence and the leak put in."""
+    monkeypatch.setattr(ParametricBase, "refit_in_cv", False)
+    obs = synthetic_observations(StandInDevice(), noise=0.003, image_ops=(crosstalk(0.08),), rng=1, channels=("G",))
+    rep = close_loop(ParametricBase(obs, f_number=2.0), obs, effects=["pixel_crosstalk", "sharpening"],
+                     min_gain=0.99, executor=pool_executor(None))
+    assert rep.effects_added == ["pixel_crosstalk"]
+    assert rep.confidence()["pixel_crosstalk"]["joint_gain"] > 0.2      # 3 iterations from an absorbed start
+    assert rep.effect_values["pixel_crosstalk"]["leak"] == pytest.approx(0.08, abs=0.02)
+    assert rep.steps_s["confirm"] > 0
+    _within_floor(rep)
