@@ -194,7 +194,9 @@ def run_case(case: dict, log) -> dict:
             # every candidate tried in every round, so that a missed effect's fit can be read
             "trials": [{"effect": t["effect"], "round": t["round"], "gain": round(float(t["gain"]), 4),
                         "values": {k: round(float(v), 4) for k, v in t["values"].items()},
-                        "consistent": bool(t["consistent"])} for t in rep.tried]}
+                        "consistent": bool(t["consistent"]),
+                        **({"joint_gain": round(float(t["joint_gain"]), 4), "joint_chi2": round(float(t["joint_chi2"]), 3)}
+                           if "joint_gain" in t else {})} for t in rep.tried]}
 
 
 def summarise(cases: list[dict]) -> dict:
@@ -272,12 +274,12 @@ def row(c: dict) -> dict:
             "put in": "; ".join(put(e, p) for e, p in c["effects"].items()) or "nothing",
             "added": ", ".join(c["effects_added"]) or "nothing", "missed": ", ".join(c["missed"]) or "-",
             "false": ", ".join(c["false"]) or "-",
-            "defocus µm (true)": "-" if c.get("defocus_um") is None else f"{c['defocus_um']:+.1f} "
-                                                                          f"({c['true_defocus_um']:+.1f})",
+            "defocus µm (true)": "-" if c.get("defocus_um") is None else
+            f"{round(c['defocus_um'], 1) + 0.0:+.1f} ({round(c['true_defocus_um'], 1) + 0.0:+.1f})",
             "SFRA RMS before": round(c["error_before"], 4),
             "after": round(c["error_after"], 4), "floor": round(c["noise_floor"], 4),
             "after / floor": round(c["after_over_floor"], 2), "wall s": c["wall_s"],
-            **{f"{k} s": c.get("seconds_by_step", {}).get(k, "-") for k in ("base", "noise", "trials", "refits")}}
+            **{f"{k} s": c.get("seconds_by_step", {}).get(k, "-") for k in ("base", "noise", "trials", "confirm", "refits")}}
 
 
 if __name__ == "__main__":

@@ -426,7 +426,8 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
                     tick(f"{name}: gain {gain:.2f}{'' if consistent else ' (inconsistent across folds)'}")
                 if not consistent:
                     continue
-                round_.append((rec, e, xs))
+                if _visible(e, base):          # one these data cannot see is not confirmed
+                    round_.append((rec, e, xs))
                 if best is None or gain > best[0]:
                     best = (gain, e, xs)
         finally:
@@ -443,7 +444,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
                 found, p = _confirm(prob, p, lower, upper, ranked, confirm_gain, ex)
                 t = timed("confirm", t)
             for rec, c, _ in ranked:
-                say(f"loop: {c.name} refitted with the base: χ² −{rec['joint_gain']:.1%} against the base alone, "
+                say(f"loop: {c.name} refitted with the base: χ² {-rec['joint_gain']:+.1%} against the base alone, "
                     f"{rec['joint_chi2']:.2f} per term")
             if found is None:
                 say("loop: nothing explains the residual; stopping")
@@ -496,6 +497,16 @@ def sensor_defocus_um(base, xb, effects) -> float | None:
         if d is not None:
             dz += 1e3 * float(np.mean(d))
     return float(dz)
+
+
+def _visible(e, base) -> bool:
+    """Whether effect ``e`` acts on ``base``'s observations at all: a colour
+    effect on green edges does not (its hooks return None)."""
+    geom = getattr(base, "geometry", None)
+    if geom is None:
+        return True
+    x = np.asarray(e.x0, float) + np.asarray(e.scale, float)
+    return any(hook(x, geom) is not None for hook in (e.defocus_mm, e.shifts_px, e.transfer))
 
 
 def _confirm(prob: _Problem, p, lower, upper, ranked, min_gain: float, ex) -> tuple:

@@ -360,12 +360,15 @@ def test_a_confirmation_refit_names_what_the_base_took_up():
 def test_the_loop_keeps_what_the_confirmation_names(monkeypatch):
     """With the base held in the held-out fits and a held-out bar no
     candidate can reach, the crosstalk is added by the confirmation, with
-    its gain there as its confidence and the leak put in."""
+    its gain there as its confidence and the leak put in; a candidate the
+    data cannot see is not refitted."""
     monkeypatch.setattr(ParametricBase, "refit_in_cv", False)
     obs = synthetic_observations(StandInDevice(), noise=0.003, image_ops=(crosstalk(0.08),), rng=1, channels=("G",))
-    rep = close_loop(ParametricBase(obs, f_number=2.0), obs, effects=["pixel_crosstalk", "sharpening"],
+    rep = close_loop(ParametricBase(obs, f_number=2.0), obs, effects=["pixel_crosstalk", "lateral_ca", "sharpening"],
                      min_gain=0.99, executor=pool_executor(None))
     assert rep.effects_added == ["pixel_crosstalk"]
+    # lateral colour changes nothing on green edges: it is not refitted, whatever its rank
+    assert [t["effect"] for t in rep.tried if "joint_gain" in t and t["round"] == 1] == ["pixel_crosstalk", "sharpening"]
     assert rep.confidence()["pixel_crosstalk"]["joint_gain"] > 0.2      # 3 iterations from an absorbed start
     assert rep.effect_values["pixel_crosstalk"]["leak"] == pytest.approx(0.08, abs=0.02)
     assert rep.steps_s["confirm"] > 0
