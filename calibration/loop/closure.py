@@ -443,9 +443,9 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
                     f"refitting the base with {', '.join(c[1].name for c in ranked)}")
                 found, p = _confirm(prob, p, lower, upper, ranked, confirm_gain, ex)
                 t = timed("confirm", t)
-            for rec, c, _ in ranked:
-                say(f"loop: {c.name} refitted with the base: χ² {-rec['joint_gain']:+.1%} against the base alone, "
-                    f"{rec['joint_chi2']:.2f} per term")
+                for rec, c, _ in ranked:
+                    say(f"loop: {c.name} refitted with the base: χ² {-rec['joint_gain']:+.1%} against the base "
+                        f"alone, {rec['joint_chi2']:.2f} per term")
             if found is None:
                 say("loop: nothing explains the residual; stopping")
                 break
