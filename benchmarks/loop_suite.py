@@ -154,10 +154,9 @@ def true_defocus_um(device, effects: dict) -> float:
     away from the lens), as :meth:`calibration.loop.base.LensBase.defocus_um`
     measures a fitted lens: its own (≈ 0, the device was refocused) plus a
     focus shift's Δz (a tilt or a curvature is zero on axis)."""
-    from calibration.optics.spot import best_focus
+    from calibration.optics.spot import defocus
 
-    own = 1e3 * (best_focus(device.nominal) - best_focus(device)) if hasattr(device, "nominal") else 0.0
-    return own + float(effects.get("focus_shift", {}).get("dz_um", 0.0))
+    return 1e3 * defocus(device) + float(effects.get("focus_shift", {}).get("dz_um", 0.0))
 
 
 def judged(put: dict, added: list, defocus_um: float | None, true_um: float) -> tuple[set, set]:

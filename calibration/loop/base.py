@@ -289,9 +289,8 @@ class LensBase:
 
     def defocus_um(self, xb) -> float:
         """On-axis defocus of the sensor, µm (+: beyond the lens's best
-        focus, away from the lens), against the design's own focus offset:
-        ``best_focus(nominal) − best_focus(lens(xb))``
-        (:func:`calibration.optics.spot.best_focus`, RMS spot on axis, the
+        focus, away from the lens), against the design's own focus offset
+        (:func:`calibration.optics.spot.defocus`: RMS spot on axis, the
         criterion by which :func:`calibration.optics.spot.refocus` sets a
         drawn device). This, not the focus parameter (the last gap), is what
         the SFR fixes: the gap trades against every other tolerance that
@@ -299,11 +298,11 @@ class LensBase:
         every tolerance drawn, refocused, no focus shift put in): the fitted
         last gap lies 30 and 17 µm from the device's, the fitted defocus
         0.6 and 4.8 µm from the device's."""
-        from calibration.optics.spot import best_focus
+        from calibration.optics.spot import best_focus, defocus
 
         if not hasattr(self, "_focus_nominal"):
             self._focus_nominal = best_focus(self.nominal)
-        return 1e3 * (self._focus_nominal - best_focus(self.lens(xb)))
+        return 1e3 * defocus(self.lens(xb), self._focus_nominal)
 
     def with_settings(self, settings) -> LensBase:
         """The same base (lens, observations, parameters) evaluated by a

@@ -181,6 +181,30 @@ def best_focus(lens: Lens | PerturbedLens, field_deg: Sequence[float] = (0.0, 0.
     return float(-np.sum(a * b) / np.sum(b * b))
 
 
+def defocus(lens: Lens | PerturbedLens, focus_nominal: float | None = None, **kw) -> float:
+    """How far the image plane lies beyond the lens's RMS best focus on
+    axis, mm (+: away from the lens), against the design's own focus
+    offset: ``best_focus(design) − best_focus(lens)`` (``**kw`` passed on
+    to :func:`best_focus`). Zero for the design and for a device set by
+    :func:`refocus`; the last gap moved by d gives d exactly (the rays are
+    straight beyond the last surface). ``focus_nominal``: the design's
+    :func:`best_focus` where already known.
+
+    >>> from calibration.optics.lens import Surface
+    >>> from calibration.optics.materials import Material
+    >>> g = Material("g", 1.5, 60.0)
+    >>> lens = Lens((Surface(0.1, thickness=2.0, material=g, semi_diameter=2.0, stop=True),
+    ...              Surface(-0.1, thickness=9.0, semi_diameter=2.0)), epd=2.0)
+    >>> tilted = {"e1.decenter_y": 0.01}
+    >>> d0, d1 = (defocus(apply(lens, {**tilted, "s2.thickness": t})) for t in (0.0, 0.007))
+    >>> round(1e3 * (d1 - d0), 6)
+    7.0
+    """
+    if focus_nominal is None:
+        focus_nominal = best_focus(lens.nominal if isinstance(lens, PerturbedLens) else lens, **kw)
+    return focus_nominal - best_focus(lens, **kw)
+
+
 def refocus(lens: PerturbedLens, method: str = "rms", **kw) -> PerturbedLens:
     """Re-set the image distance of a perturbed lens as assembly does
     (focus is adjusted, not toleranced): the last thickness changes by the
@@ -202,7 +226,7 @@ def refocus(lens: PerturbedLens, method: str = "rms", **kw) -> PerturbedLens:
     if not isinstance(lens, PerturbedLens):
         raise TraceError("refocus() takes a PerturbedLens (the nominal lens is in focus by definition)")
     if method == "rms":
-        shift = best_focus(lens, **kw) - best_focus(lens.nominal, **kw)
+        shift = -defocus(lens, **kw)
     elif method == "paraxial":
         shift = paraxial.first_order(lens.lens).bfl - paraxial.first_order(lens.nominal).bfl
     else:

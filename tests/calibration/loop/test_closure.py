@@ -336,8 +336,10 @@ def _confirmed(ops):
     for n in ("pixel_crosstalk", "sharpening"):      # each from its held-out fit, the base held, as the loop has it
         e = create_effect(n)
         ranked.append(({"effect": n}, e, loop._cv_gain(prob, p, e, fold, 3)[3]))
-    found, q = loop._confirm(prob, p, lo, hi, ranked, 0.10, pool_executor(None))
-    return found, q, [r for r, _, _ in ranked], chi_base
+    found, q, gain = loop._confirm(prob, p, lo, hi, ranked, 0.10, pool_executor(None))
+    recs = [r for r, _, _ in ranked]
+    assert gain == (None if found is None else next(r["joint_gain"] for r in recs if r["effect"] == found.name))
+    return found, q, recs, chi_base
 
 
 def test_a_confirmation_refit_names_what_the_base_took_up():
