@@ -176,7 +176,8 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
     profiler, the stage's session options) on one window of ``side``²
     pixels, the size of a 1,024-px tile with its context: ``{op: percent}``,
     largest first, ``top_nodes`` (the eight slowest nodes, same unit) and
-    ``ms`` per run; ``node_ms``: every node's ms per run."""
+    ``ms`` per run, ``conv_ms`` the convolutions' share of it; ``node_ms``:
+    every node's ms per run."""
     import onnxruntime as ort
 
     from modules.correction import model_info, pack_input, session_options
@@ -206,7 +207,9 @@ def op_shares(path: Path, threads: int, side: int, runs: int = 5) -> dict:
     # the slowest nodes: one conv of an odd shape can cost more than all the others of its type
     # (the packed head at 12 output channels, see restoration.nn.network.HEAD_CHANNEL_MULTIPLE)
     top = {k: round(100 * v / total, 1) for k, v in sorted(per_node.items(), key=lambda kv: -kv[1])[:8]}
-    return {"ms": round(total / 1000 / (runs + 1), 1), "percent": shares, "top_nodes": top,
+    conv = sum(v for k, v in per_op.items() if k.endswith("Conv"))   # Conv, QLinearConv, FusedConv
+    return {"ms": round(total / 1000 / (runs + 1), 1), "conv_ms": round(conv / 1000 / (runs + 1), 1),
+            "percent": shares, "top_nodes": top,
             "node_ms": {k: v / 1000 / (runs + 1) for k, v in per_node.items()}}
 
 
@@ -225,7 +228,9 @@ def main(argv=None) -> dict:
                     help="tile sizes to time each model at, its best reported (px; default "
                          f"{' '.join(map(str, SWEEP))}, plus the model's own)")
     ap.add_argument("--profile", action="store_true",
-                    help="also the share of each operator type in the model's time, on one 1,072² window")
+                    help="also the share of each operator type in each model's time, on one window of "
+                         "float's best tile on one thread, and INT8's speed-up on its convolutions and on "
+                         "the rest")
     args = ap.parse_args(argv)
     _harness.pin_threads(args.threads, blas=1)
     w, h = (int(v) for v in args.size.lower().split("x"))
@@ -270,8 +275,10 @@ def main(argv=None) -> dict:
         same_tile = own if own in sweep else sizes[0]   # --tile-size: the one tile timed
         at_once = tiles_at_once(int8, frame, args.threads, t8, args.runs)
         same = sweep[same_tile]
-        # every node's time stays out of the JSON (benchmarks/int8_form.py reads it)
-        profile = ({k: {f: v for f, v in op_shares(p, args.threads, 1072).items() if f != "node_ms"}
+        # every node's time stays out of the JSON (benchmarks/int8_form.py reads it). The window is
+        # float's best tile on one thread, as the stage runs tiles side by side: the kernels' ratio
+        # where float runs fastest, which bounds the stage's
+        profile = ({k: {f: v for f, v in op_shares(p, 1, t32).items() if f != "node_ms"}
                     for k, p in (("fp32", fp32), ("int8", int8))} if args.profile else None)
     mp = w * h / 1e6
     result = {"size": f"{w}x{h}", "threads": args.threads, "runs": args.runs,
@@ -289,6 +296,12 @@ def main(argv=None) -> dict:
               "int8_model": str(int8), "tiles_at_once": at_once}
     if profile is not None:
         result["op_profile"] = profile
+        # what INT8 buys on the convolutions and on everything else: the whole can gain no more than
+        # the convolutions unless the rest runs faster in INT8 than in float
+        f, i = profile["fp32"], profile["int8"]
+        result["window_speedup"] = round(f["ms"] / i["ms"], 3)
+        result["conv_speedup"] = round(f["conv_ms"] / i["conv_ms"], 3)
+        result["rest_speedup"] = round((f["ms"] - f["conv_ms"]) / (i["ms"] - i["conv_ms"]), 3)
     print(f"{w}×{h}, {args.threads} threads, median of {args.runs}, each at its best tile: FP32 "
           f"{result['fp32_s']:.2f} s ({t32} px), INT8 {result['int8_s']:.2f} s ({t8} px, "
           f"{result['ms_per_mp_int8']:.0f} ms/MP), speedup {result['speedup']:.2f}× "
@@ -302,9 +315,12 @@ def main(argv=None) -> dict:
     if profile is not None:
         for name, p in profile.items():
             top = ", ".join(f"{k} {v} %" for k, v in list(p["percent"].items())[:5])
-            print(f"  {name} operators on one 1,072² window ({p['ms']} ms): {top}")
+            print(f"  {name} operators on one {t32}² window, one thread ({p['ms']} ms): {top}")
             nodes = ", ".join(f"{k} {v} %" for k, v in list(p["top_nodes"].items())[:4])
             print(f"    slowest nodes: {nodes}")
+        print(f"  on the window INT8 runs {result['window_speedup']:.2f}× float: the convolutions "
+              f"{result['conv_speedup']:.2f}× ({profile['fp32']['conv_ms']} → {profile['int8']['conv_ms']} ms), "
+              f"everything else {result['rest_speedup']:.2f}×")
     return _harness.publish("correction", result, args, argv)
 
 

@@ -19,7 +19,8 @@ target is a module's calibration to its corrected output in ≤ 3 minutes.
 
 ``--speed`` first times the conditioned model itself as
 ``benchmarks/correction.py`` times the packaged one: its INT8 file against
-its FP32 export (``--model``'s name without ``.int8``) on a 12 MP frame, 2
+its FP32 export (``--model``'s name without ``.int8``, else its dequantized
+twin) on a 12 MP frame, 2
 threads, each at its best of ``--tile-sizes``; ``--also NAME=M.int8.onnx``
 adds other models (a narrower network) in the same run. Targets: INT8 ≥ 2×
 its float twin, ≤ 1.2 s.
@@ -58,8 +59,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--speed", action="store_true", help="time the model's INT8 file against its FP32 export first")
     ap.add_argument("--also", nargs="+", default=[], metavar="NAME=M.int8.onnx",
                     help="other conditioned models to time with --speed")
-    ap.add_argument("--tile-sizes", type=int, nargs="+", default=[1024, 1536, 2048],
-                    help="tile sizes for --speed (default 1024 1536 2048)")
+    ap.add_argument("--tile-sizes", type=int, nargs="+",
+                    help="tile sizes for --speed (default benchmarks/correction.py's, from 448 px: float "
+                         "can run fastest on small tiles)")
     ap.add_argument("--runs", type=int, default=3, help="warm runs per model and tile for --speed (default 3)")
     ap.add_argument("--no-workflow", action="store_true", help="--speed alone")
     ap.add_argument("--fp32", help="--model's FP32 twin for --speed (default: its name without .int8; another "
@@ -78,7 +80,9 @@ def main(argv=None) -> dict:
 
 def speed(models: dict, args, twins: dict | None = None) -> dict:
     """``benchmarks/correction.py`` on each INT8 file and its FP32 export
-    (``twins[name]`` where given)."""
+    (``twins[name]`` where given, else the file beside it without
+    ``.int8``), or where there is none its dequantized twin (``peer``
+    says which)."""
     import tempfile
 
     from benchmarks import correction
@@ -86,13 +90,17 @@ def speed(models: dict, args, twins: dict | None = None) -> dict:
     out = {}
     for name, int8 in models.items():
         fp32 = Path((twins or {}).get(name) or str(int8).replace(".int8.onnx", ".onnx"))
-        if not fp32.is_file() or fp32 == Path(int8):
-            raise SystemExit(f"device_workflow: {fp32}: the FP32 export of {int8} is missing")
+        if name in (twins or {}) and not fp32.is_file():
+            raise SystemExit(f"device_workflow: {fp32}: no such FP32 export of {int8}")
+        peer = ["--fp32", str(fp32)] if fp32.is_file() and fp32 != Path(int8) else []
         with tempfile.TemporaryDirectory() as tmp:
-            r = correction.main(["--fp32", str(fp32), "--int8", str(int8), "--runs", str(args.runs),
-                                 "--tile-sizes", *map(str, args.tile_sizes), "--results", tmp])
+            tiles = ["--tile-sizes", *map(str, args.tile_sizes)] if args.tile_sizes else []
+            r = correction.main([*peer, "--int8", str(int8), "--runs", str(args.runs), *tiles,
+                                 "--profile", "--results", tmp])
         out[name] = {k: r[k] for k in ("int8_model", "fp32_s", "int8_s", "speedup", "tile_fp32", "tile_int8",
-                                       "ms_per_mp_int8", "peak_rss_mb")}
+                                       "ms_per_mp_int8", "peak_rss_mb", "speedup_same_tile", "window_speedup",
+                                       "conv_speedup", "rest_speedup")}
+        out[name]["peer"] = "FP32 export" if peer else "dequantized twin"
         out[name]["meets_targets"] = bool(r["speedup"] >= 2.0 and r["int8_s"] <= 1.2)
     return out
 

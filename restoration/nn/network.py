@@ -151,6 +151,32 @@ def _zero_conv(cin: int, cout: int) -> nn.Conv2d:
     return conv
 
 
+def film(h: Tensor, features: Tensor, conv: nn.Conv2d, *, shift: bool = True) -> Tensor:
+    """FiLM (module docstring): ``h · (1 + γ) + β`` with ``(γ, β) =
+    conv(features)``, per channel and pixel; (N, C, H, W) → (N, C, H, W).
+
+    ``conv`` is a 1×1 conv without bias of ``2C`` outputs, γ then β; with
+    ``shift=False`` of ``C``, γ alone (a scale). It is computed as two
+    convs, the 1 as the bias of γ's: the same function, in a graph without
+    the split's slices and the separate sum, which ONNX Runtime's INT8 graph
+    runs between quantised tensors (``benchmarks/correction.py --profile``).
+    The channel counts are the conv's, not the tensors', so that an export
+    traces constant weights.
+
+    Example
+    -------
+    >>> conv = nn.Conv2d(3, 4, 1, bias=False)
+    >>> h, f = torch.randn(1, 2, 5, 5), torch.randn(1, 3, 5, 5)
+    >>> g, b = conv(f).chunk(2, dim=1)
+    >>> torch.allclose(film(h, f, conv), h * (1 + g) + b, atol=1e-6)
+    True
+    """
+    c = conv.out_channels // 2 if shift else conv.out_channels
+    w = conv.weight
+    out = h * F.conv2d(features, w[:c], torch.ones(c, dtype=w.dtype, device=w.device))
+    return out + F.conv2d(features, w[c:]) if shift else out
+
+
 class ConvNeXtBlock(nn.Module):
     """``x + pw₂(ReLU(pw₁(conv(x))))``, ``conv`` a DOConv or a static conv,
     depthwise or grouped; (N, C, H, W) → (N, C, H, W).
@@ -196,8 +222,7 @@ class ConvNeXtBlock(nn.Module):
     def forward(self, x: Tensor, field: Tensor | None = None) -> Tensor:
         h = self.conv(x, field) if self.dynamic else self.conv(x)
         if self.film is not None:
-            g, b = self.film(field).chunk(2, dim=1)
-            h = h * (1 + g) + b
+            h = film(h, field, self.film)
         return x + self.pw2(F.relu(self.pw1(h)))
 
 
@@ -373,7 +398,7 @@ class DOConvUNet(nn.Module):
         if self.positional:
             f1, f2 = self.features(field, factor), self.features(field, 2 * factor)
             if self.stem_film is not None:
-                h = h * (1 + self.stem_film(f1))
+                h = film(h, f1, self.stem_film, shift=False)
             h = h + self.stem_field(f1)
         for b in self.enc:
             h = b(h, f1)

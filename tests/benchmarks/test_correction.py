@@ -43,3 +43,16 @@ def test_runs_alternate_between_models_over_two_passes_the_second_reversed(monke
     assert {(t, n): len(out[t][n]["runs_s"]) for t in out for n in out[t]} == {
         (448, "a"): 3, (448, "b"): 3, (1024, "a"): 3, (1024, "b"): 3}
     assert out[448]["a"]["runs_s"] == [3.0, 5.0, 19.0] and out[448]["a"]["cold_s"] == 1.0
+
+
+def test_the_profile_counts_the_conv_of_a_one_conv_model_as_its_convolutions(tmp_path):
+    """``op_shares`` splits a model's kernel time into its convolutions and
+    the rest (what bounds INT8's speed-up): on a model of one conv, the
+    convolutions' time is the Conv kernel's share, and the rest is only
+    ONNX Runtime's layout reorder around it."""
+    from tests.helpers import onnx_select_rgb
+
+    p = bc.op_shares(onnx_select_rgb(tmp_path / "sel.onnx"), 1, 64, runs=2)
+    assert p["conv_ms"] > 0
+    assert p["conv_ms"] == pytest.approx(p["ms"] * p["percent"]["Conv"] / 100, rel=0.05, abs=0.05)
+    assert set(p["percent"]) <= {"Conv", "ReorderInput", "ReorderOutput"}

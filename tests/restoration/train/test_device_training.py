@@ -380,6 +380,8 @@ def test_film_modulation_exports_quantises_every_conv_and_tiles_as_the_whole_fra
     it, the descriptor changes the output through it alone, the export runs
     in the stage with tiles equal to the whole frame, and static INT8
     quantises every conv and stays near the float model."""
+    import onnx
+
     from export.onnx_export import export_onnx
     from export.quantize import quantize_int8
     from modules.correction import Correction
@@ -406,6 +408,11 @@ def test_film_modulation_exports_quantises_every_conv_and_tiles_as_the_whole_fra
             "device_components": K, "device_design": DESIGN, "device_basis": BASIS}
     ckpt = save_checkpoint(tmp_path / "m.pt", film, variant="device_film", model_kwargs=kw, step=1, metadata=meta)
     report = export_onnx(ckpt, tmp_path / "film.onnx", tile_size=0, measure_overlap=False)
+    # the modulation exports as two convs (restoration.nn.network.film): no conv's output is sliced
+    # but the head's (its channels padded to HEAD_CHANNEL_MULTIPLE)
+    graph = onnx.load(tmp_path / "film.onnx").graph
+    convs = {o for n in graph.node if n.op_type == "Conv" and "head" not in n.name for o in n.output}
+    assert not [n.name for n in graph.node if n.op_type in ("Slice", "Split") and n.input[0] in convs]
     q8 = tmp_path / "film.int8.onnx"
     r = quantize_int8(tmp_path / "film.onnx", q8, onnx_calibration_reader(device=K))
     assert r["int8_quantized_conv"] == r["fp32_conv"] and r["int8_float_conv"] == 0
