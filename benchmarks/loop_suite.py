@@ -37,6 +37,20 @@ a shift whose reported defocus is off by more than the smallest shift put in
 (:data:`FALSE_DEFOCUS_UM`) counts as a false focus shift. Both figures are
 recorded.
 
+A tilted or curved sensor is taken up the same way, by a lens base that
+tilts and bends its own image surface: a device drawn within tolerance
+has tilts of 0.1–0.6° and corner curvatures of −13 to +27 µm of its own
+(cases 1, 6, 11, 14, 24, 26), as large as those put in. They are judged by
+the sensor surface the loop reports
+(:func:`calibration.loop.closure.sensor_surface`: the defocus over the
+frame, fitted by a plane and a term in r²) against the device's
+(:func:`true_surface`, the same fit of its lens's surface plus the sensor
+put in): named within 30 % of the tilt or curvature put in, false where
+none was put in and the report is further from the truth than the
+smallest put in (:data:`FALSE_TILT_DEG`, :data:`FALSE_CURVATURE_UM`).
+Records made before the surface was reported are judged without it
+(:func:`rejudge` judges every record again with the rule as it is).
+
 Lateral colour is left out: the loop measures a capture's edges on the
 mosaic's green plane, which a shift of the red and blue planes does not
 reach.
@@ -63,6 +77,7 @@ from benchmarks import _harness
 if __name__ == "__main__":   # one BLAS thread per worker, set before numpy loads
     _harness.pin_threads(2, blas=1)
 
+import math  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -146,7 +161,8 @@ def capture(case: dict, log):
                                                      rng=case["seed"], injections=injections))
         obs, _ = load_measured(str(dng), method=DEFAULT_METHOD)
         _, obs = match_sensor(read_lens(lens_path), obs)
-    return lens_path, obs, what, true_defocus_um(device, case["effects"])
+    return lens_path, obs, what, true_defocus_um(device, case["effects"]), true_surface(device, obs.sensor,
+                                                                                       case["effects"])
 
 
 def true_defocus_um(device, effects: dict) -> float:
@@ -159,12 +175,59 @@ def true_defocus_um(device, effects: dict) -> float:
     return 1e3 * defocus(device) + float(effects.get("focus_shift", {}).get("dz_um", 0.0))
 
 
-def judged(put: dict, added: list, defocus_um: float | None, true_um: float) -> tuple[set, set]:
-    """(named, false) of a case: the effects put in that the loop named
-    (added, or for a focus shift, a reported defocus within 30 % of the
-    shift or 1.5 µm of the truth) and those it got wrong without their
-    being put in (added, or a defocus off by more than
-    :data:`FALSE_DEFOCUS_UM`)."""
+def true_surface(device, sensor, effects: dict) -> dict:
+    """The device's sensor against its lens's best focus over the frame
+    with the effects put in, as :func:`calibration.loop.closure.sensor_surface`
+    measures a fitted lens: the lens's own
+    (:func:`calibration.optics.spot.defocus_map`: a device drawn within
+    tolerance tilts and bends its image surface by itself) plus the Δz of
+    each optical effect put in (:data:`calibration.simulate.injected.INJECTIONS`)."""
+    from calibration.loop.closure import fit_surface, surface_points
+    from calibration.optics.spot import defocus_map
+    from calibration.simulate.injected import INJECTIONS
+
+    pts = surface_points(sensor)
+    half = 0.5e-3 * sensor.pixel_pitch_um * math.hypot(sensor.width_px, sensor.height_px)
+    d = defocus_map(device, pts)
+    for name, params in effects.items():
+        make, where, _ = INJECTIONS.get(name, (None, "", None))
+        if where == "optics":
+            d = d + make(**params)(pts[:, 0], pts[:, 1], half)
+    return fit_surface(pts, d, half)
+
+
+#: how far a reported quantity may lie from the truth and still name the effect that moves it: this
+#: share of the magnitude put in, or of the smallest magnitude :data:`RANGES` puts in
+NAMED_SHARE = 0.3
+#: a tilt (degree) and a curvature (µm at the corner) reported further than this from the truth,
+#: where none was put in, are false: the smallest :data:`RANGES` puts in
+FALSE_TILT_DEG = RANGES["sensor_tilt"]["tilt_y_deg"][0]
+FALSE_CURVATURE_UM = RANGES["field_curvature"]["dz_corner_um"][0]
+
+
+def judged(put: dict, added: list, defocus_um: float | None, true_um: float,
+           surface: dict | None = None, true_surf: dict | None = None) -> tuple[set, set]:
+    """(named, false) of a case: the effects put in that the loop named and
+    those it got wrong without their being put in.
+
+    An effect is named when the loop added it, or when what the loop
+    reports of the module carries it: a focus shift, a reported defocus
+    within 30 % of the shift or 1.5 µm of the truth; a sensor tilt and a
+    field curvature, a reported sensor surface (``surface``,
+    :func:`calibration.loop.closure.sensor_surface`, against ``true_surf``,
+    :func:`true_surface`) whose tilt (both axes) or corner curvature lies
+    within :data:`NAMED_SHARE` of the magnitude put in (or of the smallest
+    one :data:`RANGES` puts in) of the truth. The lens base takes these up
+    by moving its own image surface; what the SFR fixes is where the sensor
+    lies against it. False: added, or a defocus, tilt or curvature
+    reported further from the truth than :data:`FALSE_DEFOCUS_UM`,
+    :data:`FALSE_TILT_DEG` or :data:`FALSE_CURVATURE_UM` where none was put in.
+
+    >>> surf = {"defocus_um": 0.0, "tilt_x_deg": 0.01, "tilt_y_deg": 0.21, "curvature_um": 1.0}
+    >>> true = {"defocus_um": 0.0, "tilt_x_deg": 0.0, "tilt_y_deg": 0.2, "curvature_um": 6.0}
+    >>> judged({"sensor_tilt": {"tilt_x_deg": 0.0, "tilt_y_deg": 0.1}}, [], 0.0, 0.0, surf, true)
+    ({'sensor_tilt'}, {'field_curvature'})
+    """
     named = set(put) & set(added)
     false = set(added) - set(put)
     off = None if defocus_um is None else abs(defocus_um - true_um)
@@ -173,17 +236,41 @@ def judged(put: dict, added: list, defocus_um: float | None, true_um: float) -> 
         named.add("focus_shift")
     if dz is None and off is not None and off > FALSE_DEFOCUS_UM:
         false.add("focus_shift")
+    if surface is None or true_surf is None:
+        return named, false
+    tilt_off = math.hypot(surface["tilt_x_deg"] - true_surf["tilt_x_deg"], surface["tilt_y_deg"] - true_surf["tilt_y_deg"])
+    curv_off = abs(surface["curvature_um"] - true_surf["curvature_um"])
+    for name, off, put_mag, false_at in (
+            ("sensor_tilt", tilt_off, lambda p: math.hypot(p["tilt_x_deg"], p["tilt_y_deg"]), FALSE_TILT_DEG),
+            ("field_curvature", curv_off, lambda p: abs(p["dz_corner_um"]), FALSE_CURVATURE_UM)):
+        if name in put and off <= NAMED_SHARE * max(put_mag(put[name]), false_at):
+            named.add(name)
+        if name not in put and off > false_at:
+            false.add(name)
     return named, false
 
 
+def rejudge(c: dict) -> dict:
+    """A recorded case judged again by :func:`judged` from what it
+    recorded (a record made before the sensor surface was reported is
+    judged without it)."""
+    put = {e: p for e, p in c["effects"].items() if e not in OUTSIDE_RANGES}
+    right, false = judged(c["effects"], c["effects_added"], c.get("defocus_um"), c["true_defocus_um"],
+                          c.get("sensor_surface"), c.get("true_surface"))
+    return {**c, "right": sorted(right), "missed": sorted(set(put) - right), "false": sorted(false)}
+
+
 def run_case(case: dict, log) -> dict:
-    lens_path, obs, what, truth = capture(case, log)
+    lens_path, obs, what, truth, surface = capture(case, log)
     rep, wall = run_loop(lens_path, obs)
     put = set(case["effects"]) - set(OUTSIDE_RANGES)
-    right, false = judged(case["effects"], rep.effects_added, rep.defocus_um, truth)
+    right, false = judged(case["effects"], rep.effects_added, rep.defocus_um, truth, rep.sensor_surface, surface)
     return {**case, "device": what, "edges": len(obs), "effects_added": list(rep.effects_added),
             "defocus_um": None if rep.defocus_um is None else round(rep.defocus_um, 2),
             "true_defocus_um": round(truth, 2),
+            "sensor_surface": None if rep.sensor_surface is None else
+            {k: round(v, 4) for k, v in rep.sensor_surface.items()},
+            "true_surface": {k: round(v, 4) for k, v in surface.items()},
             "effect_values": rep.effect_values, "right": sorted(right), "missed": sorted(put - right),
             "false": sorted(false), "error_before": rep.error_before["sfra_rms"],
             "error_after": rep.error_after["sfra_rms"], "noise_floor": rep.noise_floor,
@@ -219,6 +306,7 @@ def summarise(cases: list[dict]) -> dict:
     return {"cases": len(cases), "per_effect": per, "outside_registry": outside, "false_additions": false,
             "clean_cases": len(clean), "clean_given_an_effect": sum(bool(c["effects_added"]) for c in clean),
             "all_right": sum(not c["missed"] and not c["false"] for c in cases),
+            "with_sensor_surface": sum(c.get("sensor_surface") is not None for c in cases),
             "after_over_floor_median": round(float(np.median(ratio)), 3) if ratio else None,
             "after_over_floor_max": round(float(np.max(ratio)), 3) if ratio else None,
             "wall_s_median": round(float(np.median([c["wall_s"] for c in cases])), 1) if cases else None,
@@ -255,13 +343,19 @@ def main(argv=None) -> dict:
         log(f"case {k} ({rec['lens']}): put in {', '.join(rec['effects']) or 'nothing'}; added "
             f"{', '.join(rec['effects_added']) or 'nothing'}; after/floor {rec['after_over_floor']:.2f}; "
             f"{rec['wall_s']} s")
-    cases = [json.loads(p.read_text()) for p in sorted(parts.glob("case_*.json"))]
+    cases = [rejudge(json.loads(p.read_text())) for p in sorted(parts.glob("case_*.json"))]
     summary = summarise(cases)
     log(json.dumps(summary["per_effect"]))
     # the record is the parts', whichever run wrote them: its command is the plain one, which resumes
     return _harness.publish("loop_suite", {"size": list(SIZE), "seed0": SEED0, "ranges": RANGES,
                                            "outside_ranges": OUTSIDE_RANGES, "summary": summary,
                                            "cases": [row(c) for c in cases]}, args, [])
+
+
+def _against(c: dict, key: str, fmt: str) -> str:
+    """A reported sensor-surface term with the truth in brackets, or "-"."""
+    s, t = c.get("sensor_surface"), c.get("true_surface")
+    return "-" if not s or not t else f"{fmt.format(s[key] + 0.0)} ({fmt.format(t[key] + 0.0)})"
 
 
 def row(c: dict) -> dict:
@@ -275,6 +369,8 @@ def row(c: dict) -> dict:
             "false": ", ".join(c["false"]) or "-",
             "defocus µm (true)": "-" if c.get("defocus_um") is None else
             f"{round(c['defocus_um'], 1) + 0.0:+.1f} ({round(c['true_defocus_um'], 1) + 0.0:+.1f})",
+            "tilt about y ° (true)": _against(c, "tilt_y_deg", "{:+.3f}"),
+            "curvature µm (true)": _against(c, "curvature_um", "{:+.1f}"),
             "SFRA RMS before": round(c["error_before"], 4),
             "after": round(c["error_after"], 4), "floor": round(c["noise_floor"], 4),
             "after / floor": round(c["after_over_floor"], 2), "wall s": c["wall_s"],

@@ -304,6 +304,20 @@ class LensBase:
             self._focus_nominal = best_focus(self.nominal)
         return 1e3 * defocus(self.lens(xb), self._focus_nominal)
 
+    def defocus_map_um(self, xb, points_mm) -> np.ndarray:
+        """:meth:`defocus_um` at image points (N, 2) mm
+        (:func:`calibration.optics.spot.defocus_map`), µm; the design's
+        foci at those points are kept for the next call."""
+        from calibration.optics.spot import best_focus, defocus_map
+        from calibration.optics.psf.map import chief_ray_fields
+
+        pts = np.asarray(points_mm, float).reshape(-1, 2)
+        key = pts.tobytes()
+        if getattr(self, "_foci_key", None) != key:
+            self._foci = [best_focus(self.nominal, f) for f in chief_ray_fields(self.nominal, pts)]
+            self._foci_key = key
+        return 1e3 * defocus_map(self.lens(xb), pts, self._foci)
+
     def with_settings(self, settings) -> LensBase:
         """The same base (lens, observations, parameters) evaluated by a
         model of other ``settings`` (e.g. the fitter's cheaper Jacobian

@@ -72,6 +72,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -111,6 +112,7 @@ class LoopReport:
     asymmetry: dict | None = None                                   # :func:`asymmetry_check`
     steps_s: dict = field(default_factory=dict)    # wall seconds by step: base, noise, trials, refits
     defocus_um: float | None = None                 # :func:`sensor_defocus_um` of the final model
+    sensor_surface: dict | None = None              # :func:`sensor_surface` of the final model
 
     def kept_effects(self) -> list[dict]:
         """The effects kept, in order, with their fitted values: the
@@ -137,7 +139,8 @@ class LoopReport:
                 "effects_added": list(self.effects_added), "effect_values": self.effect_values,
                 "confidence": self.confidence(),
                 "tried": self.tried, "error_before": self.error_before, "error_after": self.error_after,
-                "noise_floor": self.noise_floor, "defocus_um": self.defocus_um, "unexplained": self.unexplained,
+                "noise_floor": self.noise_floor, "defocus_um": self.defocus_um,
+                "sensor_surface": self.sensor_surface, "unexplained": self.unexplained,
                 "decomposition_before": self.decomposition_before,
                 "decomposition_after": self.decomposition_after, "asymmetry": self.asymmetry,
                 "seconds": round(self.seconds, 1), "seconds_by_step": {k: round(v, 1) for k, v in self.steps_s.items()}}
@@ -471,6 +474,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     unexplained = _unexplained(prob, pred1, obs, d_after, noise_floor, stop_ratio)
     asym = asymmetry_check(base, prob, p, stop_ratio)
     defocus = sensor_defocus_um(base, xb, zip(prob.effects, xe))
+    surface = sensor_surface(base, xb, zip(prob.effects, xe))
     if asym is not None and not asym["explained"]:
         unexplained.append(
             f"LSF asymmetry the model does not make: χ² {asym['chi2_per_term']:.1f} per term (noise: 1); measured A "
@@ -479,7 +483,7 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
     return LoopReport(base.description, tuple(base.names), xb, kept, values, tried, before, after, noise_floor,
                       unexplained, dec_before, _decompose(obs, d_after), time.perf_counter() - t0,
                       np.asarray(obs.sfra), pred0.sfra + prob.bias_a, pred1.sfra + prob.bias_a, x_before,
-                      asymmetry=asym, steps_s=steps, defocus_um=defocus)
+                      asymmetry=asym, steps_s=steps, defocus_um=defocus, sensor_surface=surface)
 
 
 def sensor_defocus_um(base, xb, effects) -> float | None:
@@ -497,6 +501,80 @@ def sensor_defocus_um(base, xb, effects) -> float | None:
         if d is not None:
             dz += 1e3 * float(np.mean(d))
     return float(dz)
+
+
+#: where :func:`sensor_surface` samples the sensor: fractions of the frame's half width and height
+SURFACE_GRID = (-0.8, -0.4, 0.0, 0.4, 0.8)
+
+
+def surface_points(sensor) -> np.ndarray:
+    """(25, 2) image points, mm (+y down the array, as the traces' image
+    plane, :func:`calibration.optics.psf.map.sensor_to_image`): the
+    :data:`SURFACE_GRID` over the frame of ``sensor``."""
+    half = 0.5e-3 * sensor.pixel_pitch_um * np.array([sensor.width_px, sensor.height_px], float)
+    gx, gy = np.meshgrid(SURFACE_GRID, SURFACE_GRID)
+    return np.stack([gx.ravel(), gy.ravel()], axis=1) * half
+
+
+def fit_surface(points_mm, defocus_mm, half_diagonal_mm: float) -> dict:
+    """The sensor's defocus over the frame as the registry's three optical
+    effects describe it, by least squares: ``d(x, y) = d₀ + y·tan θx + x·tan
+    θy + c·(r/r_corner)²`` (:class:`~calibration.loop.effects.FocusShift`,
+    :class:`~calibration.loop.effects.SensorTilt`,
+    :class:`~calibration.loop.effects.FieldCurvature`).
+
+    Returns ``defocus_um`` (d₀), ``tilt_x_deg``, ``tilt_y_deg``,
+    ``curvature_um`` (c, at the corner) and ``rms_left_um`` (what the
+    three terms leave).
+
+    >>> pts = np.array([(x, y) for x in (-1.0, 0.0, 1.0) for y in (-1.0, 0.0, 1.0)])
+    >>> d = 0.002 + pts[:, 0] * np.tan(np.radians(0.1)) + 0.004 * (pts ** 2).sum(1) / 2.0
+    >>> {k: round(v, 3) for k, v in fit_surface(pts, d, 2 ** 0.5).items()}
+    {'defocus_um': 2.0, 'tilt_x_deg': 0.0, 'tilt_y_deg': 0.1, 'curvature_um': 4.0, 'rms_left_um': 0.0}
+    """
+    p = np.asarray(points_mm, float)
+    d = 1e3 * np.asarray(defocus_mm, float)
+    a = np.stack([np.ones(len(p)), p[:, 1], p[:, 0], (p ** 2).sum(axis=1) / half_diagonal_mm ** 2], axis=1)
+    c, *_ = np.linalg.lstsq(a, d, rcond=None)
+    return {"defocus_um": float(c[0]), "tilt_x_deg": float(np.degrees(np.arctan(1e-3 * c[1]))),
+            "tilt_y_deg": float(np.degrees(np.arctan(1e-3 * c[2]))), "curvature_um": float(c[3]),
+            "rms_left_um": float(np.sqrt(np.mean((d - a @ c) ** 2)))}
+
+
+def sensor_surface(base, xb, effects) -> dict | None:
+    """Where the sensor lies against the fitted lens's best focus over the
+    frame (:func:`fit_surface` of the lens base's
+    :meth:`~calibration.loop.base.LensBase.defocus_map_um` plus what the
+    kept ``effects``, (Effect, parameters) pairs, put there), at
+    :func:`surface_points`. A lens base can take up a tilted or curved
+    sensor by tilting and bending its own image surface (the SFR sees only
+    the difference, as it sees only the defocus of a shifted sensor): this
+    is the module's tilt and curvature whichever of the two carries them.
+    None for a base without a lens."""
+    if not hasattr(base, "defocus_map_um"):
+        return None
+    pts = surface_points(base.obs.sensor)
+    half = 0.5e-3 * base.obs.sensor.pixel_pitch_um * math.hypot(base.obs.sensor.width_px, base.obs.sensor.height_px)
+    r = np.hypot(pts[:, 0], pts[:, 1]) / half
+    geom = dataclasses.replace(base.geometry, x_mm=pts[:, 0], y_mm=pts[:, 1], node_r=r)
+    d = 1e-3 * base.defocus_map_um(xb, pts)
+    for e, x in effects:
+        dz = e.defocus_mm(x, geom)
+        if dz is not None:
+            dz = np.asarray(dz, float)
+            d = d + (dz.mean(axis=1) if dz.ndim == 2 else dz)
+    return fit_surface(pts, d, half)
+
+
+def surface_text(surface: dict) -> str:
+    """One line for a :func:`fit_surface` result.
+
+    >>> surface_text({"defocus_um": 2.0, "tilt_x_deg": 0.0, "tilt_y_deg": 0.1, "curvature_um": 4.0,
+    ...               "rms_left_um": 0.5})
+    'tilt 0.000° about x, 0.100° about y; curvature +4.0 µm at the corner (0.5 µm RMS beyond these)'
+    """
+    return (f"tilt {surface['tilt_x_deg']:.3f}° about x, {surface['tilt_y_deg']:.3f}° about y; curvature "
+            f"{surface['curvature_um']:+.1f} µm at the corner ({surface['rms_left_um']:.1f} µm RMS beyond these)")
 
 
 def _visible(e, base) -> bool:
@@ -746,6 +824,10 @@ def write_report(report: LoopReport, obs, directory) -> dict:
     if report.defocus_um is not None:
         lines += [f"Sensor defocus on axis: {report.defocus_um:+.1f} µm (+: beyond the lens's best focus, "
                   "against the design's own focus)", ""]
+    if report.sensor_surface is not None:
+        lines += [f"Sensor against the lens's best focus over the frame: {surface_text(report.sensor_surface)} "
+                  "(a tilt or curvature of the lens's image surface and of the sensor look the same to the SFR)",
+                  ""]
     lines += ["| metric | before | after |", "|---|---|---|"]
     for k, v in report.error_before.items():
         after = report.error_after.get(k, float("nan"))
@@ -877,6 +959,8 @@ def summary(rep: LoopReport) -> str:
     lines.append(f"base: {base}")
     if rep.defocus_um is not None:
         lines.append(f"sensor defocus on axis: {rep.defocus_um:+.1f} µm (+: beyond the lens's best focus)")
+    if rep.sensor_surface is not None:
+        lines.append(f"sensor against the lens's best focus: {surface_text(rep.sensor_surface)}")
     lines += [f"left: {u}" for u in rep.unexplained[:1]]
     d = rep.decomposition_after.get("direction", {})   # measured − final model, by edge direction
     if len(d) == 2 and abs(d["vertical"] - d["horizontal"]) > 2 * rep.noise_floor:

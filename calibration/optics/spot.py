@@ -205,6 +205,54 @@ def defocus(lens: Lens | PerturbedLens, focus_nominal: float | None = None, **kw
     return focus_nominal - best_focus(lens, **kw)
 
 
+def defocus_map(lens: Lens | PerturbedLens, points_mm, foci_nominal=None, **kw) -> np.ndarray:
+    """:func:`defocus` at image points: how far a flat sensor at the
+    design's image plane lies beyond the lens's RMS best focus at each
+    point, mm (+: away from the lens), against the design's own best focus
+    there (its field curvature and astigmatism are the design's, not the
+    device's). Each point is reached at the field whose real chief ray
+    lands on it in the design (:func:`calibration.optics.psf.map.chief_ray_fields`).
+
+    Parameters
+    ----------
+    lens : Lens or PerturbedLens
+    points_mm : (N, 2) array_like
+        Image-plane (x, y), mm, in the convention of the lens's traces.
+    foci_nominal : (N,) array_like, optional
+        The design's :func:`best_focus` at those points, where already known.
+    **kw
+        Passed on to :func:`best_focus`.
+
+    Returns
+    -------
+    (N,) ndarray, mm
+
+    Example
+    -------
+    A decentred element tilts the image plane: the defocus differs by
+    field side, where the design's is the same on both.
+
+    >>> from calibration.optics.lens import Surface
+    >>> from calibration.optics.materials import Material
+    >>> g = Material("g", 1.5, 60.0)
+    >>> lens = Lens((Surface(0.1, thickness=2.0, material=g, semi_diameter=2.0, stop=True),
+    ...              Surface(-0.1, thickness=9.0, semi_diameter=2.0)), epd=2.0)
+    >>> pts = [(-0.5, 0.0), (0.5, 0.0)]
+    >>> [round(1e3 * float(d), 1) for d in defocus_map(lens, pts)]
+    [0.0, 0.0]
+    >>> left, right = defocus_map(apply(lens, {"e1.decenter_x": 0.05}), pts)
+    >>> round(1e3 * float(right - left), 1)
+    9.4
+    """
+    from calibration.optics.psf.map import chief_ray_fields
+
+    design = nominal(lens).nominal
+    fields = chief_ray_fields(design, np.asarray(points_mm, float).reshape(-1, 2))
+    if foci_nominal is None:
+        foci_nominal = [best_focus(design, f, **kw) for f in fields]
+    return np.array([f0 - best_focus(lens, f, **kw) for f0, f in zip(foci_nominal, fields)])
+
+
 def refocus(lens: PerturbedLens, method: str = "rms", **kw) -> PerturbedLens:
     """Re-set the image distance of a perturbed lens as assembly does
     (focus is adjusted, not toleranced): the last thickness changes by the

@@ -80,6 +80,32 @@ def test_the_sensor_defocus_is_the_last_gap_where_nothing_else_moves_focus(lens_
     assert sensor_defocus_um(base, x, effects) == pytest.approx(tilted + 4.0, abs=1e-9)
 
 
+def test_the_sensor_surface_is_the_registry_optics_and_the_lens_image_surface(lens_base):
+    """The reported sensor surface: on the design, the optical effects kept
+    come back exactly as their parameters (focus shift, tilt about x and y,
+    curvature at the corner); a decentred element tilts the lens's own image
+    surface, and moving the sensor (the last gap) then moves the defocus by
+    exactly its Δz everywhere, leaving tilt and curvature as they were."""
+    from calibration.fit.proxy import FOCUS_TOLERANCE_MM, focus_name
+    from calibration.loop.base import LensBase
+    from calibration.loop.closure import sensor_surface
+    from calibration.loop.effects import create_effect
+
+    base = LensBase(lens_base.nominal, lens_base.obs, names=[focus_name(lens_base.nominal), NAMES[0]])
+    effects = [(create_effect("focus_shift"), [4.0]), (create_effect("sensor_tilt"), [0.2, -0.3]),
+               (create_effect("field_curvature"), [6.0])]
+    got = sensor_surface(base, [0.0, 0.0], effects)
+    want = {"defocus_um": 4.0, "tilt_x_deg": 0.2, "tilt_y_deg": -0.3, "curvature_um": 6.0, "rms_left_um": 0.0}
+    assert got == pytest.approx(want, abs=1e-6)
+    tilted = sensor_surface(base, [0.0, 1.5], [])
+    assert abs(tilted["tilt_x_deg"]) + abs(tilted["tilt_y_deg"]) > 0.01
+    u = 1e-3 * 7.0 / FOCUS_TOLERANCE_MM
+    moved = sensor_surface(base, [u, 1.5], [])
+    assert moved["defocus_um"] - tilted["defocus_um"] == pytest.approx(7.0, abs=1e-6)
+    for k in ("tilt_x_deg", "tilt_y_deg", "curvature_um"):
+        assert moved[k] == pytest.approx(tilted[k], abs=1e-6)
+
+
 def test_a_lens_base_travels_to_a_worker_without_its_caches(lens_base):
     """Pickled (a worker's payload), a lens base is rebuilt from its lens,
     observations and settings: a few hundred kB where its model's caches
