@@ -252,8 +252,11 @@ def judged(put: dict, added: list, defocus_um: float | None, true_um: float,
 
 def rejudge(c: dict) -> dict:
     """A recorded case judged again by :func:`judged` from what it
-    recorded (a record made before the sensor surface was reported is
-    judged without it)."""
+    recorded: a record without the sensor surface is judged without it, one
+    without the true defocus (focus shifts then judged by the fitted last
+    gap) keeps its own verdict."""
+    if "true_defocus_um" not in c:
+        return c
     put = {e: p for e, p in c["effects"].items() if e not in OUTSIDE_RANGES}
     right, false = judged(c["effects"], c["effects_added"], c.get("defocus_um"), c["true_defocus_um"],
                           c.get("sensor_surface"), c.get("true_surface"))
