@@ -280,8 +280,10 @@ def run_case(case: dict, log) -> dict:
             "after_over_floor": rep.error_after["sfra_rms"] / rep.noise_floor,
             "chi2_after": rep.error_after["chi2_per_obs"], "unexplained": rep.unexplained,
             "wall_s": round(wall, 1), "seconds_by_step": {k: round(v, 1) for k, v in rep.steps_s.items()},
+            "confidence": rep.confidence(),
             # every candidate tried in every round, so that a missed effect's fit can be read
             "trials": [{"effect": t["effect"], "round": t["round"], "gain": round(float(t["gain"]), 4),
+                        **{k: t[k] for k in ("z", "folds_improved") if k in t},
                         "values": {k: round(float(v), 4) for k, v in t["values"].items()},
                         "consistent": bool(t["consistent"]),
                         **({"joint_gain": round(float(t["joint_gain"]), 4), "joint_chi2": round(float(t["joint_chi2"]), 3)}
