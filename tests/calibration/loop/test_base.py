@@ -52,6 +52,10 @@ def test_close_loop_fits_from_the_start(lens_base, monkeypatch):
     rep = loop.close_loop(lens_base, lens_base.obs, effects=[], executor=pool_executor(None))
     np.testing.assert_allclose(rep.base_x_before, U_TRUE)     # no polish: the base is where start() put it
     assert rep.defocus_um == pytest.approx(lens_base.defocus_um(U_TRUE)) and rep.to_dict()["defocus_um"] == rep.defocus_um
+    surface = loop.sensor_surface(lens_base, U_TRUE, [])
+    assert rep.sensor_surface == pytest.approx(surface) and rep.to_dict()["sensor_surface"] == rep.sensor_surface
+    assert rep.sensor_surface["defocus_um"] == pytest.approx(rep.defocus_um, abs=2.0)   # the plane's constant
+    assert loop.surface_text(surface) in loop.summary(rep)
     assert seen == []
     monkeypatch.setattr(loop, "START_POLISH", 1)                # a polish starts there too
     loop.close_loop(lens_base, lens_base.obs, effects=[], executor=pool_executor(None))
