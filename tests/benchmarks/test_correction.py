@@ -52,7 +52,7 @@ def test_the_profile_counts_the_conv_of_a_one_conv_model_as_its_convolutions(tmp
     ONNX Runtime's layout reorder around it."""
     from tests.helpers import onnx_select_rgb
 
-    p = bc.op_shares(onnx_select_rgb(tmp_path / "sel.onnx"), 1, 64, runs=2)
+    p = bc.op_shares(onnx_select_rgb(tmp_path / "sel.onnx"), 1, 768, runs=2)
     assert p["conv_ms"] > 0
     assert p["conv_ms"] == pytest.approx(p["ms"] * p["percent"]["Conv"] / 100, rel=0.05, abs=0.05)
     assert set(p["percent"]) <= {"Conv", "ReorderInput", "ReorderOutput"}
