@@ -45,11 +45,11 @@ the sensor surface the loop reports
 (:func:`calibration.loop.closure.sensor_surface`: the defocus over the
 frame, fitted by a plane and a term in r²) against the device's
 (:func:`true_surface`, the same fit of its lens's surface plus the sensor
-put in): named within 30 % of the tilt or curvature put in, false where
-none was put in and the report is further from the truth than the
-smallest put in (:data:`FALSE_TILT_DEG`, :data:`FALSE_CURVATURE_UM`).
-Records made before the surface was reported are judged without it
-(:func:`rejudge` judges every record again with the rule as it is).
+put in): named within 30 % of the tilt or curvature put in (or of the
+smallest put in), false where none was put in and the report is further
+from the truth than the smallest put in (:data:`FALSE_TILT_DEG`,
+:data:`FALSE_CURVATURE_UM`). :func:`rejudge` judges every record by the
+rule as it is; a record without the surface is judged without it.
 
 Lateral colour is left out: the loop measures a capture's edges on the
 mosaic's green plane, which a shift of the red and blue planes does not
@@ -251,10 +251,10 @@ def judged(put: dict, added: list, defocus_um: float | None, true_um: float,
 
 
 def rejudge(c: dict) -> dict:
-    """A recorded case judged again by :func:`judged` from what it
-    recorded: a record without the sensor surface is judged without it, one
-    without the true defocus (focus shifts then judged by the fitted last
-    gap) keeps its own verdict."""
+    """A case judged by :func:`judged` from what it records: ``right``,
+    ``missed`` and ``false`` set. A record without the sensor surface is
+    judged without it; one without the true defocus (its focus shifts
+    judged by the fitted last gap) keeps its own verdict."""
     if "true_defocus_um" not in c:
         return c
     put = {e: p for e, p in c["effects"].items() if e not in OUTSIDE_RANGES}
@@ -266,16 +266,13 @@ def rejudge(c: dict) -> dict:
 def run_case(case: dict, log) -> dict:
     lens_path, obs, what, truth, surface = capture(case, log)
     rep, wall = run_loop(lens_path, obs)
-    put = set(case["effects"]) - set(OUTSIDE_RANGES)
-    right, false = judged(case["effects"], rep.effects_added, rep.defocus_um, truth, rep.sensor_surface, surface)
-    return {**case, "device": what, "edges": len(obs), "effects_added": list(rep.effects_added),
+    return rejudge({**case, "device": what, "edges": len(obs), "effects_added": list(rep.effects_added),
             "defocus_um": None if rep.defocus_um is None else round(rep.defocus_um, 2),
             "true_defocus_um": round(truth, 2),
             "sensor_surface": None if rep.sensor_surface is None else
             {k: round(v, 4) for k, v in rep.sensor_surface.items()},
             "true_surface": {k: round(v, 4) for k, v in surface.items()},
-            "effect_values": rep.effect_values, "right": sorted(right), "missed": sorted(put - right),
-            "false": sorted(false), "error_before": rep.error_before["sfra_rms"],
+            "effect_values": rep.effect_values, "error_before": rep.error_before["sfra_rms"],
             "error_after": rep.error_after["sfra_rms"], "noise_floor": rep.noise_floor,
             "after_over_floor": rep.error_after["sfra_rms"] / rep.noise_floor,
             "chi2_after": rep.error_after["chi2_per_obs"], "unexplained": rep.unexplained,
@@ -287,7 +284,7 @@ def run_case(case: dict, log) -> dict:
                         "values": {k: round(float(v), 4) for k, v in t["values"].items()},
                         "consistent": bool(t["consistent"]),
                         **({"joint_gain": round(float(t["joint_gain"]), 4), "joint_chi2": round(float(t["joint_chi2"]), 3)}
-                           if "joint_gain" in t else {})} for t in rep.tried]}
+                           if "joint_gain" in t else {})} for t in rep.tried]})
 
 
 def summarise(cases: list[dict]) -> dict:
