@@ -186,8 +186,7 @@ def true_surface(device, sensor, effects: dict) -> dict:
     from calibration.optics.spot import defocus_map
     from calibration.simulate.injected import INJECTIONS
 
-    pts = surface_points(sensor)
-    half = 0.5e-3 * sensor.pixel_pitch_um * math.hypot(sensor.width_px, sensor.height_px)
+    pts, half = surface_points(sensor)
     d = defocus_map(device, pts)
     for name, params in effects.items():
         make, where, _ = INJECTIONS.get(name, (None, "", None))

@@ -307,15 +307,13 @@ class LensBase:
     def defocus_map_um(self, xb, points_mm) -> np.ndarray:
         """:meth:`defocus_um` at image points (N, 2) mm
         (:func:`calibration.optics.spot.defocus_map`), µm; the design's
-        foci at those points are kept for the next call."""
-        from calibration.optics.spot import best_focus, defocus_map
-        from calibration.optics.psf.map import chief_ray_fields
+        reference there (:func:`~calibration.optics.spot.design_foci`) is
+        kept for the next call at the same points."""
+        from calibration.optics.spot import defocus_map, design_foci
 
         pts = np.asarray(points_mm, float).reshape(-1, 2)
-        key = pts.tobytes()
-        if getattr(self, "_foci_key", None) != key:
-            self._foci = [best_focus(self.nominal, f) for f in chief_ray_fields(self.nominal, pts)]
-            self._foci_key = key
+        if getattr(self, "_foci_key", None) != pts.tobytes():
+            self._foci, self._foci_key = design_foci(self.nominal, pts), pts.tobytes()
         return 1e3 * defocus_map(self.lens(xb), pts, self._foci)
 
     def with_settings(self, settings) -> LensBase:

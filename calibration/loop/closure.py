@@ -72,7 +72,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -507,13 +506,14 @@ def sensor_defocus_um(base, xb, effects) -> float | None:
 SURFACE_GRID = (-0.8, -0.4, 0.0, 0.4, 0.8)
 
 
-def surface_points(sensor) -> np.ndarray:
+def surface_points(sensor) -> tuple[np.ndarray, float]:
     """(25, 2) image points, mm (+y down the array, as the traces' image
     plane, :func:`calibration.optics.psf.map.sensor_to_image`): the
-    :data:`SURFACE_GRID` over the frame of ``sensor``."""
+    :data:`SURFACE_GRID` over the frame of ``sensor``; and the frame's
+    half diagonal, mm (where :func:`fit_surface` puts the corner)."""
     half = 0.5e-3 * sensor.pixel_pitch_um * np.array([sensor.width_px, sensor.height_px], float)
     gx, gy = np.meshgrid(SURFACE_GRID, SURFACE_GRID)
-    return np.stack([gx.ravel(), gy.ravel()], axis=1) * half
+    return np.stack([gx.ravel(), gy.ravel()], axis=1) * half, float(np.hypot(*half))
 
 
 def fit_surface(points_mm, defocus_mm, half_diagonal_mm: float) -> dict:
@@ -553,8 +553,7 @@ def sensor_surface(base, xb, effects) -> dict | None:
     None for a base without a lens."""
     if not hasattr(base, "defocus_map_um"):
         return None
-    pts = surface_points(base.obs.sensor)
-    half = 0.5e-3 * base.obs.sensor.pixel_pitch_um * math.hypot(base.obs.sensor.width_px, base.obs.sensor.height_px)
+    pts, half = surface_points(base.obs.sensor)
     r = np.hypot(pts[:, 0], pts[:, 1]) / half
     geom = dataclasses.replace(base.geometry, x_mm=pts[:, 0], y_mm=pts[:, 1], node_r=r)
     d = 1e-3 * base.defocus_map_um(xb, pts)

@@ -205,7 +205,19 @@ def defocus(lens: Lens | PerturbedLens, focus_nominal: float | None = None, **kw
     return focus_nominal - best_focus(lens, **kw)
 
 
-def defocus_map(lens: Lens | PerturbedLens, points_mm, foci_nominal=None, **kw) -> np.ndarray:
+def design_foci(lens: Lens | PerturbedLens, points_mm, **kw) -> tuple[np.ndarray, list]:
+    """The reference :func:`defocus_map` measures against: the fields
+    (θx, θy) whose real chief rays land on image points (N, 2) mm in the
+    design (:func:`calibration.optics.psf.map.chief_ray_fields`), and the
+    design's :func:`best_focus` there (``**kw`` passed on), mm."""
+    from calibration.optics.psf.map import chief_ray_fields
+
+    design = nominal(lens).nominal
+    fields = chief_ray_fields(design, np.asarray(points_mm, float).reshape(-1, 2))
+    return fields, [best_focus(design, f, **kw) for f in fields]
+
+
+def defocus_map(lens: Lens | PerturbedLens, points_mm, reference=None, **kw) -> np.ndarray:
     """:func:`defocus` at image points: how far a flat sensor at the
     design's image plane lies beyond the lens's RMS best focus at each
     point, mm (+: away from the lens), against the design's own best focus
@@ -218,8 +230,8 @@ def defocus_map(lens: Lens | PerturbedLens, points_mm, foci_nominal=None, **kw) 
     lens : Lens or PerturbedLens
     points_mm : (N, 2) array_like
         Image-plane (x, y), mm, in the convention of the lens's traces.
-    foci_nominal : (N,) array_like, optional
-        The design's :func:`best_focus` at those points, where already known.
+    reference : (fields, foci), optional
+        :func:`design_foci` of those points, where already known.
     **kw
         Passed on to :func:`best_focus`.
 
@@ -244,13 +256,8 @@ def defocus_map(lens: Lens | PerturbedLens, points_mm, foci_nominal=None, **kw) 
     >>> round(1e3 * float(right - left), 1)
     9.4
     """
-    from calibration.optics.psf.map import chief_ray_fields
-
-    design = nominal(lens).nominal
-    fields = chief_ray_fields(design, np.asarray(points_mm, float).reshape(-1, 2))
-    if foci_nominal is None:
-        foci_nominal = [best_focus(design, f, **kw) for f in fields]
-    return np.array([f0 - best_focus(lens, f, **kw) for f0, f in zip(foci_nominal, fields)])
+    fields, foci = design_foci(lens, points_mm, **kw) if reference is None else reference
+    return np.array([f0 - best_focus(lens, f, **kw) for f0, f in zip(foci, fields)])
 
 
 def refocus(lens: PerturbedLens, method: str = "rms", **kw) -> PerturbedLens:
