@@ -23,7 +23,8 @@ captures over √2 on the edges both hold:
 
 A model that matched the simulator exactly would score 1 on each; the gap
 is the model's own error, the floor under any fit and under every effect the
-loop tries to detect. ``--window-um``, ``--wavelengths`` and
+loop tries to detect. ``--window-um`` (or ``--psf-map-window``, the
+loop's base's), ``--wavelengths`` and
 ``--noise-realisations`` set the model's PSF window, Gauss nodes per channel
 and the noisy renders of its bias (default: the fitter's), so that what each
 difference from the simulator costs can be measured.
@@ -38,6 +39,7 @@ Prints one JSON object as the last line. Usage::
 
     python -m benchmarks.forward_fidelity [--lenses e1 e2 e9 e11] [--seed 5] [--size 2000 1500]
     python -m benchmarks.forward_fidelity --label simulator_psf --window-um 45 --wavelengths 3
+    python -m benchmarks.forward_fidelity --label loop --psf-map-window
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ import time  # noqa: E402
 
 from benchmarks.capture_roundtrip import capture_pair, fidelity  # noqa: E402
 from calibration.fit.forward_model import ModelSettings  # noqa: E402
+from calibration.loop.base import psf_map_window_um  # noqa: E402
 from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
 from isp.runtime.executor import pool_executor  # noqa: E402
 
@@ -64,14 +67,26 @@ LENSES = {"e1": "US-11906710-B2-e1", "e2": "US-12210142-B2-e2", "e9": "US-122101
           "e11": "US-11933948-B2-e11"}
 
 
+def full_size(path) -> tuple[int, int]:
+    """``(width, height)`` of the sensor a prescription names, pixels."""
+    from calibration.optics.io import read_lens
+
+    s = read_lens(path).sensor
+    return int(s.width_px), int(s.height_px)
+
+
 def main(argv=None) -> dict:
     ap = _harness.parser(__doc__)
     ap.add_argument("--lenses", nargs="+", default=list(LENSES), choices=list(LENSES))
     ap.add_argument("--seed", type=int, default=5, help="the device of each lens (isp calib simulate --seed)")
     ap.add_argument("--size", type=int, nargs=2, default=[2000, 1500], metavar=("W", "H"))
+    ap.add_argument("--full-size", action="store_true", help="each lens at its own sensor's size instead of --size")
     ap.add_argument("--exposure", type=float, default=0.8, help="chart white level (isp calib simulate's default)")
     ap.add_argument("--method", default=DEFAULT_METHOD, choices=("accurate", "iso"))
     ap.add_argument("--window-um", type=float, help="the model's PSF window, µm (default the fitter's)")
+    ap.add_argument("--psf-map-window", action="store_true",
+                    help="the model's PSF window the PSF map's default on the capture's sensor, as the loop's base "
+                         "takes it (calibration.loop.base.psf_map_window_um)")
     ap.add_argument("--wavelengths", type=int, help="the model's Gauss nodes per channel (default the fitter's)")
     ap.add_argument("--noise-realisations", type=int, help="noisy renders per edge of the bias (default the fitter's)")
     ap.add_argument("--label", default="fitter", help="the model's name in the results (default fitter)")
@@ -88,8 +103,12 @@ def main(argv=None) -> dict:
         model = dataclasses.replace(model, n_wavelengths=args.wavelengths)
     if args.noise_realisations:
         model = dataclasses.replace(model, noise_realisations=args.noise_realisations)
-    settings = {"seed": args.seed, "size": list(args.size), "exposure": args.exposure, "method": args.method,
-                "model": {"window_um": model.window_um, "pupil_samples": model.pupil_samples,
+    if args.psf_map_window and args.window_um:
+        ap.error("--window-um and --psf-map-window are exclusive")
+    settings = {"seed": args.seed, "size": "full" if args.full_size else list(args.size), "exposure": args.exposure,
+                "method": args.method,
+                "model": {"window_um": "psf_map" if args.psf_map_window else model.window_um,
+                          "pupil_samples": "grown with the window" if args.psf_map_window else model.pupil_samples,
                           "n_wavelengths": model.n_wavelengths, "noise_realisations": model.noise_realisations}}
     path = _harness.results_dir(args) / "forward_fidelity.json"
     models = json.loads(path.read_text()).get("results", {}).get("models", {}) if path.is_file() else {}
@@ -101,10 +120,14 @@ def main(argv=None) -> dict:
             continue
         t0 = time.perf_counter()
         log(f"{name}: capturing the device twice ...")
-        device, what, nominal, obs = capture_pair(PHONE / f"{LENSES[name]}.zmx", args.seed, args.size,
+        lens_path = PHONE / f"{LENSES[name]}.zmx"
+        size = full_size(lens_path) if args.full_size else args.size
+        device, what, nominal, obs = capture_pair(lens_path, args.seed, size,
                                                   args.exposure, [args.method], log)
+        used = model.with_window(psf_map_window_um(nominal.sensor)) if args.psf_map_window else model
         with pool_executor(2) as ex:
-            rec = fidelity(nominal, obs[args.method], device, ex, model)
+            rec = fidelity(nominal, obs[args.method], device, ex, used)
+        rec["window_um"], rec["pupil_samples"], rec["size"] = round(used.window_um, 2), used.pupil_samples, list(size)
         rec.update(lens=LENSES[name], device=what, seconds=round(time.perf_counter() - t0, 1))
         done[name] = rec
         odd = rec.get("odd", {})

@@ -288,7 +288,10 @@ def run_case(case: dict, log) -> dict:
 
 def summarise(cases: list[dict]) -> dict:
     """Per effect: put in and named; false additions per effect; clean
-    devices given an effect; the after/floor ratios and wall seconds."""
+    devices given an effect; the effects the loop kept, and how many of
+    them were put in (the precision its confidence must be calibrated
+    against: every kept effect, and those kept at ``z`` ≥ 3, where the
+    record holds it); the after/floor ratios and wall seconds."""
     per = {e: {"put_in": 0, "named": 0} for e in RANGES}
     outside = {e: {"put_in": 0, "nothing_added": 0} for e in OUTSIDE_RANGES}
     false = {}
@@ -302,11 +305,15 @@ def summarise(cases: list[dict]) -> dict:
             per[e]["named"] += e in c["right"]
         for e in c["false"]:
             false[e] = false.get(e, 0) + 1
+    kept = [(e in c["effects"], c.get("confidence", {}).get(e, {}).get("z")) for c in cases for e in c["effects_added"]]
+    sure = [right for right, z in kept if z is not None and z >= 3.0]
     clean = [c for c in cases if not c["effects"]]
     ratio = [c["after_over_floor"] for c in cases]
     return {"cases": len(cases), "per_effect": per, "outside_registry": outside, "false_additions": false,
             "clean_cases": len(clean), "clean_given_an_effect": sum(bool(c["effects_added"]) for c in clean),
             "all_right": sum(not c["missed"] and not c["false"] for c in cases),
+            "kept": {"effects": len(kept), "put_in": sum(right for right, _ in kept),
+                     "at_z3": len(sure), "at_z3_put_in": sum(sure)},
             "with_sensor_surface": sum(c.get("sensor_surface") is not None for c in cases),
             "after_over_floor_median": round(float(np.median(ratio)), 3) if ratio else None,
             "after_over_floor_max": round(float(np.max(ratio)), 3) if ratio else None,

@@ -215,11 +215,26 @@ class ParametricBase:
         return np.zeros((len(self.obs), len(ODD_BANDS)))
 
 
-#: the lens base's PSF window, µm: the simulator's. A 32 µm window (the
-#: fitter's default) drops the PSF's outer light, which the SFR's lowest band
-#: loses: on e9's device the true lens through the model read 1.17 of the
-#: noise floor with it, 1.10 at 45 µm (docs/results/loop.md)
-LOOP_WINDOW_UM = 45.0
+def psf_map_window_um(sensor) -> float:
+    """The PSF window, µm, that a PSF map takes by default on ``sensor``
+    (:func:`calibration.optics.psf.map.default_psf_n` samples at half its
+    pixel pitch; the window `isp calib simulate` renders with): 32 µm, but
+    at least 32 samples where those stay within 48 µm, so 45 µm on 2.8 µm
+    pixels and 32 µm on 1 µm ones. The lens base's model takes it: the light
+    a narrower window drops, or a wider one keeps that the capture's PSF did
+    not have, shows in the SFR's lowest band. On e9's 2000 × 1500 device the
+    true lens through the model read 1.80 of the noise there with a 34 µm
+    window and 1.10 with this one; on e1's full-size device, 2.06 with 45 µm
+    and 1.12 with this one (docs/results/loop.md).
+
+    >>> from types import SimpleNamespace
+    >>> psf_map_window_um(SimpleNamespace(pixel_pitch_um=2.8)), psf_map_window_um(SimpleNamespace(pixel_pitch_um=1.0))
+    (44.8, 32.0)
+    """
+    from calibration.optics.psf.map import default_psf_n
+
+    pitch = 0.5 * float(sensor.pixel_pitch_um)
+    return default_psf_n(pitch) * pitch
 
 
 #: the kinds of perturbation :class:`LensBase` fits by default, focus among them
@@ -268,7 +283,7 @@ class LensBase:
         from calibration.fit.proxy import default_names, focus_name, parameter_bounds, parameter_space, screen_parameters
         from calibration.fit.forward_model import ModelSettings, SfrModel
 
-        self.model = SfrModel(nominal, obs, settings or ModelSettings().with_window(LOOP_WINDOW_UM))
+        self.model = SfrModel(nominal, obs, settings or ModelSettings().with_window(psf_map_window_um(obs.sensor)))
         self.obs = obs
         self.nominal = nominal
         names = default_names(nominal, tuple(kinds)) if names is None else list(names)

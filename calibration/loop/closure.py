@@ -232,12 +232,14 @@ def _folds(obs, k: int, seed: int = 0) -> np.ndarray:
     return np.array([fold_of[v] for v in keys])
 
 
-def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None, pool=None, refresh=1):
+def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None, pool=None, refresh=1, jac0=None):
     """DLS on the ``free`` parameters (bool mask), others held. ``pool``:
     an executor bound by :func:`_bind_problem` (every parameter free, no
     mask): the line search's trial points on its workers, the Jacobian's
     columns by the cheaper model there, a finite-difference Jacobian
-    every ``refresh`` accepted steps (Broyden updates between)."""
+    every ``refresh`` accepted steps (Broyden updates between). ``jac0``:
+    a first Jacobian of the free parameters, scaled (:func:`_cheap_columns`),
+    taken as a secant one (:func:`calibration.fit.dls.damped_least_squares`)."""
     if pool is not None and mask is not None:
         raise ValueError("a pool's workers fit every observation: no mask")
     p0 = np.asarray(p0, float)
@@ -260,7 +262,7 @@ def _fit(prob: _Problem, p0, lower, upper, free, mask=None, max_iter=10, h=None,
                            trials=1 if pool is None else pool.workers,
                            jacobian="auto" if pool is None else "forward")
     res = damped_least_squares(fun, p0[idx] / scale, lower=lower[idx] / scale, upper=upper[idx] / scale,
-                               settings=settings, fun_many=many, jac_many=cheap)
+                               settings=settings, fun_many=many, jac_many=cheap, jac0=jac0)
     return full(res.x), res
 
 
@@ -300,7 +302,7 @@ def _worker_residuals(which: str, p) -> np.ndarray:
 POOLED_ITER_FACTOR = 2
 
 
-def _joint_fit(prob: _Problem, p, lower, upper, max_iter: int, ex):
+def _joint_fit(prob: _Problem, p, lower, upper, max_iter: int, ex, known=None):
     """Every parameter refitted together (after an effect is kept). A lens
     base's 80–92 parameters make this the loop's longest step: serial,
     full-model Jacobians at every step took ~35 min on a 2-core machine
@@ -308,15 +310,48 @@ def _joint_fit(prob: _Problem, p, lower, upper, max_iter: int, ex):
     the cheaper model on the executor's workers every
     :data:`calibration.fit.proxy.REFRESH` steps, as the fitter's, for
     :data:`POOLED_ITER_FACTOR` × ``max_iter`` iterations, each step still
-    accepted on the full model."""
+    accepted on the full model. ``known``: the first Jacobian's leading
+    columns, already in hand (:func:`_cheap_columns` at ``p``, or at the
+    base's part of it); the rest are computed on the workers and the fit
+    starts from them instead of a Jacobian of its own (only where the
+    workers are)."""
     from calibration.fit.proxy import REFRESH
 
     pool = _bind_problem(prob, ex)
     if pool is None:
         return _fit(prob, p, lower, upper, np.ones(len(p), bool), max_iter=max_iter)
     with pool:
+        jac0 = None
+        if known is not None:
+            rest = np.arange(known.shape[1], len(p))
+            jac0 = np.hstack([known, _cheap_columns(prob, p, lower, upper, pool, rest)]) if rest.size else known
         return _fit(prob, p, lower, upper, np.ones(len(p), bool), max_iter=POOLED_ITER_FACTOR * max_iter,
-                    pool=pool, refresh=REFRESH)
+                    pool=pool, refresh=REFRESH, jac0=jac0)
+
+
+def _cheap_columns(prob: _Problem, p, lower, upper, pool, cols) -> np.ndarray:
+    """(M, len(cols)) forward-difference columns ``cols`` of the scaled
+    Jacobian of ``prob``'s residuals at ``p``, by the cheaper model on
+    ``pool`` (:func:`_bind_problem`): the columns :func:`_fit`'s first
+    Jacobian has there (its step, 0.5 of each parameter's scale, and its
+    bounds)."""
+    from calibration.fit.dls import forward_jacobian
+
+    scale = prob_scale(prob)
+    q = np.asarray(p, float) / scale
+    cols = np.asarray(cols, int)
+
+    def cheap(points):
+        full = []
+        for sub in points:
+            x = q.copy()
+            x[cols] = sub
+            full.append(x * scale)
+        return [np.asarray(v, float) for v in pool.map(functools.partial(_worker_residuals, "cheap"), full)]
+
+    f0 = cheap([q[cols]])[0]
+    return forward_jacobian(cheap, q[cols], f0, 0.5, (np.asarray(lower, float) / scale)[cols],
+                            (np.asarray(upper, float) / scale)[cols])
 
 
 def prob_scale(prob: _Problem) -> np.ndarray:
@@ -453,15 +488,18 @@ def close_loop(base, obs, *, effects=None, folds: int = 3, min_gain: float = 0.1
                 break
             e = found
             say(f"loop: adding {e.name} (χ² −{joint_gain:.0%} refitted with the base)")
+            # the confirmation's refit was the first CONFIRM_ITER iterations of this one
+            n_refit = max(base_iter - CONFIRM_ITER, 1)
         else:
             gain, e, xs = best
             say(f"loop: adding {e.name} (held-out χ² −{gain:.0%})")
             p = np.concatenate([p, xs])
+            n_refit = base_iter
         prob.effects.append(e)
         kept.append(e.name)
         lower = np.concatenate([lower, e.lower])
         upper = np.concatenate([upper, e.upper])
-        p, _ = _joint_fit(prob, p, lower, upper, base_iter, ex)
+        p, _ = _joint_fit(prob, p, lower, upper, n_refit, ex)
         timed("refits", t)
     if bar is not None:
         bar.close()
@@ -607,7 +645,10 @@ def _confirm(prob: _Problem, p, lower, upper, ranked, min_gain: float, ex) -> tu
     def chi2(problem, q):
         return float(np.mean(problem.residuals(problem.predict(q)) ** 2))
 
-    alone, _ = _joint_fit(prob, p, lower, upper, CONFIRM_ITER, ex)
+    # every refit starts at p: the base's columns of their first Jacobian are computed once for all
+    # of them (each candidate's own columns on its refit's workers), not once per refit
+    known = _base_columns(prob, p, lower, upper, ex)
+    alone, _ = _joint_fit(prob, p, lower, upper, CONFIRM_ITER, ex, known=known)
     chi0, chi_p = chi2(prob, alone), chi2(prob, p)
     if chi0 > chi_p:
         alone, chi0 = p, chi_p
@@ -616,13 +657,24 @@ def _confirm(prob: _Problem, p, lower, upper, ranked, min_gain: float, ex) -> tu
         trial = copy.copy(prob)
         trial.effects = prob.effects + [e]
         q, _ = _joint_fit(trial, np.concatenate([p, xs]), np.concatenate([lower, e.lower]),
-                          np.concatenate([upper, e.upper]), CONFIRM_ITER, ex)
+                          np.concatenate([upper, e.upper]), CONFIRM_ITER, ex, known=known)
         chi = chi2(trial, q)
         rec["joint_gain"], rec["joint_chi2"] = 1.0 - chi / chi0, chi
         rec["joint_values"] = dict(zip(e.names, map(float, q[len(p):])))
         if rec["joint_gain"] >= min_gain and chi <= CONFIRM_MAX_CHI2 and (best is None or rec["joint_gain"] > best[0]):
             best = (rec["joint_gain"], e, q)
     return (None, alone, None) if best is None else (best[1], best[2], best[0])
+
+
+def _base_columns(prob: _Problem, p, lower, upper, ex) -> np.ndarray | None:
+    """The first Jacobian of ``prob`` at ``p``, every column
+    (:func:`_cheap_columns` on workers bound to it); None where
+    :func:`_bind_problem` binds none."""
+    pool = _bind_problem(prob, ex)
+    if pool is None:
+        return None
+    with pool:
+        return _cheap_columns(prob, p, lower, upper, pool, np.arange(len(p)))
 
 
 def effect_terms(base, effects) -> tuple:

@@ -37,6 +37,21 @@ def test_summary_counts_what_was_named():
     assert s["per_effect"]["pixel_crosstalk"] == {"put_in": 1, "named": 0}
     assert s["false_additions"] == {"focus_shift": 1, "veiling_glare": 1}
     assert s["clean_cases"] == 2 and s["clean_given_an_effect"] == 1 and s["all_right"] == 2
+    assert s["kept"] == {"effects": 4, "put_in": 2, "at_z3": 0, "at_z3_put_in": 0}
+
+
+def test_the_kept_effects_are_counted_with_their_confidence():
+    """Of the effects the loop kept, how many were put in, overall and at
+    z ≥ 3 (records without z count only overall)."""
+    def case(put, added, z):
+        return {"effects": {e: {} for e in put}, "effects_added": added,
+                "confidence": {e: {"z": v} for e, v in zip(added, z) if v is not None},
+                "right": [], "missed": [], "false": [], "after_over_floor": 1.0, "wall_s": 1.0}
+
+    s = loop_suite.summarise([case(["sharpening"], ["sharpening", "veiling_glare"], [5.0, 3.5]),
+                              case(["pixel_crosstalk"], ["pixel_crosstalk"], [2.0]),
+                              case([], ["motion_blur"], [None])])
+    assert s["kept"] == {"effects": 4, "put_in": 2, "at_z3": 2, "at_z3_put_in": 1}
 
 
 def test_a_focus_shift_is_judged_by_the_defocus_the_loop_reports():

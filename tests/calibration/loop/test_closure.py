@@ -318,14 +318,22 @@ def test_field_curvature_on_a_perturbed_phone_lens(e9_lens):
                                              abs=0.25), name
 
 
-def _confirmed(ops):
+class _Twinned(ParametricBase):
+    """A parametric base that is its own cheaper model: the loop's refits
+    then run as on a lens base, their Jacobian columns on the workers."""
+
+    def with_settings(self, settings):
+        return self
+
+
+def _confirmed(ops, ex=None, base_type=ParametricBase):
     """:func:`_confirm` on a parametric base fitted first without effects (its
     blur takes up what it can), candidates crosstalk then sharpening."""
     from calibration.loop import closure as loop
     from calibration.loop.effects import create_effect
 
     obs = synthetic_observations(StandInDevice(), noise=0.003, image_ops=ops, rng=1, channels=("G",))
-    base = ParametricBase(obs, f_number=2.0)
+    base = base_type(obs, f_number=2.0)
     a0, c0, sd0 = base.measurement_bias(base.x0)
     prob = loop._Problem(base, obs, a0, c0, loop._sigma_law(obs, sd0))
     lo, hi = np.asarray(base.lower, float), np.asarray(base.upper, float)
@@ -336,7 +344,7 @@ def _confirmed(ops):
     for n in ("pixel_crosstalk", "sharpening"):      # each from its held-out fit, the base held, as the loop has it
         e = create_effect(n)
         ranked.append(({"effect": n}, e, loop._cv_gain(prob, p, e, fold, 3)[3]))
-    found, q, gain = loop._confirm(prob, p, lo, hi, ranked, 0.10, pool_executor(None))
+    found, q, gain = loop._confirm(prob, p, lo, hi, ranked, 0.10, pool_executor(None) if ex is None else ex)
     recs = [r for r, _, _ in ranked]
     assert gain == (None if found is None else next(r["joint_gain"] for r in recs if r["effect"] == found.name))
     return found, q, recs, chi_base
@@ -357,6 +365,44 @@ def test_a_confirmation_refit_names_what_the_base_took_up():
     found, q, recs, _ = _confirmed(())
     assert found is None and len(q) == 1
     assert all(r["joint_gain"] < 0.10 for r in recs)
+
+
+def test_the_confirmation_refits_start_from_one_first_jacobian():
+    """On workers, the confirmation's three refits start from the base's
+    first-Jacobian columns computed once: they are the forward differences
+    of the residuals at the start, column by column (a subset is the same
+    columns), and the refits name the crosstalk the base took up, at the
+    leak put in, as the refits that compute their own do."""
+    from calibration.fit.dls import forward_jacobian
+    from calibration.loop import closure as loop
+    from isp.runtime.executor import create_executor
+
+    obs = synthetic_observations(StandInDevice(), noise=0.003, image_ops=(crosstalk(0.08),), rng=1, channels=("G",))
+    base = _Twinned(obs, f_number=2.0)
+    a0, c0, sd0 = base.measurement_bias(base.x0)
+    prob = loop._Problem(base, obs, a0, c0, loop._sigma_law(obs, sd0))
+    prob.effects = [loop.create_effect("sharpening")]
+    p = np.concatenate([base.x0, [0.3, 1.0]])
+    lo = np.concatenate([base.lower, prob.effects[0].lower])
+    hi = np.concatenate([base.upper, prob.effects[0].upper])
+    scale = loop.prob_scale(prob)
+
+    def residuals(points):
+        return [prob.residuals(prob.predict(q * scale)) for q in points]
+
+    q = p / scale
+    want = forward_jacobian(residuals, q, residuals([q])[0], 0.5, lo / scale, hi / scale)
+    with create_executor("threads", workers=2) as ex:
+        got = loop._base_columns(prob, p, lo, hi, ex)
+        with loop._bind_problem(prob, ex) as pool:
+            part = loop._cheap_columns(prob, p, lo, hi, pool, [2, 0])
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(part, want[:, [2, 0]], rtol=1e-12, atol=0)
+        found, q, recs, chi_base = _confirmed((crosstalk(0.08),), ex, _Twinned)
+    assert chi_base > 1.5 ** 2
+    assert found is not None and found.name == "pixel_crosstalk"
+    assert q[-1] == pytest.approx(0.08, abs=0.02)
+    assert recs[0]["joint_gain"] > 0.5 and recs[1]["joint_gain"] < 0.10
 
 
 def test_the_loop_keeps_what_the_confirmation_names(monkeypatch):
