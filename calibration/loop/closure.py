@@ -645,8 +645,8 @@ def _confirm(prob: _Problem, p, lower, upper, ranked, min_gain: float, ex) -> tu
     def chi2(problem, q):
         return float(np.mean(problem.residuals(problem.predict(q)) ** 2))
 
-    # every refit starts at p: the base's columns of their first Jacobian are computed once for all
-    # of them (each candidate's own columns on its refit's workers), not once per refit
+    # every refit starts at p: the columns of p's parameters in their first Jacobian are computed
+    # once for all of them (each candidate's own columns on its refit's workers), not once per refit
     known = _base_columns(prob, p, lower, upper, ex)
     alone, _ = _joint_fit(prob, p, lower, upper, CONFIRM_ITER, ex, known=known)
     chi0, chi_p = chi2(prob, alone), chi2(prob, p)
@@ -667,9 +667,9 @@ def _confirm(prob: _Problem, p, lower, upper, ranked, min_gain: float, ex) -> tu
 
 
 def _base_columns(prob: _Problem, p, lower, upper, ex) -> np.ndarray | None:
-    """The first Jacobian of ``prob`` at ``p``, every column
-    (:func:`_cheap_columns` on workers bound to it); None where
-    :func:`_bind_problem` binds none."""
+    """The first Jacobian of ``prob`` at ``p``, every column (the base's and
+    any kept effect's; :func:`_cheap_columns` on workers bound to it); None
+    where :func:`_bind_problem` binds none."""
     pool = _bind_problem(prob, ex)
     if pool is None:
         return None
