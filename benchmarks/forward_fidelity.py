@@ -88,6 +88,8 @@ def main(argv=None) -> dict:
                     help="the model's PSF window the PSF map's default on the capture's sensor, as the loop's base "
                          "takes it (calibration.loop.base.psf_map_window_um)")
     ap.add_argument("--wavelengths", type=int, help="the model's Gauss nodes per channel (default the fitter's)")
+    ap.add_argument("--pupil-samples", type=int,
+                    help="the model's pupil grid (default the fitter's, grown with a wider window)")
     ap.add_argument("--noise-realisations", type=int, help="noisy renders per edge of the bias (default the fitter's)")
     ap.add_argument("--label", default="fitter", help="the model's name in the results (default fitter)")
     ap.add_argument("--redo", action="store_true", help="measure the lenses again even where recorded")
@@ -103,12 +105,14 @@ def main(argv=None) -> dict:
         model = dataclasses.replace(model, n_wavelengths=args.wavelengths)
     if args.noise_realisations:
         model = dataclasses.replace(model, noise_realisations=args.noise_realisations)
+    if args.pupil_samples:
+        model = dataclasses.replace(model, pupil_samples=args.pupil_samples)
     if args.psf_map_window and args.window_um:
         ap.error("--window-um and --psf-map-window are exclusive")
     settings = {"seed": args.seed, "size": "full" if args.full_size else list(args.size), "exposure": args.exposure,
                 "method": args.method,
                 "model": {"window_um": "psf_map" if args.psf_map_window else model.window_um,
-                          "pupil_samples": "grown with the window" if args.psf_map_window else model.pupil_samples,
+                          "pupil_samples": model.pupil_samples,   # grown with a wider window (each lens's record)
                           "n_wavelengths": model.n_wavelengths, "noise_realisations": model.noise_realisations}}
     path = _harness.results_dir(args) / "forward_fidelity.json"
     models = json.loads(path.read_text()).get("results", {}).get("models", {}) if path.is_file() else {}
