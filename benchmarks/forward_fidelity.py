@@ -23,11 +23,12 @@ captures over √2 on the edges both hold:
 
 A model that matched the simulator exactly would score 1 on each; the gap
 is the model's own error, the floor under any fit and under every effect the
-loop tries to detect. ``--window-um`` (or ``--psf-map-window``, the
-loop's base's), ``--wavelengths`` and
-``--noise-realisations`` set the model's PSF window, Gauss nodes per channel
-and the noisy renders of its bias (default: the fitter's), so that what each
-difference from the simulator costs can be measured.
+loop tries to detect. ``--window-um``, ``--pupil-samples``, ``--wavelengths``
+(or ``--psf-map``, the three as the capture's PSF map has them: the loop's
+base) and ``--noise-realisations`` set the model's PSF window, pupil grid,
+Gauss nodes per channel and the noisy renders of its bias (default: the
+fitter's), so that what each difference from the simulator costs can be
+measured.
 
 Results are kept per model (``--label``, default "fitter") and lens in
 ``benchmarks/results/forward_fidelity.json``; a lens measured with the same
@@ -39,7 +40,7 @@ Prints one JSON object as the last line. Usage::
 
     python -m benchmarks.forward_fidelity [--lenses e1 e2 e9 e11] [--seed 5] [--size 2000 1500]
     python -m benchmarks.forward_fidelity --label simulator_psf --window-um 45 --wavelengths 3
-    python -m benchmarks.forward_fidelity --label loop --psf-map-window
+    python -m benchmarks.forward_fidelity --label loop --psf-map [--full-size]
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ import time  # noqa: E402
 
 from benchmarks.capture_roundtrip import capture_pair, fidelity  # noqa: E402
 from calibration.fit.forward_model import ModelSettings  # noqa: E402
-from calibration.loop.base import psf_map_window_um  # noqa: E402
+from calibration.loop.base import psf_map_model  # noqa: E402
 from calibration.sfr.esfr import DEFAULT_METHOD  # noqa: E402
 from isp.runtime.executor import pool_executor  # noqa: E402
 
@@ -84,9 +85,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--exposure", type=float, default=0.8, help="chart white level (isp calib simulate's default)")
     ap.add_argument("--method", default=DEFAULT_METHOD, choices=("accurate", "iso"))
     ap.add_argument("--window-um", type=float, help="the model's PSF window, µm (default the fitter's)")
-    ap.add_argument("--psf-map-window", action="store_true",
-                    help="the model's PSF window the PSF map's default on the capture's sensor, as the loop's base "
-                         "takes it (calibration.loop.base.psf_map_window_um)")
+    ap.add_argument("--psf-map", action="store_true",
+                    help="the model sampling the PSF as the capture's PSF map does (window, pupil grid, "
+                         "wavelengths), as the loop's base does (calibration.loop.base.psf_map_model)")
     ap.add_argument("--wavelengths", type=int, help="the model's Gauss nodes per channel (default the fitter's)")
     ap.add_argument("--pupil-samples", type=int,
                     help="the model's pupil grid (default the fitter's, grown with a wider window)")
@@ -107,13 +108,14 @@ def main(argv=None) -> dict:
         model = dataclasses.replace(model, noise_realisations=args.noise_realisations)
     if args.pupil_samples:
         model = dataclasses.replace(model, pupil_samples=args.pupil_samples)
-    if args.psf_map_window and args.window_um:
-        ap.error("--window-um and --psf-map-window are exclusive")
+    if args.psf_map and (args.window_um or args.wavelengths or args.pupil_samples):
+        ap.error("--psf-map sets the window, the wavelengths and the pupil grid")
     settings = {"seed": args.seed, "size": "full" if args.full_size else list(args.size), "exposure": args.exposure,
                 "method": args.method,
-                "model": {"window_um": "psf_map" if args.psf_map_window else model.window_um,
-                          "pupil_samples": model.pupil_samples,   # grown with a wider window (each lens's record)
-                          "n_wavelengths": model.n_wavelengths, "noise_realisations": model.noise_realisations}}
+                "model": {"noise_realisations": model.noise_realisations, **(
+                    {"psf_map": True} if args.psf_map else
+                    {"window_um": model.window_um, "pupil_samples": model.pupil_samples,
+                     "n_wavelengths": model.n_wavelengths})}}
     path = _harness.results_dir(args) / "forward_fidelity.json"
     models = json.loads(path.read_text()).get("results", {}).get("models", {}) if path.is_file() else {}
     mine = models.get(args.label, {})
@@ -128,10 +130,12 @@ def main(argv=None) -> dict:
         size = full_size(lens_path) if args.full_size else args.size
         device, what, nominal, obs = capture_pair(lens_path, args.seed, size,
                                                   args.exposure, [args.method], log)
-        used = model.with_window(psf_map_window_um(nominal.sensor)) if args.psf_map_window else model
+        used = (dataclasses.replace(psf_map_model(nominal.sensor), noise_realisations=model.noise_realisations)
+                if args.psf_map else model)
         with pool_executor(2) as ex:
             rec = fidelity(nominal, obs[args.method], device, ex, used)
-        rec["window_um"], rec["pupil_samples"], rec["size"] = round(used.window_um, 2), used.pupil_samples, list(size)
+        rec.update(window_um=round(used.window_um, 2), pupil_samples=used.pupil_samples,
+                   n_wavelengths=used.n_wavelengths, size=list(size))
         rec.update(lens=LENSES[name], device=what, seconds=round(time.perf_counter() - t0, 1))
         done[name] = rec
         odd = rec.get("odd", {})

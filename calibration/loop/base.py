@@ -218,14 +218,8 @@ class ParametricBase:
 def psf_map_window_um(sensor) -> float:
     """The PSF window, µm, that a PSF map takes by default on ``sensor``
     (:func:`calibration.optics.psf.map.default_psf_n` samples at half its
-    pixel pitch; the window `isp calib simulate` renders with): 32 µm, but
-    at least 32 samples where those stay within 48 µm, so 45 µm on 2.8 µm
-    pixels and 32 µm on 1 µm ones. The lens base's model takes it: the light
-    a narrower window drops, or a wider one keeps that the capture's PSF did
-    not have, shows in the SFR's lowest band. On e9's 2000 × 1500 device the
-    true lens through the model read 1.80 of the noise there with a 34 µm
-    window and 1.10 with this one; on e1's full-size device, 2.06 with 45 µm
-    and 1.12 with this one (docs/results/loop.md).
+    pixel pitch): 32 µm, but at least 32 samples where those stay within
+    48 µm, so 44.8 µm on 2.8 µm pixels and 32 µm on 1 µm ones.
 
     >>> from types import SimpleNamespace
     >>> psf_map_window_um(SimpleNamespace(pixel_pitch_um=2.8)), psf_map_window_um(SimpleNamespace(pixel_pitch_um=1.0))
@@ -235,6 +229,36 @@ def psf_map_window_um(sensor) -> float:
 
     pitch = 0.5 * float(sensor.pixel_pitch_um)
     return default_psf_n(pitch) * pitch
+
+
+def psf_map_model(sensor):
+    """The forward model's settings (:class:`calibration.fit.forward_model.ModelSettings`)
+    that sample the PSF as a PSF map does by default on ``sensor``, the map
+    `isp calib simulate` renders a capture with: its window
+    (:func:`psf_map_window_um`), its pupil grid and its wavelengths per
+    channel (:class:`calibration.optics.psf.map.PSFMapSettings`). The lens
+    base takes them. Each difference shows on a device's true lens through
+    the model, against the noise of two captures (docs/results/loop.md): a
+    window narrower than the capture's drops light the SFR's lowest band
+    loses, a wider one keeps light the capture did not have (e9 at 2000 ×
+    1500, 34 µm: 1.80 of the noise there; e1 at full size, 45 µm: 2.06);
+    a coarser pupil grid misplaces the PSF's outer light (e2 at full size,
+    48 samples: 1.38 in that band, 64: 1.13); two wavelengths per channel
+    instead of three miss some of its colour blur (the same device's SFRA:
+    1.25 against 1.08).
+
+    >>> from types import SimpleNamespace
+    >>> m = psf_map_model(SimpleNamespace(pixel_pitch_um=1.0))
+    >>> m.window_um, m.pupil_samples, m.n_wavelengths
+    (32.0, 64, 3)
+    """
+    from calibration.fit.forward_model import ModelSettings
+    from calibration.optics.psf.map import PSFMapSettings
+    from calibration.optics.psf.spectral import DEFAULT_WAVELENGTHS_PER_CHANNEL
+
+    m = PSFMapSettings()
+    return ModelSettings(window_um=psf_map_window_um(sensor), pupil_samples=m.pupil_samples,
+                         n_wavelengths=m.n_wavelengths or DEFAULT_WAVELENGTHS_PER_CHANNEL)
 
 
 #: the kinds of perturbation :class:`LensBase` fits by default, focus among them
@@ -281,9 +305,9 @@ class LensBase:
                  kinds=BASE_KINDS):
         from calibration.optics.perturb import nominal as as_perturbed
         from calibration.fit.proxy import default_names, focus_name, parameter_bounds, parameter_space, screen_parameters
-        from calibration.fit.forward_model import ModelSettings, SfrModel
+        from calibration.fit.forward_model import SfrModel
 
-        self.model = SfrModel(nominal, obs, settings or ModelSettings().with_window(psf_map_window_um(obs.sensor)))
+        self.model = SfrModel(nominal, obs, settings or psf_map_model(obs.sensor))
         self.obs = obs
         self.nominal = nominal
         names = default_names(nominal, tuple(kinds)) if names is None else list(names)
