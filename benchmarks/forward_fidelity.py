@@ -24,8 +24,7 @@ captures over √2 on the edges both hold:
 A model that matched the simulator exactly would score 1 on each; the gap
 is the model's own error, the floor under any fit and under every effect the
 loop tries to detect. ``--window-um``, ``--pupil-samples``, ``--wavelengths``
-(or ``--psf-map``, the three as the capture's PSF map has them: the loop's
-base) and ``--noise-realisations`` set the model's PSF window, pupil grid,
+(or ``--psf-map``, the three as the capture's PSF map has them) and ``--noise-realisations`` set the model's PSF window, pupil grid,
 Gauss nodes per channel and the noisy renders of its bias (default: the
 fitter's), so that what each difference from the simulator costs can be
 measured.
@@ -40,7 +39,7 @@ Prints one JSON object as the last line. Usage::
 
     python -m benchmarks.forward_fidelity [--lenses e1 e2 e9 e11] [--seed 5] [--size 2000 1500]
     python -m benchmarks.forward_fidelity --label simulator_psf --window-um 45 --wavelengths 3
-    python -m benchmarks.forward_fidelity --label loop --psf-map [--full-size]
+    python -m benchmarks.forward_fidelity --label psf_map --psf-map [--full-size]
 """
 
 from __future__ import annotations
@@ -87,7 +86,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--window-um", type=float, help="the model's PSF window, µm (default the fitter's)")
     ap.add_argument("--psf-map", action="store_true",
                     help="the model sampling the PSF as the capture's PSF map does (window, pupil grid, "
-                         "wavelengths), as the loop's base does (calibration.loop.base.psf_map_model)")
+                         "wavelengths; calibration.loop.base.psf_map_model)")
     ap.add_argument("--wavelengths", type=int, help="the model's Gauss nodes per channel (default the fitter's)")
     ap.add_argument("--pupil-samples", type=int,
                     help="the model's pupil grid (default the fitter's, grown with a wider window)")

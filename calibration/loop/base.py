@@ -236,16 +236,16 @@ def psf_map_model(sensor):
     that sample the PSF as a PSF map does by default on ``sensor``, the map
     `isp calib simulate` renders a capture with: its window
     (:func:`psf_map_window_um`), its pupil grid and its wavelengths per
-    channel (:class:`calibration.optics.psf.map.PSFMapSettings`). The lens
-    base takes them. Each difference shows on a device's true lens through
-    the model, against the noise of two captures (docs/results/loop.md): a
-    window narrower than the capture's drops light the SFR's lowest band
-    loses, a wider one keeps light the capture did not have (e9 at 2000 ×
-    1500, 34 µm: 1.80 of the noise there; e1 at full size, 45 µm: 2.06);
-    a coarser pupil grid misplaces the PSF's outer light (e2 at full size,
-    48 samples: 1.38 in that band, 64: 1.13); two wavelengths per channel
-    instead of three miss some of its colour blur (the same device's SFRA:
-    1.25 against 1.08).
+    channel (:class:`calibration.optics.psf.map.PSFMapSettings`). Through
+    them a simulated device's true lens reproduces its capture within the
+    noise of two captures at any pixel (docs/results/loop.md). Each
+    difference shows: a window narrower than the capture's drops light the
+    SFR's lowest band loses, a wider one keeps light the capture did not
+    have (e9 at 2000 × 1500, 34 µm: 1.80 of the noise there; e1 at full
+    size, 45 µm: 2.06); a coarser pupil grid misplaces the PSF's outer light
+    (e2 at full size, 48 samples: 1.38 in that band, 64: 1.13); two
+    wavelengths per channel instead of three miss some of its colour blur
+    (the same device's SFRA: 1.25 against 1.08).
 
     >>> from types import SimpleNamespace
     >>> m = psf_map_model(SimpleNamespace(pixel_pitch_um=1.0))
@@ -259,6 +259,41 @@ def psf_map_model(sensor):
     m = PSFMapSettings()
     return ModelSettings(window_um=psf_map_window_um(sensor), pupil_samples=m.pupil_samples,
                          n_wavelengths=m.n_wavelengths or DEFAULT_WAVELENGTHS_PER_CHANNEL)
+
+
+#: the lens base's least PSF window, µm. A real PSF's outer light reaches past
+#: the 32 µm a PSF map takes on fine pixels, and a model that drops it finds a
+#: glare that is not there: on a perturbed e9 whose device PSFs span 48 µm
+#: (``tests/calibration/loop/test_closure.py``, the field-curvature case) a
+#: 32 µm base added veiling glare beside the curvature, a 45 µm one did not
+BASE_MIN_WINDOW_UM = 45.0
+
+
+def base_model(sensor):
+    """The lens base's model settings on ``sensor``: :func:`psf_map_model`'s
+    wavelengths, and its window and pupil grid or :data:`BASE_MIN_WINDOW_UM`
+    with the pupil grid the fitter's model takes for it
+    (:meth:`~calibration.fit.forward_model.ModelSettings.with_window`),
+    whichever is the wider. On 2.8 µm pixels that is the PSF map's sampling
+    or within 0.2 µm of its window; on 1 µm pixels the map's 32 µm window
+    truncates the capture's PSF, which the base keeps to 45 µm
+    (docs/results/loop.md: there the simulator, not the model, is the
+    narrower).
+
+    >>> from types import SimpleNamespace
+    >>> m = base_model(SimpleNamespace(pixel_pitch_um=1.0))
+    >>> m.window_um, m.pupil_samples, m.n_wavelengths
+    (45.0, 68, 3)
+    """
+    import dataclasses
+
+    from calibration.fit.forward_model import ModelSettings
+
+    m = psf_map_model(sensor)
+    if m.window_um >= BASE_MIN_WINDOW_UM:
+        return m
+    wide = ModelSettings().with_window(BASE_MIN_WINDOW_UM)
+    return dataclasses.replace(m, window_um=wide.window_um, pupil_samples=max(m.pupil_samples, wide.pupil_samples))
 
 
 #: the kinds of perturbation :class:`LensBase` fits by default, focus among them
@@ -307,7 +342,7 @@ class LensBase:
         from calibration.fit.proxy import default_names, focus_name, parameter_bounds, parameter_space, screen_parameters
         from calibration.fit.forward_model import SfrModel
 
-        self.model = SfrModel(nominal, obs, settings or psf_map_model(obs.sensor))
+        self.model = SfrModel(nominal, obs, settings or base_model(obs.sensor))
         self.obs = obs
         self.nominal = nominal
         names = default_names(nominal, tuple(kinds)) if names is None else list(names)
