@@ -274,9 +274,9 @@ def base_model(sensor):
     wavelengths, and its window and pupil grid or :data:`BASE_MIN_WINDOW_UM`
     with the pupil grid the fitter's model takes for it
     (:meth:`~calibration.fit.forward_model.ModelSettings.with_window`),
-    whichever is the wider. On 2.8 µm pixels that is the PSF map's sampling
-    or within 0.2 µm of its window; on 1 µm pixels the map's 32 µm window
-    truncates the capture's PSF, which the base keeps to 45 µm
+    whichever is the wider. On 2.8 µm pixels the window is the map's to
+    within 0.2 µm; on 1 µm pixels the map's 32 µm window truncates the
+    capture's PSF, which the base keeps to 45 µm
     (docs/results/loop.md: there the simulator, not the model, is the
     narrower).
 
