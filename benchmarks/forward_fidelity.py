@@ -24,10 +24,10 @@ captures over √2 on the edges both hold:
 A model that matched the simulator exactly would score 1 on each; the gap
 is the model's own error, the floor under any fit and under every effect the
 loop tries to detect. ``--window-um``, ``--pupil-samples``, ``--wavelengths``
-(or ``--psf-map``, the three as the capture's PSF map has them) and ``--noise-realisations`` set the model's PSF window, pupil grid,
-Gauss nodes per channel and the noisy renders of its bias (default: the
-fitter's), so that what each difference from the simulator costs can be
-measured.
+(or ``--psf-map``, the three as the capture's PSF map has them) and
+``--noise-realisations`` set the model's PSF window, pupil grid, Gauss nodes
+per channel and the noisy renders of its bias (default: the fitter's), so
+that what each difference from the simulator costs can be measured.
 
 Results are kept per model (``--label``, default "fitter") and lens in
 ``benchmarks/results/forward_fidelity.json``; a lens measured with the same
@@ -134,8 +134,8 @@ def main(argv=None) -> dict:
         with pool_executor(2) as ex:
             rec = fidelity(nominal, obs[args.method], device, ex, used)
         rec.update(window_um=round(used.window_um, 2), pupil_samples=used.pupil_samples,
-                   n_wavelengths=used.n_wavelengths, size=list(size))
-        rec.update(lens=LENSES[name], device=what, seconds=round(time.perf_counter() - t0, 1))
+                   n_wavelengths=used.n_wavelengths, size=list(size), lens=LENSES[name], device=what,
+                   seconds=round(time.perf_counter() - t0, 1))
         done[name] = rec
         odd = rec.get("odd", {})
         log(f"{name}: SFRA ratio {rec['sfra']['ratio']:.2f} (residual {rec['sfra']['residual']:.4f}, noise "
